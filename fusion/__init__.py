@@ -1,0 +1,38 @@
+"""Attitude estimation from IMU data: Cython kernels behind one interface.
+
+    import fusion
+    est = fusion.make("ekf", fs=100.0)          # fusion.available() lists the names
+    q = est.run(gyr, acc, mag)                  # (N, 4) quaternions [w, x, y, z]
+
+Conventions (docs/estimators.md): Hamilton quaternions, scalar first, rotating body vectors
+into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI units.
+"""
+from fusion._core import Estimator
+from fusion._gyro import Gyro
+from fusion._mahony import Mahony
+from fusion._ekf import EKF
+
+__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF"]
+__version__ = "0.1.0"
+
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF)}
+
+
+def available():
+    """Names accepted by make(), in a stable order."""
+    return list(_REGISTRY)
+
+
+def make(name, fs, frame="ENU", on_invalid="raise", **params):
+    """Build the estimator called `name` for sample rate `fs` (Hz).
+
+    frame: "ENU" (default) or "NED", the navigation frame of quaternions in and out.
+    on_invalid: "raise" (a ValueError names the first non-finite or all-zero sample) or
+    "skip" (that measurement update is skipped and counted in est.skipped).
+    params: the estimator's own parameters, see type(est).PARAMS for names and defaults.
+    """
+    try:
+        cls = _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown estimator {name!r}; available: {', '.join(available())}") from None
+    return cls(fs, frame=frame, on_invalid=on_invalid, **params)

@@ -1,0 +1,302 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Estimator base class: the public interface shared by every kernel (docs/estimators.md)."""
+import numbers
+
+import numpy as np
+cimport numpy as cnp
+from libc.math cimport sqrt, atan2, asin, isfinite
+from libc.string cimport memcpy
+
+from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
+                            quat_normalise)
+
+cnp.import_array()
+
+# ENU -> NED: x_ned = y_enu, y_ned = x_enu, z_ned = -z_enu (180 deg about (1, 1, 0)/sqrt 2).
+cdef double SQRT_HALF = sqrt(0.5)
+cdef double C_NED[4]
+C_NED[:] = [0.0, SQRT_HALF, SQRT_HALF, 0.0]
+cdef double C_NED_CONJ[4]
+C_NED_CONJ[:] = [0.0, -SQRT_HALF, -SQRT_HALF, 0.0]
+
+FRAMES = ("ENU", "NED")
+ON_INVALID = ("raise", "skip")
+
+
+def check_positive(name, value, upper=None, allow_zero=False):
+    """Return value as float if it is a finite real number > 0 (>= 0 with allow_zero)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    v = float(value)
+    ok = np.isfinite(v) and (v >= 0.0 if allow_zero else v > 0.0) and (upper is None or v <= upper)
+    if not ok:
+        rng = f"{'>= 0' if allow_zero else '> 0'}" + (f" and <= {upper}" if upper is not None else "")
+        raise ValueError(f"{name} must be finite and {rng}, got {value!r}")
+    return v
+
+
+def _as_samples(x, name, int n=-1):
+    """An (N, 3) float64 C-contiguous copy-or-view of x, or a ValueError saying what is accepted."""
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"{name} must be a real numeric array (float or int), got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if n >= 0 and arr.shape[0] != n:
+        raise ValueError(f"{name} has {arr.shape[0]} samples but gyr has {n}; lengths must match")
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+cdef int _read_vec3(object v, str name, double* out) except -1:
+    """One 3-vector from a float64 array (fast path), or anything array-like of 3 numbers."""
+    cdef cnp.ndarray arr
+    cdef char* p
+    cdef Py_ssize_t st
+    if type(v) is np.ndarray:
+        arr = <cnp.ndarray>v
+        if cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_NDIM(arr) == 1 and cnp.PyArray_DIM(arr, 0) == 3:
+            p = <char*>cnp.PyArray_DATA(arr)
+            st = cnp.PyArray_STRIDE(arr, 0)
+            out[0] = (<double*>p)[0]
+            out[1] = (<double*>(p + st))[0]
+            out[2] = (<double*>(p + 2 * st))[0]
+            return 0
+    a = np.asarray(v)
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"{name} must be 3 real numbers, got dtype {a.dtype}")
+    if a.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {a.shape}")
+    out[0] = float(a[0])
+    out[1] = float(a[1])
+    out[2] = float(a[2])
+    return 0
+
+
+cdef class Estimator:
+    """Base of every attitude estimator. Use fusion.make(name, fs, ...) to build one."""
+
+    #: Parameter names and defaults of this estimator (subclasses fill it in).
+    PARAMS = {}
+    #: Registry name (subclasses fill it in).
+    name = None
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise"):
+        self.fs = check_positive("fs", fs)
+        self.dt_nominal = 1.0 / self.fs
+        if frame not in FRAMES:
+            raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
+        if on_invalid not in ON_INVALID:
+            raise ValueError(f"on_invalid must be one of {ON_INVALID}, got {on_invalid!r}")
+        self.ned = frame == "NED"
+        self.skip_invalid = on_invalid == "skip"
+
+    def _take_params(self, params):
+        """Defaults overridden by params; unknown names are a ValueError naming the accepted ones."""
+        unknown = sorted(set(params) - set(self.PARAMS))
+        if unknown:
+            accepted = ", ".join(sorted(self.PARAMS)) or "none"
+            raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for estimator "
+                             f"{self.name!r}; accepted: {accepted}")
+        merged = dict(self.PARAMS)
+        merged.update(params)
+        return merged
+
+    # --- kernel hooks -------------------------------------------------------------------
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        pass
+
+    cdef void _reset_state(self) noexcept nogil:
+        pass
+
+    cdef void _process(self, const double* gyr, const double* acc, const double* mag,
+                       double dt) noexcept nogil:
+        """Validate one sample (NULL = absent or invalid), initialise if needed, then step."""
+        cdef bint gyr_ok = vec3_finite(gyr)
+        cdef bint acc_ok = vec3_valid(acc)
+        cdef bint mag_ok = mag != NULL and vec3_valid(mag)
+        if not gyr_ok:
+            self.n_skip_gyr += 1
+        if not acc_ok:
+            self.n_skip_acc += 1
+        if mag != NULL and not mag_ok:
+            self.n_skip_mag += 1
+        if not self.is_init:
+            if not acc_ok:
+                return
+            quat_from_acc_mag(acc, mag if mag_ok else NULL, self.q)
+            self.is_init = True
+        self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
+                   mag if mag_ok else NULL, dt)
+
+    cdef void _output_q(self, double* out) noexcept nogil:
+        if self.ned:
+            quat_mul(C_NED, self.q, out)
+        else:
+            memcpy(out, self.q, 4 * sizeof(double))
+
+    # --- public interface ---------------------------------------------------------------
+    def reset(self, q0=None):
+        """Forget everything. q0 ([w, x, y, z] in the estimator's frame) fixes the start
+        attitude; without it the first valid accelerometer (+ magnetometer) sample sets it."""
+        cdef double qin[4]
+        if q0 is not None:
+            a = np.asarray(q0)
+            if a.dtype.kind not in "fiu" or a.shape != (4,):
+                raise ValueError(f"q0 must be 4 real numbers [w, x, y, z], got {q0!r}")
+            a = a.astype(np.float64)
+            n = float(np.sqrt(np.sum(a * a)))
+            if not np.isfinite(n) or n == 0.0:
+                raise ValueError(f"q0 must be finite and non-zero, got {q0!r}")
+            for i in range(4):
+                qin[i] = a[i] / n
+            if self.ned:
+                quat_mul(C_NED_CONJ, qin, self.q0)
+            else:
+                memcpy(self.q0, qin, 4 * sizeof(double))
+            self.has_q0 = True
+        else:
+            self.has_q0 = False
+            self.q0[:] = [1.0, 0.0, 0.0, 0.0]
+        memcpy(self.q, self.q0, 4 * sizeof(double))
+        self.is_init = self.has_q0
+        self.n_skip_gyr = 0
+        self.n_skip_acc = 0
+        self.n_skip_mag = 0
+        self._reset_state()
+
+
+    def update(self, gyr, acc, mag=None, dt=None):
+        """One sample: gyr (rad/s), acc (m/s^2), mag (any unit, or None for 6-axis), all body
+        frame, shape (3,); dt in s (default 1/fs). Returns the quaternion [w, x, y, z]."""
+        cdef double g[3]
+        cdef double a[3]
+        cdef double m[3]
+        cdef double h
+        cdef cnp.npy_intp four = 4
+        _read_vec3(gyr, "gyr", g)
+        _read_vec3(acc, "acc", a)
+        if mag is not None:
+            _read_vec3(mag, "mag", m)
+        h = self.dt_nominal if dt is None else check_positive("dt", dt)
+        if not self.skip_invalid:
+            if not vec3_finite(g):
+                raise ValueError(f"gyr must be finite, got {gyr!r} (on_invalid='skip' skips such samples)")
+            if not vec3_valid(a):
+                raise ValueError(f"acc must be finite and non-zero, got {acc!r} (on_invalid='skip' skips such samples)")
+            if mag is not None and not vec3_valid(m):
+                raise ValueError(f"mag must be finite and non-zero, got {mag!r} (on_invalid='skip' skips such samples)")
+        self._process(g, a, m if mag is not None else NULL, h)
+        out = cnp.PyArray_SimpleNew(1, &four, cnp.NPY_DOUBLE)
+        self._output_q(<double*>cnp.PyArray_DATA(out))
+        return out
+
+    def run(self, gyr, acc, mag=None, dt=None):
+        """A batch: gyr, acc, mag as (N, 3) arrays (mag None for 6-axis); dt None (1/fs), a
+        scalar, or an (N,) array of time steps in s for uneven time stamps. Returns (N, 4)
+        quaternions, the same numbers as N calls of update()."""
+        G = _as_samples(gyr, "gyr")
+        cdef Py_ssize_t n = G.shape[0]
+        A = _as_samples(acc, "acc", n)
+        M = None if mag is None else _as_samples(mag, "mag", n)
+        D = None
+        cdef double dt_const = self.dt_nominal
+        if dt is not None:
+            if np.ndim(dt) == 0:
+                dt_const = check_positive("dt", dt)
+            else:
+                D = np.asarray(dt)
+                if D.dtype.kind not in "fiu" or D.shape != (n,):
+                    raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), "
+                                     f"got dtype {D.dtype} shape {D.shape}")
+                D = np.ascontiguousarray(D, dtype=np.float64)
+                bad = np.flatnonzero(~(np.isfinite(D) & (D > 0)))
+                if bad.size:
+                    raise ValueError(f"dt must be finite and > 0; dt[{bad[0]}] = {D[bad[0]]!r}")
+        cdef const double[:, ::1] g = G
+        cdef const double[:, ::1] a = A
+        cdef const double[:, ::1] m = M if M is not None else np.empty((0, 3))
+        cdef const double[::1] d = D if D is not None else np.empty(0)
+        cdef bint has_mag = M is not None
+        cdef bint has_dt = D is not None
+        cdef Py_ssize_t i, bad_g = -1, bad_a = -1, bad_m = -1
+        out = np.empty((n, 4))
+        cdef double[:, ::1] o = out
+        if n == 0:
+            return out
+        if not self.skip_invalid:
+            with nogil:
+                for i in range(n):
+                    if bad_g < 0 and not vec3_finite(&g[i, 0]):
+                        bad_g = i
+                    if bad_a < 0 and not vec3_valid(&a[i, 0]):
+                        bad_a = i
+                    if has_mag and bad_m < 0 and not vec3_valid(&m[i, 0]):
+                        bad_m = i
+            for arr, nm, b, rule in ((G, "gyr", bad_g, "finite"), (A, "acc", bad_a, "finite and non-zero"),
+                                     (M, "mag", bad_m, "finite and non-zero")):
+                if b >= 0:
+                    raise ValueError(f"{nm} must be {rule}; {nm}[{b}] = {arr[b]!r} "
+                                     f"(on_invalid='skip' skips such samples)")
+        with nogil:
+            for i in range(n):
+                self._process(&g[i, 0], &a[i, 0], &m[i, 0] if has_mag else NULL,
+                              d[i] if has_dt else dt_const)
+                self._output_q(&o[i, 0])
+        return out
+
+    @property
+    def quaternion(self):
+        """Current attitude [w, x, y, z] in the estimator's frame (body -> navigation)."""
+        cdef cnp.npy_intp four = 4
+        out = cnp.PyArray_SimpleNew(1, &four, cnp.NPY_DOUBLE)
+        self._output_q(<double*>cnp.PyArray_DATA(out))
+        return out
+
+    @property
+    def euler(self):
+        """Current ZYX Euler angles [yaw, pitch, roll] in radians, in the estimator's frame."""
+        cdef double q[4]
+        self._output_q(q)
+        w, x, y, z = q[0], q[1], q[2], q[3]
+        s = 2.0 * (w * y - x * z)
+        s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
+        return np.array([atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)), asin(s),
+                         atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))])
+
+    @property
+    def bias(self):
+        """Estimated gyro bias (rad/s, body frame), or None if the estimator has none."""
+        return None
+
+    @property
+    def covariance(self):
+        """State covariance, or None if the estimator keeps none."""
+        return None
+
+    @property
+    def frame(self):
+        return "NED" if self.ned else "ENU"
+
+    @property
+    def on_invalid(self):
+        return "skip" if self.skip_invalid else "raise"
+
+    @property
+    def initialised(self):
+        """True once the start attitude is set (by reset(q0) or a valid accelerometer sample)."""
+        return bool(self.is_init)
+
+    @property
+    def skipped(self):
+        """Counts of samples skipped as invalid since the last reset, per sensor."""
+        return {"gyr": self.n_skip_gyr, "acc": self.n_skip_acc, "mag": self.n_skip_mag}
+
+    @property
+    def params(self):
+        """This estimator's parameters (name -> value)."""
+        return {k: getattr(self, k) for k in self.PARAMS}
+
+    def __repr__(self):
+        extra = "".join(f", {k}={v!r}" for k, v in self.params.items())
+        return f"fusion.make({self.name!r}, fs={self.fs!r}, frame={self.frame!r}{extra})"

@@ -1,0 +1,10 @@
+from fusion._core cimport Estimator
+
+cdef class EKF(Estimator):
+    cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
+    cdef double b[3]          # gyro bias, rad/s
+    cdef double P[49]         # covariance of [q, b], row-major 7x7
+    cdef void predict(self, const double* gyr, double dt) noexcept nogil
+    cdef void vector_update(self, const double* z, const double* v, double r) noexcept nogil
+    cdef void acc_update(self, const double* acc, double dt) noexcept nogil
+    cdef void mag_update(self, const double* mag, double dt) noexcept nogil

@@ -1,0 +1,210 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
+import numpy as np
+from libc.math cimport sqrt
+from libc.string cimport memcpy
+
+from fusion._core cimport Estimator
+from fusion._core import check_positive
+from fusion._qmath cimport (phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
+                            jac_rot_to_body, unit3)
+
+cdef double G0 = 9.81
+cdef double EZ[3]
+EZ[:] = [0.0, 0.0, 1.0]
+
+
+cdef class EKF(Estimator):
+    """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
+    vector measurements and the Joseph-form covariance update."""
+    name = "ekf"
+    PARAMS = {"gyro_noise": 0.003, "bias_noise": 1e-4, "acc_noise": 0.05, "mag_noise": 0.05,
+              "q_init_std": 0.05, "bias_init_std": 0.02}
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        Estimator.__init__(self, fs, frame, on_invalid)
+        p = self._take_params(params)
+        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_positive("bias_noise", p["bias_noise"], allow_zero=True)
+        self.acc_noise = check_positive("acc_noise", p["acc_noise"])
+        self.mag_noise = check_positive("mag_noise", p["mag_noise"])
+        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"], allow_zero=True)
+        self.reset()
+
+    cdef void _reset_state(self) noexcept nogil:
+        cdef int i
+        for i in range(49):
+            self.P[i] = 0.0
+        for i in range(4):
+            self.P[i * 8] = self.q_init_std * self.q_init_std
+        for i in range(4, 7):
+            self.P[i * 8] = self.bias_init_std * self.bias_init_std
+        self.b[0] = 0.0
+        self.b[1] = 0.0
+        self.b[2] = 0.0
+
+    cdef void predict(self, const double* gyr, double dt) noexcept nogil:
+        cdef double A[16]
+        cdef double L[12]    # -(dt/2) Xi(q), 4x3
+        cdef double X[12]    # Xi(q), 4x3
+        cdef double M[16]    # A Pqq + L Pbq
+        cdef double N[12]    # A Pqb + L Pbb
+        cdef double qn[4]
+        cdef double* P = self.P
+        cdef double* q = self.q
+        cdef double s, gq
+        cdef int i, j, k
+        phi_matrix(gyr[0] - self.b[0], gyr[1] - self.b[1], gyr[2] - self.b[2], dt, A)
+        X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
+        X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
+        X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
+        X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+        for i in range(12):
+            L[i] = -0.5 * dt * X[i]
+        for i in range(4):
+            qn[i] = A[i * 4] * q[0] + A[i * 4 + 1] * q[1] + A[i * 4 + 2] * q[2] + A[i * 4 + 3] * q[3]
+            for j in range(4):
+                s = 0.0
+                for k in range(4):
+                    s += A[i * 4 + k] * P[k * 7 + j]
+                for k in range(3):
+                    s += L[i * 3 + k] * P[(4 + k) * 7 + j]
+                M[i * 4 + j] = s
+            for j in range(3):
+                s = 0.0
+                for k in range(4):
+                    s += A[i * 4 + k] * P[k * 7 + 4 + j]
+                for k in range(3):
+                    s += L[i * 3 + k] * P[(4 + k) * 7 + 4 + j]
+                N[i * 3 + j] = s
+        gq = 0.25 * dt * self.gyro_noise * self.gyro_noise
+        for i in range(4):
+            for j in range(i, 4):
+                s = 0.0
+                for k in range(4):
+                    s += M[i * 4 + k] * A[j * 4 + k]
+                for k in range(3):
+                    s += N[i * 3 + k] * L[j * 3 + k]
+                s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
+                P[i * 7 + j] = s
+                P[j * 7 + i] = s
+            for j in range(3):
+                P[i * 7 + 4 + j] = N[i * 3 + j]
+                P[(4 + j) * 7 + i] = N[i * 3 + j]
+        s = self.bias_noise * self.bias_noise * dt
+        for i in range(4, 7):
+            P[i * 8] += s
+        memcpy(q, qn, 4 * sizeof(double))
+
+    cdef void vector_update(self, const double* z, const double* v, double r) noexcept nogil:
+        """Measurement z = R(q)^T v + noise (variance r per axis), v held fixed."""
+        cdef double h[3]
+        cdef double H[12]    # 3x4
+        cdef double U[21]    # P H^T, 7x3
+        cdef double S[9]
+        cdef double Si[9]
+        cdef double K[21]    # 7x3
+        cdef double KH[28]   # K H restricted to its 4 non-zero columns, 7x4
+        cdef double T[49]    # (I - K H) P
+        cdef double y[3]
+        cdef double* P = self.P
+        cdef double s, det
+        cdef int i, j, k
+        rot_to_body(self.q, v, h)
+        jac_rot_to_body(self.q, v, H)
+        for i in range(7):
+            for k in range(3):
+                U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
+                                + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
+        for k in range(3):
+            for j in range(3):
+                S[k * 3 + j] = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
+                                + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
+        # symmetrise S and add the noise, then invert by the adjugate
+        S[1] = S[3] = 0.5 * (S[1] + S[3])
+        S[2] = S[6] = 0.5 * (S[2] + S[6])
+        S[5] = S[7] = 0.5 * (S[5] + S[7])
+        S[0] += r
+        S[4] += r
+        S[8] += r
+        Si[0] = S[4] * S[8] - S[5] * S[7]
+        Si[1] = S[2] * S[7] - S[1] * S[8]
+        Si[2] = S[1] * S[5] - S[2] * S[4]
+        det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
+        Si[3] = Si[1]
+        Si[4] = S[0] * S[8] - S[2] * S[6]
+        Si[5] = S[2] * S[3] - S[0] * S[5]
+        Si[6] = Si[2]
+        Si[7] = Si[5]
+        Si[8] = S[0] * S[4] - S[1] * S[3]
+        for i in range(9):
+            Si[i] *= det
+        for i in range(7):
+            for j in range(3):
+                K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]
+        y[0] = z[0] - h[0]
+        y[1] = z[1] - h[1]
+        y[2] = z[2] - h[2]
+        for i in range(4):
+            self.q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
+        for i in range(3):
+            self.b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
+        quat_normalise(self.q)
+        # Joseph form P = (I - KH) P (I - KH)^T + r K K^T, with H zero on the bias columns
+        for i in range(7):
+            for j in range(4):
+                KH[i * 4 + j] = K[i * 3] * H[j] + K[i * 3 + 1] * H[4 + j] + K[i * 3 + 2] * H[8 + j]
+        for i in range(7):
+            for j in range(7):
+                T[i * 7 + j] = P[i * 7 + j] - (KH[i * 4] * P[j] + KH[i * 4 + 1] * P[7 + j]
+                                               + KH[i * 4 + 2] * P[14 + j] + KH[i * 4 + 3] * P[21 + j])
+        for i in range(7):
+            for j in range(i, 7):
+                s = T[i * 7 + j] - (T[i * 7] * KH[j * 4] + T[i * 7 + 1] * KH[j * 4 + 1]
+                                    + T[i * 7 + 2] * KH[j * 4 + 2] + T[i * 7 + 3] * KH[j * 4 + 3])
+                s += r * (K[i * 3] * K[j * 3] + K[i * 3 + 1] * K[j * 3 + 1] + K[i * 3 + 2] * K[j * 3 + 2])
+                P[i * 7 + j] = s
+                P[j * 7 + i] = s
+
+    cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
+        cdef double z[3]
+        cdef double sa = self.acc_noise / G0
+        unit3(acc, z)
+        self.vector_update(z, EZ, sa * sa / dt)
+
+    cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
+        cdef double z[3]
+        cdef double v[3]
+        unit3(mag, z)
+        rot_to_nav(self.q, z, v)
+        v[1] = sqrt(v[0] * v[0] + v[1] * v[1])   # seed 003 eqs. 11-16: fold the field onto north
+        v[0] = 0.0
+        self.vector_update(z, v, self.mag_noise * self.mag_noise / dt)
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        if gyr != NULL:
+            self.predict(gyr, dt)
+        if acc != NULL:
+            self.acc_update(acc, dt)
+        if mag != NULL:
+            self.mag_update(mag, dt)
+        quat_normalise(self.q)
+
+    @property
+    def bias(self):
+        """Estimated gyro bias, rad/s (body frame)."""
+        return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def covariance(self):
+        """7x7 covariance of [q (in the estimator's frame), gyro bias]."""
+        P = np.array([self.P[i] for i in range(49)]).reshape(7, 7)
+        if self.ned:
+            s = np.sqrt(0.5)
+            Lc = np.array([[0, -s, -s, 0], [s, 0, 0, s], [s, 0, 0, -s], [0, -s, s, 0]])
+            T = np.eye(7)
+            T[:4, :4] = Lc
+            P = T @ P @ T.T
+        return P

@@ -1,0 +1,4 @@
+from fusion._core cimport Estimator
+
+cdef class Gyro(Estimator):
+    pass

@@ -1,0 +1,158 @@
+# Quaternion and small-matrix helpers shared by every kernel (inlined; no Python objects).
+# Conventions: docs/estimators.md. q = [w, x, y, z], R(q) rotates body -> navigation (ENU).
+from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite
+
+cdef inline bint vec3_valid(const double* v) noexcept nogil:
+    """A usable accelerometer / magnetometer sample: finite, with a finite non-zero norm
+    (components so large or so small that |v|^2 overflows or underflows are rejected too)."""
+    cdef double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    return isfinite(n2) and n2 > 0.0
+
+cdef inline bint vec3_finite(const double* v) noexcept nogil:
+    """A usable gyro sample: finite with a finite norm (zero rate is fine)."""
+    return isfinite(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+cdef inline double norm3(const double* v) noexcept nogil:
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+cdef inline void unit3(const double* v, double* out) noexcept nogil:
+    cdef double n = 1.0 / norm3(v)
+    out[0] = v[0] * n
+    out[1] = v[1] * n
+    out[2] = v[2] * n
+
+cdef inline void cross3(const double* a, const double* b, double* out) noexcept nogil:
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+cdef inline void quat_normalise(double* q) noexcept nogil:
+    cdef double n = 1.0 / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    q[0] *= n
+    q[1] *= n
+    q[2] *= n
+    q[3] *= n
+
+cdef inline void quat_mul(const double* p, const double* q, double* out) noexcept nogil:
+    """out = p ⊗ q (out must not alias p or q)."""
+    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
+    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
+    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
+    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+
+cdef inline void rot_to_body(const double* q, const double* v, double* out) noexcept nogil:
+    """out = R(q)^T v (navigation -> body), homogeneous form."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    out[0] = (w*w + x*x - y*y - z*z) * v[0] + 2.0 * (x*y + w*z) * v[1] + 2.0 * (x*z - w*y) * v[2]
+    out[1] = 2.0 * (x*y - w*z) * v[0] + (w*w - x*x + y*y - z*z) * v[1] + 2.0 * (y*z + w*x) * v[2]
+    out[2] = 2.0 * (x*z + w*y) * v[0] + 2.0 * (y*z - w*x) * v[1] + (w*w - x*x - y*y + z*z) * v[2]
+
+cdef inline void rot_to_nav(const double* q, const double* v, double* out) noexcept nogil:
+    """out = R(q) v (body -> navigation), homogeneous form."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    out[0] = (w*w + x*x - y*y - z*z) * v[0] + 2.0 * (x*y - w*z) * v[1] + 2.0 * (x*z + w*y) * v[2]
+    out[1] = 2.0 * (x*y + w*z) * v[0] + (w*w - x*x + y*y - z*z) * v[1] + 2.0 * (y*z - w*x) * v[2]
+    out[2] = 2.0 * (x*z - w*y) * v[0] + 2.0 * (y*z + w*x) * v[1] + (w*w - x*x - y*y + z*z) * v[2]
+
+cdef inline void jac_rot_to_body(const double* q, const double* v, double* H) noexcept nogil:
+    """H (3x4, row-major) = d(R(q)^T v)/dq for a fixed v."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    cdef double a = v[0], b = v[1], c = v[2]
+    H[0] = 2.0 * (w*a + z*b - y*c)
+    H[1] = 2.0 * (x*a + y*b + z*c)
+    H[2] = 2.0 * (-y*a + x*b - w*c)
+    H[3] = 2.0 * (-z*a + w*b + x*c)
+    H[4] = 2.0 * (-z*a + w*b + x*c)
+    H[5] = 2.0 * (y*a - x*b + w*c)
+    H[6] = 2.0 * (x*a + y*b + z*c)
+    H[7] = 2.0 * (-w*a - z*b + y*c)
+    H[8] = 2.0 * (y*a - x*b + w*c)
+    H[9] = 2.0 * (z*a - w*b - x*c)
+    H[10] = 2.0 * (w*a + z*b - y*c)
+    H[11] = 2.0 * (x*a + y*b + z*c)
+
+cdef inline void half_angle_terms(double wx, double wy, double wz, double dt,
+                                  double* c, double* s) noexcept nogil:
+    """c = cos(|w| dt / 2), s = sin(|w| dt / 2) / |w| (s -> dt/2 as w -> 0)."""
+    cdef double n2 = wx * wx + wy * wy + wz * wz
+    cdef double h2 = 0.25 * n2 * dt * dt   # (theta/2)^2
+    cdef double n
+    if h2 < 0.0025:   # theta/2 < 0.05: Taylor series, truncation < 1e-19
+        c[0] = 1.0 - h2 / 2.0 * (1.0 - h2 / 12.0 * (1.0 - h2 / 30.0 * (1.0 - h2 / 56.0)))
+        s[0] = 0.5 * dt * (1.0 - h2 / 6.0 * (1.0 - h2 / 20.0 * (1.0 - h2 / 42.0 * (1.0 - h2 / 72.0))))
+    else:
+        n = sqrt(n2)
+        c[0] = cos(0.5 * n * dt)
+        s[0] = sin(0.5 * n * dt) / n
+
+cdef inline void phi_matrix(double wx, double wy, double wz, double dt, double* A) noexcept nogil:
+    """A (4x4, row-major) = cos(θ/2) I + sin(θ/2)/|w| Ω(w), the exact one-step transition."""
+    cdef double c, s
+    half_angle_terms(wx, wy, wz, dt, &c, &s)
+    wx *= s
+    wy *= s
+    wz *= s
+    A[0] = c;   A[1] = -wx; A[2] = -wy;  A[3] = -wz
+    A[4] = wx;  A[5] = c;   A[6] = wz;   A[7] = -wy
+    A[8] = wy;  A[9] = -wz; A[10] = c;   A[11] = wx
+    A[12] = wz; A[13] = wy; A[14] = -wx; A[15] = c
+
+cdef inline void quat_propagate(double* q, double wx, double wy, double wz, double dt) noexcept nogil:
+    """q <- Φ(w, dt) q (in place)."""
+    cdef double c, s, w0 = q[0], x0 = q[1], y0 = q[2], z0 = q[3]
+    half_angle_terms(wx, wy, wz, dt, &c, &s)
+    wx *= s
+    wy *= s
+    wz *= s
+    q[0] = c * w0 - wx * x0 - wy * y0 - wz * z0
+    q[1] = wx * w0 + c * x0 + wz * y0 - wy * z0
+    q[2] = wy * w0 - wz * x0 + c * y0 + wx * z0
+    q[3] = wz * w0 + wy * x0 - wx * y0 + c * z0
+
+cdef inline void quat_from_acc_mag(const double* acc, const double* mag, double* q) noexcept nogil:
+    """Initial attitude (docs/estimators.md): mag may be NULL (yaw = 0)."""
+    cdef double u[3]
+    cdef double e[3]
+    cdef double n[3]
+    cdef double R[9]
+    cdef double ne, ch, sh, cr, sr, roll, pitch, tr, s
+    unit3(acc, u)
+    if mag != NULL:
+        cross3(mag, u, e)
+        ne = norm3(e)
+        if ne > 1e-9 * norm3(mag):
+            e[0] /= ne; e[1] /= ne; e[2] /= ne
+            cross3(u, e, n)
+            R[0] = e[0]; R[1] = e[1]; R[2] = e[2]
+            R[3] = n[0]; R[4] = n[1]; R[5] = n[2]
+            R[6] = u[0]; R[7] = u[1]; R[8] = u[2]
+            # Shepperd: pick the largest of 4w², 4x², 4y², 4z² for stability
+            tr = R[0] + R[4] + R[8]
+            if tr >= R[0] and tr >= R[4] and tr >= R[8]:
+                s = 2.0 * sqrt(1.0 + tr)
+                q[0] = 0.25 * s; q[1] = (R[7] - R[5]) / s
+                q[2] = (R[2] - R[6]) / s; q[3] = (R[3] - R[1]) / s
+            elif R[0] >= R[4] and R[0] >= R[8]:
+                s = 2.0 * sqrt(1.0 + R[0] - R[4] - R[8])
+                q[0] = (R[7] - R[5]) / s; q[1] = 0.25 * s
+                q[2] = (R[1] + R[3]) / s; q[3] = (R[2] + R[6]) / s
+            elif R[4] >= R[8]:
+                s = 2.0 * sqrt(1.0 + R[4] - R[0] - R[8])
+                q[0] = (R[2] - R[6]) / s; q[1] = (R[1] + R[3]) / s
+                q[2] = 0.25 * s; q[3] = (R[5] + R[7]) / s
+            else:
+                s = 2.0 * sqrt(1.0 + R[8] - R[0] - R[4])
+                q[0] = (R[3] - R[1]) / s; q[1] = (R[2] + R[6]) / s
+                q[2] = (R[5] + R[7]) / s; q[3] = 0.25 * s
+            if q[0] < 0.0:
+                q[0] = -q[0]; q[1] = -q[1]; q[2] = -q[2]; q[3] = -q[3]
+            quat_normalise(q)
+            return
+    roll = atan2(u[1], u[2])
+    pitch = atan2(-u[0], sqrt(u[1] * u[1] + u[2] * u[2]))
+    ch = cos(0.5 * pitch); sh = sin(0.5 * pitch)
+    cr = cos(0.5 * roll); sr = sin(0.5 * roll)
+    q[0] = ch * cr
+    q[1] = ch * sr
+    q[2] = sh * cr
+    q[3] = -sh * sr
