@@ -55,18 +55,20 @@ cdef class Mahony(Estimator):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
+        # Propagate with the integral-corrected gyro, then correct with this sample's
+        # vectors: the measurements belong to the attitude after the step, as in the EKF.
         cdef double e[3]
+        if gyr != NULL:
+            quat_propagate(self.q, gyr[0] + self.ki * self.eint[0],
+                           gyr[1] + self.ki * self.eint[1], gyr[2] + self.ki * self.eint[2], dt)
         self.correction(acc, mag, e)
         if self.ki > 0.0:
             self.eint[0] += e[0] * dt
             self.eint[1] += e[1] * dt
             self.eint[2] += e[2] * dt
-        if gyr != NULL:
-            quat_propagate(self.q,
-                           gyr[0] + self.kp * e[0] + self.ki * self.eint[0],
-                           gyr[1] + self.kp * e[1] + self.ki * self.eint[1],
-                           gyr[2] + self.kp * e[2] + self.ki * self.eint[2], dt)
-            quat_normalise(self.q)
+        if self.kp > 0.0:
+            quat_propagate(self.q, self.kp * e[0], self.kp * e[1], self.kp * e[2], dt)
+        quat_normalise(self.q)
 
     @property
     def bias(self):

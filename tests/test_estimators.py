@@ -1,0 +1,311 @@
+"""Interface, bad input and analytic cases for every estimator (docs/estimators.md)."""
+import numpy as np
+import pytest
+
+import fusion
+
+NAMES = fusion.available()
+G = 9.81
+MAG_N = np.array([0.0, 0.22, -0.42])   # a northern-hemisphere field in ENU (dip about 62 deg)
+C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
+
+
+def qmul(p, q):
+    w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(q, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
+
+
+def qconj(q):
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def to_body(q, v):
+    """R(q)^T v for unit quaternions q (..., 4)."""
+    qv = np.concatenate([np.zeros(q.shape[:-1] + (1,)), np.broadcast_to(v, q.shape[:-1] + (3,))], -1)
+    return qmul(qmul(qconj(q), qv), q)[..., 1:]
+
+
+def axis_angle(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def angle_between(p, q):
+    """Rotation angle (rad) between attitudes, per row (atan2 form: exact near zero)."""
+    e = qmul(p, qconj(q))
+    return 2 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
+
+
+def inclination(p, q):
+    """Inclination part of the rotation between attitudes (rad), per row."""
+    e = qmul(p, qconj(q))
+    return 2 * np.arctan2(np.hypot(e[..., 1], e[..., 2]), np.hypot(e[..., 0], e[..., 3]))
+
+
+def rotating_body(rate, n, fs, q0=(1.0, 0, 0, 0)):
+    """Exact sensor readings of a body turning at a constant body rate."""
+    rate = np.asarray(rate, float)
+    t = np.arange(1, n + 1) / fs
+    th = np.linalg.norm(rate) * t
+    dq = np.concatenate([np.cos(th / 2)[:, None], np.sin(th / 2)[:, None] * rate / np.linalg.norm(rate)], 1)
+    q = qmul(np.asarray(q0, float), dq)
+    gyr = np.tile(rate, (n, 1))
+    return q, gyr, to_body(q, [0, 0, G]), to_body(q, MAG_N)
+
+
+def static_body(q, n, seed=0, noise=(0.0, 0.0, 0.0), bias=(0, 0, 0)):
+    rng = np.random.default_rng(seed)
+    gyr = np.asarray(bias, float) + noise[0] * rng.standard_normal((n, 3))
+    acc = to_body(q, [0, 0, G]) + noise[1] * rng.standard_normal((n, 3))
+    mag = to_body(q, MAG_N) + noise[2] * rng.standard_normal((n, 3))
+    return gyr, acc, mag
+
+
+# --- analytic cases --------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", NAMES)
+def test_constant_rotation_rate_is_followed_exactly(name):
+    q0 = axis_angle([1, 2, 3], 0.7)
+    q, gyr, acc, mag = rotating_body([0.3, -1.1, 2.0], 2000, 100.0, q0)
+    est = fusion.make(name, 100.0)
+    est.reset(q0)
+    out = est.run(gyr, acc, mag)
+    assert angle_between(out, q).max() < 1e-9
+
+
+@pytest.mark.parametrize("name", [n for n in NAMES if n != "gyro"])
+@pytest.mark.parametrize("nine_axis", [True, False])
+def test_static_sensor_recovers_from_a_30_degree_wrong_start(name, nine_axis):
+    q_true = axis_angle([0.3, -0.5, 0.2], 0.4)
+    gyr, acc, mag = static_body(q_true, 12000, noise=(0.002, 0.05, 0.005))
+    est = fusion.make(name, 100.0)
+    start = qmul(axis_angle([1, 1, 0.5], np.radians(30)), q_true)
+    est.reset(start)
+    assert np.isclose(np.degrees(angle_between(est.quaternion, q_true)), 30)
+    out = est.run(gyr, acc, mag if nine_axis else None)
+    if nine_axis:
+        assert np.degrees(angle_between(out[-500:], q_true)).max() < 0.5
+    else:   # heading is not observable without a magnetometer: inclination only
+        assert np.degrees(inclination(out[-500:], q_true)).max() < 0.5
+
+
+def test_ekf_estimates_a_constant_gyro_bias_within_5_percent():
+    bias = np.array([0.01, -0.02, 0.015])
+    q_true = axis_angle([0.2, 0.1, 1.0], 1.0)
+    gyr, acc, mag = static_body(q_true, 30000, seed=3, noise=(0.003, 0.05, 0.005), bias=bias)
+    est = fusion.make("ekf", 100.0)
+    est.run(gyr, acc, mag)
+    assert np.linalg.norm(est.bias - bias) < 0.05 * np.linalg.norm(bias)
+
+
+def test_mahony_integral_learns_the_gyro_bias():
+    bias = np.array([0.01, -0.02, 0.015])
+    q_true = axis_angle([0.2, 0.1, 1.0], 1.0)
+    gyr, acc, mag = static_body(q_true, 30000, seed=3, noise=(0.003, 0.05, 0.005), bias=bias)
+    est = fusion.make("mahony", 100.0)
+    est.run(gyr, acc, mag)
+    assert np.linalg.norm(est.bias - bias) < 0.1 * np.linalg.norm(bias)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_initial_attitude_from_first_sample(name):
+    q_true = axis_angle([0.4, -0.3, 0.8], 2.0)
+    gyr, acc, mag = static_body(q_true, 1)
+    est = fusion.make(name, 50.0)
+    assert not est.initialised
+    assert angle_between(est.update(gyr[0], acc[0], mag[0]), q_true) < 1e-12
+    est.reset()
+    q6 = est.update(gyr[0], acc[0])         # 6-axis: yaw 0, same inclination
+    assert inclination(q6, q_true) < 1e-12
+    assert abs(est.euler[0]) < 1e-12
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_ned_is_enu_up_to_the_frame_change(name):
+    q, gyr, acc, mag = rotating_body([0.5, 0.2, -0.4], 500, 100.0, axis_angle([1, 0, 1], 0.5))
+    rng = np.random.default_rng(1)
+    gyr = gyr + 0.01 * rng.standard_normal(gyr.shape)
+    enu = fusion.make(name, 100.0).run(gyr, acc, mag)
+    ned_est = fusion.make(name, 100.0, frame="NED")
+    ned = ned_est.run(gyr, acc, mag)
+    assert np.abs(ned - qmul(C_NED, enu)).max() < 1e-12
+    yaw_enu = fusion.make(name, 100.0).run(gyr, acc, mag)   # same data: compare headings
+    e_ned = ned_est.euler
+    est = fusion.make(name, 100.0)
+    est.run(gyr, acc, mag)
+    # NED heading is measured clockwise from north, ENU yaw counter-clockwise from east
+    assert np.isclose(np.mod(e_ned[0] + est.euler[0] - np.pi / 2 + np.pi, 2 * np.pi) - np.pi, 0, atol=1e-9)
+    assert yaw_enu.shape == enu.shape
+    # a start attitude given in NED means the same physical attitude
+    q0_enu = axis_angle([0.1, 0.2, 1.0], 0.3)
+    ned_est.reset(qmul(C_NED, q0_enu))
+    est.reset(q0_enu)
+    assert np.abs(ned_est.quaternion - qmul(C_NED, est.quaternion)).max() < 1e-15
+
+
+def test_ned_covariance_is_the_rotated_enu_covariance():
+    q, gyr, acc, mag = rotating_body([0.5, 0.2, -0.4], 300, 100.0)
+    a, b = fusion.make("ekf", 100.0), fusion.make("ekf", 100.0, frame="NED")
+    a.run(gyr, acc, mag)
+    b.run(gyr, acc, mag)
+    Pa, Pb = a.covariance, b.covariance
+    assert np.allclose(np.linalg.eigvalsh(Pa), np.linalg.eigvalsh(Pb), rtol=1e-9, atol=1e-15)
+    assert np.allclose(Pa[4:, 4:], Pb[4:, 4:], rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_quaternion_stays_unit_over_a_long_run(name):
+    rng = np.random.default_rng(5)
+    n = 1_000_000
+    gyr = rng.normal(0, 2.0, (n, 3))
+    acc = np.array([0, 0, G]) + rng.normal(0, 3.0, (n, 3))
+    mag = MAG_N + rng.normal(0, 0.1, (n, 3))
+    q = fusion.make(name, 1000.0).run(gyr, acc, mag)
+    assert np.abs(np.linalg.norm(q, axis=1) - 1).max() < 1e-12
+
+
+# --- interface --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", NAMES)
+def test_inputs_of_any_real_dtype_order_and_layout(name):
+    rng = np.random.default_rng(2)
+    gyr = rng.normal(0, 0.2, (50, 3))
+    acc = np.array([0, 0, G]) + rng.normal(0, 0.2, (50, 3))
+    ref = fusion.make(name, 100.0).run(gyr, acc)
+    est = fusion.make(name, 100.0)
+    assert np.array_equal(est.run(np.asfortranarray(gyr), np.asfortranarray(acc)), ref)
+    est.reset()
+    big = np.zeros((50, 6))
+    big[:, ::2] = gyr
+    assert np.array_equal(est.run(big[:, ::2], acc), ref)          # non-contiguous view
+    est.reset()
+    q32 = est.run(gyr.astype(np.float32), acc.astype(np.float32))
+    assert np.abs(q32 - ref).max() < 1e-5
+    est.reset()
+    qi = est.run(np.zeros((5, 3), dtype=np.int64), np.tile(np.array([0, 0, 10]), (5, 1)))
+    assert np.allclose(qi, [1, 0, 0, 0])
+    est.reset()
+    assert est.run(np.empty((0, 3)), np.empty((0, 3))).shape == (0, 4)
+    assert est.run(gyr[:1], acc[:1]).shape == (1, 4)
+    est.reset()
+    assert np.allclose(est.update([0, 0, 0], (0, 0, 9.8)), [1, 0, 0, 0])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_uneven_time_stamps(name):
+    q, gyr, acc, mag = rotating_body([0.0, 0.0, 1.0], 1, 100.0)
+    dt = np.array([0.01, 0.02, 0.005, 0.03])
+    est = fusion.make(name, 100.0)
+    est.reset([1, 0, 0, 0])
+    gyr4 = np.tile([0.0, 0.0, 1.0], (4, 1))
+    acc4 = np.tile([0.0, 0.0, G], (4, 1))
+    out = est.run(gyr4, acc4, dt=dt)
+    expected_yaw = np.cumsum(dt)
+    assert np.allclose(2 * np.arctan2(out[:, 3], out[:, 0]), expected_yaw, atol=1e-12)
+
+
+def test_unknown_estimator_and_parameter_are_named():
+    with pytest.raises(ValueError, match="available: gyro"):
+        fusion.make("kalman", 100.0)
+    with pytest.raises(ValueError, match="kq.*accepted: ki, kp"):
+        fusion.make("mahony", 100.0, kq=1.0)
+    with pytest.raises(ValueError, match="gyro_noise"):
+        fusion.make("ekf", 100.0, gyro_noise=-1.0)
+    with pytest.raises(ValueError, match="frame"):
+        fusion.make("ekf", 100.0, frame="NWU")
+    with pytest.raises(ValueError, match="on_invalid"):
+        fusion.make("ekf", 100.0, on_invalid="ignore")
+
+
+@pytest.mark.parametrize("fs", [0.0, -100.0, np.nan, np.inf, "100", None, True])
+def test_bad_sample_rate(fs):
+    with pytest.raises(ValueError, match="fs"):
+        fusion.make("ekf", fs)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_bad_shapes_dtypes_lengths_and_dt(name):
+    est = fusion.make(name, 100.0)
+    ok = np.zeros((10, 3)) + [0, 0, G]
+    cases = [
+        (dict(gyr=np.zeros((10, 2)), acc=ok), "gyr must have shape"),
+        (dict(gyr=np.zeros(30), acc=ok), "gyr must have shape"),
+        (dict(gyr=ok, acc=ok[:9]), "acc has 9 samples"),
+        (dict(gyr=ok, acc=ok, mag=ok[:, :2]), "mag must have shape"),
+        (dict(gyr=ok.astype(object), acc=ok), "gyr must be a real numeric"),
+        (dict(gyr=ok + 0j, acc=ok), "gyr must be a real numeric"),
+        (dict(gyr=ok, acc=ok, dt=0.0), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=-0.01), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=np.full(9, 0.01)), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=np.r_[np.full(9, 0.01), 0.0]), r"dt\[9\]"),
+    ]
+    for kwargs, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            est.run(**kwargs)
+        assert not est.initialised      # nothing was processed
+    with pytest.raises(ValueError, match="acc must have shape"):
+        est.update([0, 0, 0], [0, 0])
+    with pytest.raises(ValueError, match="dt must be"):
+        est.update([0, 0, 0], [0, 0, G], dt=0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_invalid_samples_raise_with_their_index_before_any_work(name):
+    est = fusion.make(name, 100.0)
+    gyr = np.zeros((20, 3))
+    acc = np.tile([0.0, 0.0, G], (20, 1))
+    mag = np.tile(MAG_N, (20, 1))
+    for arr, label, bad in ((gyr, "gyr", np.nan), (acc, "acc", 0.0), (mag, "mag", np.inf)):
+        broken = arr.copy()
+        broken[7] = bad
+        kwargs = dict(gyr=gyr, acc=acc, mag=mag)
+        kwargs[label] = broken
+        with pytest.raises(ValueError, match=rf"{label}\[7\]"):
+            est.run(**kwargs)
+        assert not est.initialised
+    with pytest.raises(ValueError, match="acc must be finite and non-zero"):
+        est.update([0, 0, 0], [0, 0, 0])
+    with pytest.raises(ValueError, match="gyr must be finite"):
+        est.update([np.nan, 0, 0], [0, 0, G])
+    assert not est.initialised
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_skip_mode_counts_and_never_leaves_nan(name):
+    rng = np.random.default_rng(4)
+    n = 400
+    gyr = rng.normal(0, 0.3, (n, 3))
+    acc = np.array([0, 0, G]) + rng.normal(0, 0.3, (n, 3))
+    mag = MAG_N + rng.normal(0, 0.01, (n, 3))
+    gyr[[10, 50]] = np.nan
+    acc[[0, 1, 60]] = [0, 0, 0]
+    acc[70] = [np.inf, 0, 0]
+    mag[[80, 81, 82]] = np.nan
+    gyr[90] = 1e200                     # |w|^2 overflows: not usable
+    est = fusion.make(name, 100.0, on_invalid="skip")
+    q = est.run(gyr, acc, mag)
+    assert np.isfinite(q).all() and np.allclose(np.linalg.norm(q, axis=1), 1, atol=1e-12)
+    assert est.skipped == {"gyr": 3, "acc": 4, "mag": 3}
+    assert np.array_equal(q[:2], [[1, 0, 0, 0]] * 2)    # not initialised until a valid acc
+    # a skipped gyro sample holds the attitude (for the pure integrator exactly)
+    if name == "gyro":
+        assert np.array_equal(q[10], q[9])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_reset_validates_q0(name):
+    est = fusion.make(name, 100.0)
+    for bad in ([1, 0, 0], [0, 0, 0, 0], [np.nan, 0, 0, 1], "abcd"):
+        with pytest.raises(ValueError, match="q0"):
+            est.reset(bad)
+    est.reset([2, 0, 0, 0])
+    assert np.array_equal(est.quaternion, [1, 0, 0, 0]) and est.initialised
+
+
+def test_repr_and_params_round_trip():
+    est = fusion.make("ekf", 200.0, acc_noise=0.1)
+    assert est.params["acc_noise"] == 0.1
+    again = eval(repr(est), {"fusion": fusion})
+    assert again.params == est.params and again.fs == est.fs
