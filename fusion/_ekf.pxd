@@ -5,6 +5,7 @@ cdef class EKF(Estimator):
     cdef double b[3]          # gyro bias, rad/s
     cdef double P[49]         # covariance of [q, b], row-major 7x7
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
-    cdef void vector_update(self, const double* z, const double* v, double r) noexcept nogil
+    cdef void vector_update(self, const double* z, const double* h, const double* H,
+                            double r) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil

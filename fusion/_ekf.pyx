@@ -7,7 +7,7 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator
 from fusion._core import check_positive
 from fusion._qmath cimport (phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
-                            jac_rot_to_body, unit3)
+                            jac_rot_to_body, jac_rot_to_nav, unit3)
 
 cdef double G0 = 9.81
 cdef double EZ[3]
@@ -18,7 +18,7 @@ cdef class EKF(Estimator):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
-    PARAMS = {"gyro_noise": 0.003, "bias_noise": 1e-4, "acc_noise": 0.05, "mag_noise": 0.05,
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -97,10 +97,10 @@ cdef class EKF(Estimator):
             P[i * 8] += s
         memcpy(q, qn, 4 * sizeof(double))
 
-    cdef void vector_update(self, const double* z, const double* v, double r) noexcept nogil:
-        """Measurement z = R(q)^T v + noise (variance r per axis), v held fixed."""
-        cdef double h[3]
-        cdef double H[12]    # 3x4
+    cdef void vector_update(self, const double* z, const double* h, const double* H,
+                            double r) noexcept nogil:
+        """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
+        and noise variance r per axis."""
         cdef double U[21]    # P H^T, 7x3
         cdef double S[9]
         cdef double Si[9]
@@ -111,8 +111,6 @@ cdef class EKF(Estimator):
         cdef double* P = self.P
         cdef double s, det
         cdef int i, j, k
-        rot_to_body(self.q, v, h)
-        jac_rot_to_body(self.q, v, H)
         for i in range(7):
             for k in range(3):
                 U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
@@ -169,18 +167,56 @@ cdef class EKF(Estimator):
 
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
         cdef double z[3]
+        cdef double h[3]
+        cdef double H[12]
         cdef double sa = self.acc_noise / G0
         unit3(acc, z)
-        self.vector_update(z, EZ, sa * sa / dt)
+        rot_to_body(self.q, EZ, h)
+        jac_rot_to_body(self.q, EZ, H)
+        self.vector_update(z, h, H, sa * sa / dt)
 
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
+        # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
+        # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
+        # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
+        # heading residuals tilt the estimate and drag the gyro bias with them.
         cdef double z[3]
+        cdef double n[3]
         cdef double v[3]
+        cdef double h[3]
+        cdef double H[12]
+        cdef double Jn[12]   # dn/dq
+        cdef double D[12]    # dv/dq = dv/dn Jn
+        cdef double rho, ux, uy
+        cdef double* q = self.q
+        cdef int j
         unit3(mag, z)
-        rot_to_nav(self.q, z, v)
-        v[1] = sqrt(v[0] * v[0] + v[1] * v[1])   # seed 003 eqs. 11-16: fold the field onto north
+        rot_to_nav(q, z, n)
+        rho = sqrt(n[0] * n[0] + n[1] * n[1])
+        if rho < 1e-9:     # field along the vertical: no heading information
+            return
         v[0] = 0.0
-        self.vector_update(z, v, self.mag_noise * self.mag_noise / dt)
+        v[1] = rho
+        v[2] = n[2]
+        rot_to_body(q, v, h)
+        jac_rot_to_body(q, v, H)
+        jac_rot_to_nav(q, z, Jn)
+        ux = n[0] / rho
+        uy = n[1] / rho
+        for j in range(4):
+            D[j] = 0.0
+            D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
+            D[8 + j] = Jn[8 + j]
+        # H += R^T(q) D, column by column (R^T applied to each column of D)
+        for j in range(4):
+            v[0] = D[j]
+            v[1] = D[4 + j]
+            v[2] = D[8 + j]
+            rot_to_body(q, v, n)
+            H[j] += n[0]
+            H[4 + j] += n[1]
+            H[8 + j] += n[2]
+        self.vector_update(z, h, H, self.mag_noise * self.mag_noise / dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:

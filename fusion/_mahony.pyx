@@ -16,7 +16,7 @@ cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro."""
     name = "mahony"
-    PARAMS = {"kp": 1.0, "ki": 0.02}
+    PARAMS = {"kp": 0.5, "ki": 0.005}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)

@@ -71,6 +71,23 @@ cdef inline void jac_rot_to_body(const double* q, const double* v, double* H) no
     H[10] = 2.0 * (w*a + z*b - y*c)
     H[11] = 2.0 * (x*a + y*b + z*c)
 
+cdef inline void jac_rot_to_nav(const double* q, const double* v, double* H) noexcept nogil:
+    """H (3x4, row-major) = d(R(q) v)/dq for a fixed v."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    cdef double a = v[0], b = v[1], c = v[2]
+    H[0] = 2.0 * (w*a - z*b + y*c)
+    H[1] = 2.0 * (x*a + y*b + z*c)
+    H[2] = 2.0 * (-y*a + x*b + w*c)
+    H[3] = 2.0 * (-z*a - w*b + x*c)
+    H[4] = 2.0 * (z*a + w*b - x*c)
+    H[5] = 2.0 * (y*a - x*b - w*c)
+    H[6] = 2.0 * (x*a + y*b + z*c)
+    H[7] = 2.0 * (w*a - z*b + y*c)
+    H[8] = 2.0 * (-y*a + x*b + w*c)
+    H[9] = 2.0 * (z*a + w*b - x*c)
+    H[10] = 2.0 * (-w*a + z*b - y*c)
+    H[11] = 2.0 * (x*a + y*b + z*c)
+
 cdef inline void half_angle_terms(double wx, double wy, double wz, double dt,
                                   double* c, double* s) noexcept nogil:
     """c = cos(|w| dt / 2), s = sin(|w| dt / 2) / |w| (s -> dt/2 as w -> 0)."""
