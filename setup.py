@@ -9,7 +9,7 @@ extensions = [
     Extension(f"fusion.{name}", [f"fusion/{name}.pyx"],
               include_dirs=[np.get_include()],
               define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
-              extra_compile_args=["-O3"])
+              extra_compile_args=["-O3", "-fno-math-errno"])
     for name in KERNELS
 ]
 

@@ -7,11 +7,10 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator
 from fusion._core import check_positive
 from fusion._qmath cimport (phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
-                            jac_rot_to_body, jac_rot_to_nav, unit3)
+                            jac_rot_to_body, jac_rot_to_nav, up_in_body,
+                            jac_up_in_body, unit3)
 
 cdef double G0 = 9.81
-cdef double EZ[3]
-EZ[:] = [0.0, 0.0, 1.0]
 
 
 cdef class EKF(Estimator):
@@ -171,8 +170,8 @@ cdef class EKF(Estimator):
         cdef double H[12]
         cdef double sa = self.acc_noise / G0
         unit3(acc, z)
-        rot_to_body(self.q, EZ, h)
-        jac_rot_to_body(self.q, EZ, H)
+        up_in_body(self.q, h)
+        jac_up_in_body(self.q, H)
         self.vector_update(z, h, H, sa * sa / dt)
 
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil:

@@ -6,10 +6,7 @@ from libc.math cimport sqrt
 from fusion._core cimport Estimator
 from fusion._core import check_positive
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
-                            cross3, unit3)
-
-cdef double EZ[3]
-EZ[:] = [0.0, 0.0, 1.0]
+                            up_in_body, cross3, unit3)
 
 
 cdef class Mahony(Estimator):
@@ -41,7 +38,7 @@ cdef class Mahony(Estimator):
         e[2] = 0.0
         if acc != NULL:
             unit3(acc, u)
-            rot_to_body(self.q, EZ, v)
+            up_in_body(self.q, v)
             cross3(u, v, c)
             e[0] += c[0]; e[1] += c[1]; e[2] += c[2]
         if mag != NULL:

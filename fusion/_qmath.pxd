@@ -47,6 +47,20 @@ cdef inline void rot_to_body(const double* q, const double* v, double* out) noex
     out[1] = 2.0 * (x*y - w*z) * v[0] + (w*w - x*x + y*y - z*z) * v[1] + 2.0 * (y*z + w*x) * v[2]
     out[2] = 2.0 * (x*z + w*y) * v[0] + 2.0 * (y*z - w*x) * v[1] + (w*w - x*x - y*y + z*z) * v[2]
 
+cdef inline void up_in_body(const double* q, double* out) noexcept nogil:
+    """out = R(q)^T [0, 0, 1]: the navigation frame's up axis in body coordinates."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    out[0] = 2.0 * (x*z - w*y)
+    out[1] = 2.0 * (y*z + w*x)
+    out[2] = w*w - x*x - y*y + z*z
+
+cdef inline void jac_up_in_body(const double* q, double* H) noexcept nogil:
+    """H (3x4, row-major) = d(R(q)^T [0, 0, 1])/dq."""
+    cdef double w = 2.0 * q[0], x = 2.0 * q[1], y = 2.0 * q[2], z = 2.0 * q[3]
+    H[0] = -y; H[1] = z;  H[2] = -w;  H[3] = x
+    H[4] = x;  H[5] = w;  H[6] = z;   H[7] = y
+    H[8] = w;  H[9] = -x; H[10] = -y; H[11] = z
+
 cdef inline void rot_to_nav(const double* q, const double* v, double* out) noexcept nogil:
     """out = R(q) v (body -> navigation), homogeneous form."""
     cdef double w = q[0], x = q[1], y = q[2], z = q[3]
