@@ -1,6 +1,8 @@
 from fusion._core cimport Estimator
 
+cdef void mahony_error(const double* q, const double* acc, const double* mag,
+                       double* e) noexcept nogil
+
 cdef class Mahony(Estimator):
     cdef readonly double kp, ki
     cdef double eint[3]       # integral of the correction error
-    cdef void correction(self, const double* acc, const double* mag, double* e) noexcept nogil

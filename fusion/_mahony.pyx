@@ -9,6 +9,31 @@ from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_
                             up_in_body, cross3, unit3)
 
 
+cdef inline void mahony_error(const double* q, const double* acc, const double* mag,
+                              double* e) noexcept nogil:
+    """e = sum of measured x estimated directions, gravity and north-folded field (acc, mag
+    may be NULL)."""
+    cdef double u[3]
+    cdef double v[3]
+    cdef double c[3]
+    cdef double h[3]
+    e[0] = 0.0
+    e[1] = 0.0
+    e[2] = 0.0
+    if acc != NULL:
+        unit3(acc, u)
+        up_in_body(q, v)
+        cross3(u, v, e)
+    if mag != NULL:
+        unit3(mag, u)
+        rot_to_nav(q, u, h)
+        h[1] = sqrt(h[0] * h[0] + h[1] * h[1])   # turn the field about z onto north (y)
+        h[0] = 0.0
+        rot_to_body(q, h, v)
+        cross3(u, v, c)
+        e[0] += c[0]; e[1] += c[1]; e[2] += c[2]
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro."""
@@ -27,29 +52,6 @@ cdef class Mahony(Estimator):
         self.eint[1] = 0.0
         self.eint[2] = 0.0
 
-    cdef void correction(self, const double* acc, const double* mag, double* e) noexcept nogil:
-        """e = sum of measured x estimated directions (acc, mag may be NULL)."""
-        cdef double u[3]
-        cdef double v[3]
-        cdef double c[3]
-        cdef double h[3]
-        e[0] = 0.0
-        e[1] = 0.0
-        e[2] = 0.0
-        if acc != NULL:
-            unit3(acc, u)
-            up_in_body(self.q, v)
-            cross3(u, v, c)
-            e[0] += c[0]; e[1] += c[1]; e[2] += c[2]
-        if mag != NULL:
-            unit3(mag, u)
-            rot_to_nav(self.q, u, h)
-            h[1] = sqrt(h[0] * h[0] + h[1] * h[1])   # turn the field about z onto north (y)
-            h[0] = 0.0
-            rot_to_body(self.q, h, v)
-            cross3(u, v, c)
-            e[0] += c[0]; e[1] += c[1]; e[2] += c[2]
-
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         # Propagate with the integral-corrected gyro, then correct with this sample's
@@ -58,7 +60,7 @@ cdef class Mahony(Estimator):
         if gyr != NULL:
             quat_propagate(self.q, gyr[0] + self.ki * self.eint[0],
                            gyr[1] + self.ki * self.eint[1], gyr[2] + self.ki * self.eint[2], dt)
-        self.correction(acc, mag, e)
+        mahony_error(self.q, acc, mag, e)
         if self.ki > 0.0:
             self.eint[0] += e[0] * dt
             self.eint[1] += e[1] * dt
