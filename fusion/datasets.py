@@ -1,0 +1,133 @@
+"""Readers for recorded IMU data with a reference orientation (numpy only).
+
+The recorded sets live in ``../shared/data/<set>/<trial>.npz`` (format in that folder's
+README.md): ``t``, ``gyr``, ``acc``, optional ``mag``, reference ``quat`` (Hamilton
+``[w, x, y, z]``, IMU -> earth, z up, NaN rows where the reference was lost), ``fs``,
+``quality`` (``'ok'`` or a reason not to score the trial) and ``notes``. Any other arrays in
+the file (e.g. ``q_align``, ``q_earth_fix``) are kept in ``Trial.extra``.
+
+    from fusion import datasets
+    root = datasets.default_data_dir()          # None where the folder is absent
+    for trial in datasets.load_folder(root):
+        if trial.ok:
+            q = est.run(trial.gyr, trial.acc, trial.mag, dt=trial.dt)
+"""
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+__all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR"]
+
+ENV_VAR = "FUSION_DATA_DIR"
+_KNOWN = ("t", "gyr", "acc", "mag", "quat", "fs", "quality", "notes")
+
+
+@dataclass(eq=False)
+class Trial:
+    """One recorded trial in memory. Arrays have N rows; ``mag`` is None for 6-axis devices.
+
+    ``dt`` is the step into each sample from the time stamps, ``dt[i] = t[i] - t[i-1]``, and
+    ``dt[0] = 1/fs`` (the step the estimators' ``run(..., dt=trial.dt)`` expects).
+    """
+    name: str
+    set: str
+    t: np.ndarray
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: Optional[np.ndarray]
+    quat: np.ndarray
+    fs: float
+    quality: str
+    notes: str
+    dt: np.ndarray
+    path: Optional[Path] = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def ok(self):
+        """True when the trial may be scored (``quality == 'ok'``)."""
+        return self.quality.strip().lower() == "ok"
+
+    @property
+    def has_mag(self):
+        return self.mag is not None
+
+    @property
+    def n(self):
+        return self.t.shape[0]
+
+    @property
+    def duration(self):
+        return float(self.t[-1] - self.t[0]) if self.n else 0.0
+
+    @property
+    def key(self):
+        """``"<set>/<name>"``, unique within a data folder."""
+        return f"{self.set}/{self.name}"
+
+    def __repr__(self):
+        return (f"Trial({self.key!r}, n={self.n}, fs={self.fs:.2f}, "
+                f"mag={'yes' if self.has_mag else 'no'}, quality={self.quality!r})")
+
+
+def _rows(arr, n, cols, key, path):
+    arr = np.asarray(arr, dtype=float)
+    if arr.shape != (n, cols):
+        raise ValueError(f"{path}: {key!r} must have shape ({n}, {cols}), got {arr.shape}")
+    return arr
+
+
+def load_trial(path):
+    """Read one ``.npz`` trial into a ``Trial``; ValueError on missing keys or bad shapes."""
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as d:
+        missing = [k for k in ("t", "gyr", "acc", "quat", "fs") if k not in d.files]
+        if missing:
+            raise ValueError(f"{path}: missing key(s) {missing}; has {sorted(d.files)}")
+        t = np.asarray(d["t"], dtype=float)
+        if t.ndim != 1:
+            raise ValueError(f"{path}: 't' must have shape (N,), got {t.shape}")
+        n = t.shape[0]
+        gyr = _rows(d["gyr"], n, 3, "gyr", path)
+        acc = _rows(d["acc"], n, 3, "acc", path)
+        mag = _rows(d["mag"], n, 3, "mag", path) if "mag" in d.files else None
+        q = _rows(d["quat"], n, 4, "quat", path)
+        fs = float(d["fs"])
+        quality = str(d["quality"]) if "quality" in d.files else "ok"
+        notes = str(d["notes"]) if "notes" in d.files else ""
+        extra = {k: np.asarray(d[k]) for k in d.files if k not in _KNOWN}
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
+    dt = np.empty(n)
+    if n:
+        dt[0] = 1.0 / fs
+        dt[1:] = np.diff(t)
+        if n > 1 and not (dt[1:] > 0).all():
+            raise ValueError(f"{path}: time stamps 't' must increase strictly "
+                             f"(first bad step at row {int(np.argmax(dt[1:] <= 0)) + 1})")
+    return Trial(name=path.stem, set=path.parent.name, t=t, gyr=gyr, acc=acc, mag=mag, quat=q,
+                 fs=fs, quality=quality, notes=notes, dt=dt, path=path, extra=extra)
+
+
+def load_folder(folder, only_ok=False):
+    """Every ``*.npz`` trial in ``folder`` and its sub-folders (a set folder, or the data root
+    with one sub-folder per set), sorted by set and name. ``only_ok`` drops trials whose
+    quality is not 'ok'."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"data folder {str(folder)!r} does not exist")
+    trials = [load_trial(p) for p in sorted(folder.rglob("*.npz"))]
+    trials.sort(key=lambda tr: (tr.set, tr.name))
+    return [tr for tr in trials if tr.ok] if only_ok else trials
+
+
+def default_data_dir():
+    """The recorded-data folder: ``$FUSION_DATA_DIR`` if set, else ``../shared/data`` beside the
+    repository root (``Path(__file__).resolve().parents[2] / "shared" / "data"``). None when
+    that folder does not exist (e.g. for an installed package without the data)."""
+    env = os.environ.get(ENV_VAR)
+    path = Path(env).expanduser() if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+    return path if path.is_dir() else None
