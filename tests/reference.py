@@ -1,0 +1,428 @@
+"""Plain-numpy reference implementations of the estimators of docs/estimators.md.
+
+Written from the specification only (no import of `fusion`, nothing taken from the Cython
+kernels), so that the kernels can be checked against an independent implementation. The code
+favours literal, full-matrix transcriptions of the specification over speed:
+
+- the EKF builds F, Q, H, S, K as numpy arrays, inverts S with np.linalg.inv and applies the
+  Joseph form literally;
+- measurement Jacobians are obtained by complex-step differentiation of the measurement
+  functions themselves (exact to machine precision), not from hand-derived formulas.
+
+Public classes: RefGyro(), RefMahony(kp, ki), RefEKF(gyro_noise, bias_noise, acc_noise,
+mag_noise, q_init_std, bias_init_std); all take fs, frame ("ENU"/"NED") and on_invalid
+("raise"/"skip") keywords and offer update(), run(), reset(), quaternion, euler, bias,
+covariance and skipped.
+
+Where docs/estimators.md is silent, this reference reads it as follows (the kernels agree):
+- every invalid vector is counted in `skipped`, also in the samples before initialisation
+  (there the accelerometer is invalid by definition; an invalid gyro or magnetometer in the
+  same sample is counted too);
+- "m parallel to u" at initialisation means |m × u| <= 1e-9 |m|;
+- before initialisation the output is the identity attitude of the kernels' ENU frame, so with
+  frame="NED" it is c = [0, √½, √½, 0];
+- with frame="NED" the whole covariance is T P Tᵀ, T = blockdiag(L(c), I3) (the quaternion-bias
+  cross blocks are rotated as well);
+- an EKF magnetometer update skipped because the field is vertical is not counted in `skipped`;
+- `bias` is None for the gyro integrator, `covariance` None except for the EKF.
+"""
+import math
+
+import numpy as np
+
+G = 9.81
+C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+CS_STEP = 1e-30
+PARALLEL_TOL = 1e-9
+
+
+# --- quaternion algebra -----------------------------------------------------------------
+
+def qmul(p, q):
+    """Hamilton product p ⊗ q of two quaternions [w, x, y, z]."""
+    w1, x1, y1, z1 = np.asarray(p).tolist()
+    w2, x2, y2, z2 = np.asarray(q).tolist()
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                     w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def qconj(q):
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+def left_matrix(p):
+    """L(p) with p ⊗ q = L(p) q."""
+    w, x, y, z = np.asarray(p).tolist()
+    return np.array([[w, -x, -y, -z],
+                     [x, w, -z, y],
+                     [y, z, w, -x],
+                     [z, -y, x, w]])
+
+
+def rotmat(q):
+    """R(q) in its homogeneous quadratic form (works for complex q: complex step)."""
+    w, x, y, z = np.asarray(q).tolist()    # python scalars: fast arithmetic
+    return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])
+
+
+def omega_matrix(w):
+    """Ω(ω) with q ⊗ [0, ω] = Ω(ω) q."""
+    wx, wy, wz = np.asarray(w).tolist()
+    return np.array([[0.0, -wx, -wy, -wz],
+                     [wx, 0.0, wz, -wy],
+                     [wy, -wz, 0.0, wx],
+                     [wz, wy, -wx, 0.0]])
+
+
+def xi_matrix(q):
+    """Ξ(q) with q ⊗ [0, ω] = Ξ(q) ω."""
+    w, x, y, z = np.asarray(q).tolist()
+    return np.array([[-x, -y, -z],
+                     [w, -z, y],
+                     [z, w, -x],
+                     [-y, x, w]])
+
+
+I3, I4, I7 = np.eye(3), np.eye(4), np.eye(7)
+
+
+def phi(w, dt):
+    """Φ(ω, dt) = cos(θ/2) I4 + sin(θ/2)/|ω| Ω(ω), θ = |ω| dt; I4 for ω = 0."""
+    n = math.sqrt(sum(c * c for c in np.asarray(w, float).tolist()))
+    if n == 0.0:
+        return I4.copy()
+    half = 0.5 * n * dt
+    return math.cos(half) * I4 + (math.sin(half) / n) * omega_matrix(w)
+
+
+def normalise(v):
+    return v / math.sqrt(v @ v)
+
+
+def cross(a, b):
+    """a × b (np.cross is slow for single vectors)."""
+    a1, a2, a3 = a.tolist()
+    b1, b2, b3 = b.tolist()
+    return np.array([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1])
+
+
+def complex_step_jacobian(f, q, h=CS_STEP):
+    """(f(q), d f(q) / d q) by complex-step differentiation.
+
+    Column k of the (m x 4) Jacobian is Im f(q + i h e_k) / h; Re f(q + i h e_k) is f(q) up to
+    O(h²) = 1e-60, so the value comes with it.
+    """
+    q = np.asarray(q, float)
+    cols = []
+    for k in range(4):
+        qc = q.astype(complex)
+        qc[k] += 1j * h
+        fc = f(qc)
+        cols.append(fc.imag / h)
+    return fc.real, np.column_stack(cols)
+
+
+def quat_from_matrix(R):
+    """Unit quaternion of the rotation matrix R (Shepperd's method), sign chosen with w >= 0."""
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + t)
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
+    elif k == 1:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
+    elif k == 2:
+        s = 2.0 * np.sqrt(1.0 - R[0, 0] + R[1, 1] - R[2, 2])
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 - R[0, 0] - R[1, 1] + R[2, 2])
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s])
+    if q[0] < 0:
+        q = -q
+    return normalise(q)
+
+
+def euler_zyx(q):
+    """[yaw, pitch, roll] (ZYX) in radians."""
+    w, x, y, z = q
+    return np.array([np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)),
+                     np.arcsin(np.clip(2 * (w * y - x * z), -1.0, 1.0)),
+                     np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))])
+
+
+# --- sample handling --------------------------------------------------------------------
+
+def gyro_valid(g):
+    """Finite components (a gyro at exactly zero rate is valid)."""
+    return all(math.isfinite(c) for c in g.tolist())
+
+
+def vector_valid(v):
+    """Finite components, not all zero."""
+    c = v.tolist()
+    return all(math.isfinite(x) for x in c) and any(x != 0.0 for x in c)
+
+
+def initial_attitude(acc, mag=None):
+    """Attitude from one accelerometer (and optionally magnetometer) sample, ENU."""
+    u = normalise(np.asarray(acc, float))
+    if mag is not None:
+        mag = np.asarray(mag, float)
+        e = cross(mag, u)
+        ne = math.sqrt(e @ e)
+        # m parallel to u: magnetometer ignored. "Parallel" is taken as |m × u| <= 1e-9 |m|
+        # (the angle between m and ±u below 1e-9 rad); the spec gives no tolerance.
+        if ne > PARALLEL_TOL * math.sqrt(mag @ mag):
+            e = e / ne
+            n = cross(u, e)
+            R0 = np.array([e, n, u])        # rows: body-to-navigation
+            return quat_from_matrix(R0)
+    roll = np.arctan2(u[1], u[2])
+    pitch = np.arctan2(-u[0], np.sqrt(u[1] ** 2 + u[2] ** 2))
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    return np.array([cp * cr, cp * sr, sp * cr, -sp * sr])
+
+
+class RefEstimator:
+    """Common sample handling, initialisation and frame conversion."""
+    PARAMS = {}
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        if frame not in ("ENU", "NED"):
+            raise ValueError("frame")
+        if on_invalid not in ("raise", "skip"):
+            raise ValueError("on_invalid")
+        unknown = set(params) - set(self.PARAMS)
+        if unknown:
+            raise ValueError(f"unknown parameters {unknown}")
+        self.fs = float(fs)
+        self.frame = frame
+        self.on_invalid = on_invalid
+        self.params = dict(self.PARAMS, **params)
+        for k, v in self.params.items():
+            setattr(self, k, float(v))
+        self.reset()
+
+    # state handling
+    def reset(self, q0=None):
+        self.q = IDENTITY.copy()
+        self.initialised = False
+        self.skipped = {"gyr": 0, "acc": 0, "mag": 0}
+        self._reset_state()
+        if q0 is not None:
+            q0 = normalise(np.asarray(q0, float))
+            if self.frame == "NED":
+                q0 = qmul(qconj(C_NED), q0)
+            self.q = q0
+            self.initialised = True
+
+    def _reset_state(self):
+        pass
+
+    def _out(self, q):
+        return qmul(C_NED, q) if self.frame == "NED" else q.copy()
+
+    @property
+    def quaternion(self):
+        return self._out(self.q)
+
+    @property
+    def euler(self):
+        return euler_zyx(self.quaternion)
+
+    @property
+    def bias(self):
+        return None
+
+    @property
+    def covariance(self):
+        return None
+
+    # processing
+    def _check(self, gyr, acc, mag):
+        if not gyro_valid(gyr):
+            raise ValueError("gyr must be finite")
+        if not vector_valid(acc):
+            raise ValueError("acc must be finite and non-zero")
+        if mag is not None and not vector_valid(mag):
+            raise ValueError("mag must be finite and non-zero")
+
+    def update(self, gyr, acc, mag=None, dt=None):
+        gyr = np.asarray(gyr, float)
+        acc = np.asarray(acc, float)
+        mag = None if mag is None else np.asarray(mag, float)
+        dt = 1.0 / self.fs if dt is None else float(dt)
+        if self.on_invalid == "raise":
+            self._check(gyr, acc, mag)
+        gv = gyro_valid(gyr)
+        av = vector_valid(acc)
+        mv = mag is not None and vector_valid(mag)
+        # every invalid vector is counted, also in the samples before initialisation (where
+        # the accelerometer is the invalid one by definition)
+        self.skipped["gyr"] += not gv
+        self.skipped["acc"] += not av
+        self.skipped["mag"] += mag is not None and not mv
+        if not self.initialised:
+            if not av:
+                return self._out(IDENTITY)
+            self.q = initial_attitude(acc, mag if mv else None)
+            self.initialised = True
+        self._step(gyr if gv else None, acc if av else None, mag if mv else None, dt)
+        return self._out(self.q)
+
+    def run(self, gyr, acc, mag=None, dt=None):
+        gyr = np.asarray(gyr, float)
+        acc = np.asarray(acc, float)
+        mag = None if mag is None else np.asarray(mag, float)
+        n = len(gyr)
+        if dt is None:
+            dt = np.full(n, 1.0 / self.fs)
+        else:
+            dt = np.broadcast_to(np.asarray(dt, float), (n,))
+        if self.on_invalid == "raise":
+            for i in range(n):
+                self._check(gyr[i], acc[i], None if mag is None else mag[i])
+        out = np.empty((n, 4))
+        for i in range(n):
+            out[i] = self.update(gyr[i], acc[i], None if mag is None else mag[i], dt[i])
+        return out
+
+    def _step(self, gyr, acc, mag, dt):
+        """One sample; gyr/acc/mag are None when invalid (skipped) or absent."""
+        raise NotImplementedError
+
+
+# --- gyro -------------------------------------------------------------------------------
+
+class RefGyro(RefEstimator):
+    PARAMS = {}
+
+    def _step(self, gyr, acc, mag, dt):
+        if gyr is not None:
+            self.q = normalise(phi(gyr, dt) @ self.q)
+
+
+# --- mahony -----------------------------------------------------------------------------
+
+class RefMahony(RefEstimator):
+    PARAMS = {"kp": 0.5, "ki": 0.005}
+
+    def _reset_state(self):
+        self.eps = np.zeros(3)
+
+    @property
+    def bias(self):
+        return -self.ki * self.eps
+
+    def _step(self, gyr, acc, mag, dt):
+        q = self.q
+        if gyr is not None:                                              # 1.
+            q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
+        e = np.zeros(3)
+        if acc is not None:                                              # 2.
+            a = normalise(acc)
+            v = rotmat(q).T @ np.array([0.0, 0.0, 1.0])
+            e += cross(a, v)
+        if mag is not None:                                              # 3.
+            m = normalise(mag)
+            h = rotmat(q) @ m
+            b = np.array([0.0, np.sqrt(h[0] ** 2 + h[1] ** 2), h[2]])
+            w = rotmat(q).T @ b
+            e += cross(m, w)
+        if self.ki > 0:                                                  # 4.
+            self.eps = self.eps + e * dt
+        if self.kp > 0:
+            q = phi(self.kp * e, dt) @ q
+        self.q = normalise(q)
+
+
+# --- ekf --------------------------------------------------------------------------------
+
+def acc_model(q):
+    """h(q) = R(q)^T [0, 0, 1], the third row of R(q)."""
+    return rotmat(q)[2]
+
+
+def mag_model(q, z):
+    """h(q) = R(q)^T v(q), v(q) = [0, sqrt(nx² + ny²), nz], n = R(q) z."""
+    R = rotmat(q)
+    nx, ny, nz = (R @ z).tolist()
+    v = np.array([0.0, (nx * nx + ny * ny) ** 0.5, nz])    # complex for a complex q
+    return R.T @ v
+
+
+class RefEKF(RefEstimator):
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+              "q_init_std": 0.05, "bias_init_std": 0.02}
+
+    def _reset_state(self):
+        self.b = np.zeros(3)
+        self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
+
+    @property
+    def bias(self):
+        return self.b.copy()
+
+    @property
+    def covariance(self):
+        if self.frame == "NED":
+            T = np.eye(7)
+            T[:4, :4] = left_matrix(C_NED)
+            return T @ self.P @ T.T
+        return self.P.copy()
+
+    def _predict(self, w, dt):
+        q_old = self.q
+        wc = w - self.b
+        A1 = phi(wc, dt)
+        L = -(dt / 2) * xi_matrix(q_old)
+        F = np.zeros((7, 7))
+        F[:4, :4] = A1
+        F[:4, 4:] = L
+        F[4:, 4:] = I3
+        Xi = xi_matrix(q_old)
+        Q = np.zeros((7, 7))
+        Q[:4, :4] = (dt / 4) * self.gyro_noise ** 2 * (Xi @ Xi.T)
+        Q[4:, 4:] = self.bias_noise ** 2 * dt * I3
+        self.q = normalise(A1 @ q_old)
+        self.P = F @ self.P @ F.T + Q
+
+    def _correct(self, z, hfun, Rm):
+        h, J = complex_step_jacobian(hfun, self.q)
+        H = np.zeros((3, 7))
+        H[:, :4] = J
+        S = H @ self.P @ H.T + Rm
+        K = self.P @ H.T @ np.linalg.inv(S)
+        x = np.concatenate([self.q, self.b]) + K @ (z - h)
+        self.q = normalise(x[:4])
+        self.b = x[4:]
+        IKH = I7 - K @ H
+        self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
+
+    def _step(self, gyr, acc, mag, dt):
+        if gyr is not None:                                              # 1.
+            self._predict(gyr, dt)
+        if acc is not None:                                              # 2.
+            Rm = (self.acc_noise / G) ** 2 / dt * I3
+            self._correct(normalise(acc), acc_model, Rm)
+        if mag is not None:                                              # 3.
+            z = normalise(mag)
+            nx, ny, _ = (rotmat(self.q) @ z).tolist()
+            if math.sqrt(nx * nx + ny * ny) >= 1e-9:
+                Rm = self.mag_noise ** 2 / dt * I3
+                self._correct(z, lambda q: mag_model(q, z), Rm)
+        self.P = (self.P + self.P.T) / 2                                 # 5.
+
+
+REFERENCES = {"gyro": RefGyro, "mahony": RefMahony, "ekf": RefEKF}
+
+
+def make(name, fs, frame="ENU", on_invalid="raise", **params):
+    return REFERENCES[name](fs, frame=frame, on_invalid=on_invalid, **params)
