@@ -1,9 +1,12 @@
 """Builds the Cython kernels of fusion/ (metadata lives in pyproject.toml)."""
+from pathlib import Path
+
 import numpy as np
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 
-KERNELS = ["_core", "_gyro", "_mahony", "_ekf"]
+# every fusion/_*.pyx is a kernel module
+KERNELS = sorted(p.stem for p in Path(__file__).parent.glob("fusion/_*.pyx"))
 
 extensions = [
     Extension(f"fusion.{name}", [f"fusion/{name}.pyx"],

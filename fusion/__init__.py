@@ -10,12 +10,14 @@ into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI u
 from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
-from fusion._ekf import EKF
+from fusion._ekf import EKF, IIREKF
+from fusion._prefilter import Butterworth, SlidingMean
 
-__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF"]
+__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF",
+           "Butterworth", "SlidingMean"]
 __version__ = "0.1.0"
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF)}
 
 
 def available():

@@ -1,3 +1,9 @@
+cdef class Prefilter:
+    """A per-sample filter on one 3-vector sensor stream (Butterworth, sliding mean, ...)."""
+    cdef void apply(self, double* v) noexcept nogil    # in place
+    cdef void clear(self) noexcept nogil              # forget the history
+
+
 # The base class every estimator kernel derives from: sample validation, initial attitude,
 # the frame boundary, the per-call and batch entry points. Subclasses implement _step.
 
@@ -11,6 +17,8 @@ cdef class Estimator:
     cdef bint has_q0            # reset() was given a start attitude
     cdef double q0[4]
     cdef long long n_skip_gyr, n_skip_acc, n_skip_mag
+    # optional prefilters an estimator composes (None: raw samples), applied to valid samples
+    cdef Prefilter pre_gyr, pre_acc, pre_mag
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil

@@ -72,6 +72,16 @@ cdef int _read_vec3(object v, str name, double* out) except -1:
     return 0
 
 
+cdef class Prefilter:
+    """Base of the prefilter kernels (fusion._prefilter)."""
+
+    cdef void apply(self, double* v) noexcept nogil:
+        pass
+
+    cdef void clear(self) noexcept nogil:
+        pass
+
+
 cdef class Estimator:
     """Base of every attitude estimator. Use fusion.make(name, fs, ...) to build one."""
 
@@ -111,10 +121,30 @@ cdef class Estimator:
 
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil:
-        """Validate one sample (NULL = absent or invalid), initialise if needed, then step."""
+        """Prefilter and validate one sample (NULL = absent or invalid), initialise if
+        needed, then step."""
+        cdef double g[3]
+        cdef double a[3]
+        cdef double m[3]
         cdef bint gyr_ok = vec3_finite(gyr)
         cdef bint acc_ok = vec3_valid(acc)
         cdef bint mag_ok = mag != NULL and vec3_valid(mag)
+        # prefilters see valid samples only, so a glitch never enters their history
+        if gyr_ok and self.pre_gyr is not None:
+            memcpy(g, gyr, 3 * sizeof(double))
+            self.pre_gyr.apply(g)
+            gyr = g
+            gyr_ok = vec3_finite(g)
+        if acc_ok and self.pre_acc is not None:
+            memcpy(a, acc, 3 * sizeof(double))
+            self.pre_acc.apply(a)
+            acc = a
+            acc_ok = vec3_valid(a)
+        if mag_ok and self.pre_mag is not None:
+            memcpy(m, mag, 3 * sizeof(double))
+            self.pre_mag.apply(m)
+            mag = m
+            mag_ok = vec3_valid(m)
         if not gyr_ok:
             self.n_skip_gyr += 1
         if not acc_ok:
@@ -163,6 +193,9 @@ cdef class Estimator:
         self.n_skip_gyr = 0
         self.n_skip_acc = 0
         self.n_skip_mag = 0
+        for pre in (self.pre_gyr, self.pre_acc, self.pre_mag):
+            if pre is not None:
+                (<Prefilter>pre).clear()
         self._reset_state()
 
 
@@ -291,6 +324,11 @@ cdef class Estimator:
     def skipped(self):
         """Counts of samples skipped as invalid since the last reset, per sensor."""
         return {"gyr": self.n_skip_gyr, "acc": self.n_skip_acc, "mag": self.n_skip_mag}
+
+    @property
+    def prefilters(self):
+        """The prefilter in front of each sensor stream (None where samples go in raw)."""
+        return {"gyr": self.pre_gyr, "acc": self.pre_acc, "mag": self.pre_mag}
 
     @property
     def params(self):

@@ -9,3 +9,6 @@ cdef class EKF(Estimator):
                             double r) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil
+
+cdef class IIREKF(EKF):
+    pass

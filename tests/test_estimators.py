@@ -72,7 +72,10 @@ def test_constant_rotation_rate_is_followed_exactly(name):
     est = fusion.make(name, 100.0)
     est.reset(q0)
     out = est.run(gyr, acc, mag)
-    assert angle_between(out, q).max() < 1e-9
+    if any(est.prefilters.values()):    # a low-pass delays the turning vectors: close, not exact
+        assert np.degrees(angle_between(out, q)).max() < 1.0
+    else:
+        assert angle_between(out, q).max() < 1e-9
 
 
 @pytest.mark.parametrize("name", [n for n in NAMES if n != "gyro"])

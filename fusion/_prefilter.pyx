@@ -1,0 +1,136 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""Prefilter kernels that estimators compose (DESIGN.md): a second-order Butterworth low-pass
+(seed 003) and a sliding-window mean (seed 004), each on one 3-axis sensor stream."""
+import numpy as np
+from libc.math cimport tan, sqrt, M_PI
+from libc.stdlib cimport calloc, free
+
+from fusion._core cimport Prefilter
+from fusion._core import check_positive, _as_samples
+
+
+def _run(Prefilter f, x):
+    """Filter an (N, 3) array sample by sample (the prefilter's state carries over)."""
+    X = np.array(_as_samples(x, "x"), dtype=np.float64, order="C", copy=True)
+    cdef double[:, ::1] v = X
+    cdef Py_ssize_t i
+    with nogil:
+        for i in range(v.shape[0]):
+            f.apply(&v[i, 0])
+    return X
+
+
+cdef class Butterworth(Prefilter):
+    """Second-order Butterworth low-pass by the bilinear transform with pre-warping
+    (seed 003): analogue prototype 1 / (s^2 + sqrt(2) s + 1) at w_a = 2 fs tan(pi fc / fs).
+    The state starts at steady state on the first sample (no start-up transient), as
+    scipy.signal.lfilter with zi = lfilter_zi(b, a) * x[0]."""
+
+    def __init__(self, fs, cutoff_hz):
+        self.fs = check_positive("fs", fs)
+        c = check_positive("cutoff_hz", cutoff_hz)
+        if c >= 0.5 * self.fs:
+            raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
+                             f"got {cutoff_hz!r}")
+        self.cutoff_hz = c
+        cdef double w = tan(M_PI * c / self.fs)      # pre-warped, divided by 2 fs
+        cdef double r = sqrt(2.0)
+        cdef double n = 1.0 / (1.0 + r * w + w * w)
+        self.b0 = w * w * n
+        self.b1 = 2.0 * self.b0
+        self.b2 = self.b0
+        self.a1 = 2.0 * (w * w - 1.0) * n
+        self.a2 = (1.0 - r * w + w * w) * n
+        self.clear()
+
+    @property
+    def coefficients(self):
+        """(b, a) as scipy.signal uses them."""
+        return (np.array([self.b0, self.b1, self.b2]), np.array([1.0, self.a1, self.a2]))
+
+    cdef void clear(self) noexcept nogil:
+        self.primed = False
+
+    cdef void apply(self, double* v) noexcept nogil:
+        cdef int k
+        cdef double x, y
+        if not self.primed:
+            for k in range(3):
+                self.z2[k] = (self.b2 - self.a2) * v[k]
+                self.z1[k] = (self.b1 - self.a1) * v[k] + self.z2[k]
+            self.primed = True
+        for k in range(3):     # direct form II transposed
+            x = v[k]
+            y = self.b0 * x + self.z1[k]
+            self.z1[k] = self.b1 * x - self.a1 * y + self.z2[k]
+            self.z2[k] = self.b2 * x - self.a2 * y
+            v[k] = y
+
+    def reset(self):
+        self.clear()
+
+    def run(self, x):
+        """Filter an (N, 3) array; returns a new array."""
+        return _run(self, x)
+
+    def __repr__(self):
+        return f"Butterworth(fs={self.fs!r}, cutoff_hz={self.cutoff_hz!r})"
+
+
+cdef class SlidingMean(Prefilter):
+    """Mean of the last `window` samples, step 1 (seed 004's preprocessing). Until the window
+    has filled, the mean of the samples so far."""
+
+    def __cinit__(self, window):
+        if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+            raise ValueError(f"window must be an integer >= 1, got {window!r}")
+        self.window = int(window)
+        self.buf = <double*>calloc(3 * self.window, sizeof(double))
+        if self.buf == NULL:
+            raise MemoryError("SlidingMean buffer")
+        self.clear()
+
+    def __dealloc__(self):
+        free(self.buf)
+
+    cdef void clear(self) noexcept nogil:
+        self.count = 0
+        self.head = 0
+        self.total[0] = 0.0
+        self.total[1] = 0.0
+        self.total[2] = 0.0
+
+    cdef void apply(self, double* v) noexcept nogil:
+        cdef int k, i
+        cdef double* slot = self.buf + 3 * self.head
+        cdef double inv
+        if self.count == self.window:
+            for k in range(3):
+                self.total[k] -= slot[k]
+        else:
+            self.count += 1
+        for k in range(3):
+            slot[k] = v[k]
+            self.total[k] += v[k]
+        self.head += 1
+        if self.head == self.window:
+            self.head = 0
+            # re-add the window exactly once per lap so rounding never accumulates
+            for k in range(3):
+                self.total[k] = 0.0
+            for i in range(self.count):
+                for k in range(3):
+                    self.total[k] += self.buf[3 * i + k]
+        inv = 1.0 / self.count
+        for k in range(3):
+            v[k] = self.total[k] * inv
+
+    def reset(self):
+        self.clear()
+
+    def run(self, x):
+        """Filter an (N, 3) array; returns a new array."""
+        return _run(self, x)
+
+    def __repr__(self):
+        return f"SlidingMean(window={self.window!r})"
