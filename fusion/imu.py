@@ -59,6 +59,7 @@ _MAG_UNITS = {"uT": 1.0, "nT": 1e-3, "mT": 1e3, "T": 1e6, "G": 100.0, "mG": 0.1}
 _SAMPLING = ("hold", "average")
 _TOL = 1e-9                    # s: time comparisons (a sample at t and a step at t coincide)
 _BLOCK = 512                   # noise rows drawn per block
+_CHUNK = 1 << 17               # physics samples per internal batch step
 
 
 def _check_number(owner, name, value, *, positive=False, allow_inf=False, allow_none=False):
@@ -339,9 +340,10 @@ class IMUSpec:
 # Presets (sources and assumptions: docs/imu.md, one table per preset)
 
 
-def _rrw(bias_instability, tau_cross=3000.0):
-    """Assumed rate random walk whose Allan line reaches the bias floor at tau_cross (s)."""
-    return ALLAN_FLOOR * bias_instability * math.sqrt(3.0 / tau_cross)
+def _rrw(bias_instability, corr_time_s):
+    """Assumed rate random walk: its Allan line K sqrt(tau / 3) reaches the bias floor at
+    tau = 10 corr_time_s, five times past the end of the flat floor."""
+    return ALLAN_FLOOR * bias_instability * math.sqrt(3.0 / (10.0 * corr_time_s))
 
 
 _INV_GYRO_BI = 10.0 * DPH       # assumed bias instability of InvenSense consumer gyros
@@ -355,12 +357,12 @@ PRESETS = {
     # register defaults FS_SEL = AFS_SEL = 0; DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
     "mpu6050+mag3110": IMUSpec(
         "mpu6050+mag3110",
-        gyro=SensorSpec(noise_density=0.005 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=100.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI), bias_turn_on=20.0 * DEG,
+        gyro=SensorSpec(noise_density=0.005 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
+                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=20.0 * DEG,
                         bias_turn_on_calibrated=0.8 * DEG, scale_error=0.03, misalignment=0.02,
                         range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=5.0),
-        acc=SensorSpec(noise_density=400.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=100.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI), bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
+        acc=SensorSpec(noise_density=400.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
+                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
                        bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
                        misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=5.0),
         mag=MagSpec(noise_rms=0.25, range=1000.0, lsb=0.1, adc_bits=16, rate_hz=80.0, hard_iron=100.0,
@@ -372,12 +374,13 @@ PRESETS = {
     # strapdown integration inside: "average" sampling.
     "mti10": IMUSpec(
         "mti10",
-        gyro=SensorSpec(noise_density=0.03 * DEG, bias_instability=18.0 * DPH, bias_corr_time_s=100.0,
-                        bias_random_walk=_rrw(18.0 * DPH), bias_turn_on=0.5 * DEG,
+        gyro=SensorSpec(noise_density=0.03 * DEG, bias_instability=18.0 * DPH, bias_corr_time_s=1000.0,
+                        bias_random_walk=_rrw(18.0 * DPH, 1000.0), bias_turn_on=0.5 * DEG,
                         bias_turn_on_calibrated=0.05 * DEG, scale_error=0.001, misalignment=0.1 * DEG,
                         range=450.0 * DEG),
-        acc=SensorSpec(noise_density=80.0 * UG, bias_instability=40.0 * UG, bias_corr_time_s=100.0,
-                       bias_random_walk=_rrw(40.0 * UG), bias_turn_on=5.0 * MG, bias_turn_on_calibrated=0.5 * MG,
+        acc=SensorSpec(noise_density=80.0 * UG, bias_instability=40.0 * UG, bias_corr_time_s=1000.0,
+                       bias_random_walk=_rrw(40.0 * UG, 1000.0), bias_turn_on=5.0 * MG,
+                       bias_turn_on_calibrated=0.5 * MG,
                        scale_error=0.001, misalignment=0.1 * DEG, range=20.0 * G0),
         mag=MagSpec(noise_rms=0.05, range=8.0 * GAUSS, lsb=0.025, hard_iron=0.5, soft_iron=0.005,
                     hard_iron_calibrated=0.5, soft_iron_calibrated=0.005),
@@ -388,12 +391,12 @@ PRESETS = {
     # (gyro 250 Hz, accelerometer 218.1 Hz): the paper gives no setting.
     "icm20602+qmc5883l": IMUSpec(
         "icm20602+qmc5883l",
-        gyro=SensorSpec(noise_density=0.004 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=100.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI), bias_turn_on=1.0 * DEG,
+        gyro=SensorSpec(noise_density=0.004 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
+                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=1.0 * DEG,
                         bias_turn_on_calibrated=0.05 * DEG, scale_error=0.01, misalignment=0.02,
                         range=2000.0 * DEG, lsb=DEG / 16.4, adc_bits=16, lpf_hz=250.0),
-        acc=SensorSpec(noise_density=100.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=100.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI), bias_turn_on=40.0 * MG,
+        acc=SensorSpec(noise_density=100.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
+                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=40.0 * MG,
                        bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
                        misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, adc_bits=16, lpf_hz=218.1),
         mag=MagSpec(noise_rms=0.2, range=8.0 * GAUSS, lsb=GAUSS / 3000.0, adc_bits=16, rate_hz=200.0,
@@ -405,12 +408,12 @@ PRESETS = {
     # 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
     "mpu9250": IMUSpec(
         "mpu9250",
-        gyro=SensorSpec(noise_density=0.01 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=100.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI), bias_turn_on=5.0 * DEG,
+        gyro=SensorSpec(noise_density=0.01 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
+                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=5.0 * DEG,
                         bias_turn_on_calibrated=1.2 * DEG, scale_error=0.03, misalignment=0.02,
                         range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=250.0),
-        acc=SensorSpec(noise_density=300.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=100.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI), bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
+        acc=SensorSpec(noise_density=300.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
+                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
                        bias_turn_on_calibrated=7.5 * MG, scale_error=0.03, misalignment=0.02,
                        range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=218.1),
         mag=MagSpec(noise_rms=0.6, range=4800.0, lsb=0.6, adc_bits=14, rate_hz=100.0, hard_iron=75.0,
@@ -635,9 +638,10 @@ class IMU:
         need = self._pos + n
         if need > self._buf.shape[0]:
             extra = -(-(need - self._buf.shape[0]) // _BLOCK)
-            blocks = [self._buf[self._pos:]] + [self._gen.standard_normal((_BLOCK, self._ncols))
-                                                for _ in range(extra)]
-            self._buf = np.concatenate(blocks, axis=0)
+            # whole blocks of _BLOCK rows: one draw of several blocks gives the same numbers as
+            # several draws of one, so batch and streaming consume the generator alike
+            new = self._gen.standard_normal((extra * _BLOCK, self._ncols))
+            self._buf = np.concatenate([self._buf[self._pos:], new], axis=0) if self._pos < self._buf.shape[0] else new
             self._pos = 0
         return self._buf[self._pos:self._pos + n]
 
@@ -764,17 +768,22 @@ class IMU:
                 for r in range(3):
                     out[:, 3 * i + r] = m[r][0] * x[:, 0] + m[r][1] * x[:, 1] + m[r][2] * x[:, 2]
         S0 = np.array(self._S)
-        st = np.empty((v.shape[0], 30))
-        for c0 in range(0, 30, 3):               # groups of 3 columns share one coefficient
-            cols = slice(c0, c0 + 3)
-            b = rows[:, 1 + c0:4 + c0] * np.array(self._C[cols])
-            if self._R[c0] == 1.0:
-                st[:, cols] = S0[cols] + np.cumsum(b, axis=0)
-            else:
-                st[:, cols] = _ar1(self._R[c0], b, S0[cols])
-        self._S = st[-1].tolist()
-        bias = self._b0 + st[:, 0:6] + st[:, 6:12] + st[:, 12:18]
-        out = out + (bias + st[:, 18:24]) + st[:, 24:30]
+        last = np.empty(30)
+        for i in (0, 1):
+            parts = []
+            for c0 in (3 * i, 6 + 3 * i, 12 + 3 * i, 18 + 3 * i, 24 + 3 * i):    # GM 0 1 2, RW, white
+                cols = slice(c0, c0 + 3)
+                b = rows[:, 1 + c0:4 + c0] * np.array(self._C[cols])
+                if self._R[c0] == 1.0:
+                    p = S0[cols] + np.cumsum(b, axis=0)
+                else:
+                    p = _ar1(self._R[c0], b, S0[cols])
+                last[cols] = p[-1]
+                parts.append(p)
+            g0, g1, g2, rw, wn = parts
+            bias = self._b0[3 * i:3 * i + 3] + g0 + g1 + g2
+            out[:, 3 * i:3 * i + 3] = out[:, 3 * i:3 * i + 3] + (bias + rw) + wn
+        self._S = last.tolist()
         for i, (lsb, lo, hi, active) in enumerate(self._quant):
             sl = slice(3 * i, 3 * i + 3)
             if lsb > 0:
@@ -896,24 +905,42 @@ class IMU:
             raise ValueError("t must be finite")
         dts = np.diff(t)
         if n > 1 and not np.all(dts > 0):
-            raise ValueError(f"t must be strictly increasing; t[{int(np.argmin(dts > 0)) + 1}] is not after the previous time")
-        if self._mag_on is None:
-            self._mag_on = has_mag
-        elif self._mag_on != has_mag:
+            bad = int(np.argmin(dts > 0)) + 1
+            raise ValueError(f"t must be strictly increasing; t[{bad}] is not after the previous time")
+        if self._mag_on is not None and self._mag_on != has_mag:
             raise ValueError("mag_true must be given in every call of a record or in none "
                              f"(this record {'has' if self._mag_on else 'has no'} magnetometer input)")
-        if self._origin is None:
-            self._origin = float(t[0])
-        tau = t - self._origin
+        origin = float(t[0]) if self._origin is None else self._origin
+        if self._steps and not t[0] - origin > self._tau_last + _TOL:
+            raise ValueError("t must continue the current record: t[0] must be after the last time "
+                             f"given ({self._tau_last + origin!r}); call reset() to start a new one")
+        if self._steps:
+            self._check_physics_dt(np.concatenate([[t[0] - origin - self._tau_last], dts]))
+        else:
+            self._check_physics_dt(dts)
+        self._mag_on = has_mag
+        self._origin = origin
+        parts = []
+        for c0 in range(0, n, _CHUNK):          # bounded memory for long records
+            c1 = min(n, c0 + _CHUNK)
+            rec = self._simulate(t[c0:c1] - origin, [a[c0:c1] for a in arrays], has_mag)
+            rec.index += c0
+            parts.append(rec)
+        if len(parts) == 1:
+            return parts[0]
+        cat = lambda f: np.concatenate([getattr(r, f) for r in parts])
+        return IMURecord(t=cat("t"), gyr=cat("gyr"), acc=cat("acc"), mag=cat("mag") if has_mag and
+                         parts[0].mag is not None else None, dt=cat("dt"), index=cat("index"), fs=self._fs)
+
+    def _simulate(self, tau, arrays, has_mag):
+        """simulate() on one validated chunk; tau is time since the origin."""
+        n = tau.shape[0]
+        dts = np.diff(tau)
         first = self._steps == 0
         if not first:
-            if not tau[0] > self._tau_last + _TOL:
-                raise ValueError("t must continue the current record: t[0] must be after the last time "
-                                 f"given ({self._tau_last + self._origin!r}); call reset() to start a new one")
             step_dt = np.concatenate([[tau[0] - self._tau_last], dts])
         else:
             step_dt = np.concatenate([[dts[0] if n > 1 else 1.0 / self._fs], dts])
-        self._check_physics_dt(step_dt[1:] if first else step_dt)
 
         # physics-rate signal: true motion + vibration, low-passed
         x = np.zeros((n, 9))
@@ -955,8 +982,9 @@ class IMU:
         rows_all = self._peek(cand) if cand else np.empty((0, self._ncols))
         T = np.empty(cand + 1)
         T[0] = self._T_next
-        for m in range(cand):
-            T[m + 1] = self._jitter(self._k + m + 1, rows_all[m, 0])
+        lim = 0.45 / self._fs
+        T[1:] = np.arange(self._k + 1, self._k + 1 + cand, dtype=float) / self._fs + \
+            np.clip(self._spec.jitter_s * rows_all[:, 0], -lim, lim)
         s = np.searchsorted(tau, T - _TOL, side="left")
         ar = np.arange(cand + 1)
         idx = np.maximum.accumulate(s - ar) + ar
@@ -964,14 +992,19 @@ class IMU:
         T, idx, rows = T[:M], idx[:M], rows_all[:M]
 
         if self._hold:
-            y_prev = np.concatenate([self._y_last[None, :], y[:-1]], axis=0) if not first else \
-                np.concatenate([y[:1], y[:-1]], axis=0)
-            tau_prev = np.concatenate([[self._tau_last if not first else tau[0]], tau[:-1]])
-            ti, tp = tau[idx], tau_prev[idx]
+            ip = idx - 1
+            at0 = ip < 0
+            ip[at0] = 0
+            yp = y[ip]
+            tp = tau[ip]
+            if at0.any():       # the step before this call's first: the last of the previous call
+                yp[at0] = y[0] if first else self._y_last
+                tp[at0] = tau[0] if first else self._tau_last
+            yi, ti = y[idx], tau[idx]
             with np.errstate(invalid="ignore", divide="ignore"):
                 w = np.clip((T - tp) / (ti - tp), 0.0, 1.0)
             w[(T >= ti - _TOL) | (ti == tp)] = 1.0
-            vals = (1.0 - w)[:, None] * y_prev[idx] + w[:, None] * y[idx]
+            vals = (1.0 - w)[:, None] * yp + w[:, None] * yi
         else:
             starts = np.concatenate([[0], idx[:-1] + 1]) if M else np.zeros(0, dtype=int)
             if M:
@@ -1180,25 +1213,32 @@ def allan_deviation(x, fs, taus=None):
     return m / fs, out
 
 
-def allan_summary(taus, adev, fs=None):
+def allan_summary(taus, adev, fs=None, max_tau=None):
     """Read the usual figures off an Allan-deviation curve (one column).
 
     Returns a dict: ``arw`` (the -1/2-slope line through the short-tau points, read at
-    tau = 1 s: median of adev * sqrt(tau) for tau in [2, 20] samples, at most 1 s),
-    ``adev_1s`` (the curve at 1 s, interpolated in log-log), ``bias_instability`` (the
-    floor, i.e. the curve's minimum, / 0.664) and ``tau_floor`` (where the minimum is).
+    tau = 1 s: median of adev * sqrt(tau) for tau from 2 to 20 samples, at most 1 s; fs
+    gives the sample period, else taus[0] is taken for it), ``adev_1s`` (the curve itself at
+    1 s, interpolated in log-log; includes whatever else is there at 1 s),
+    ``bias_instability`` (the curve's minimum / 0.664) and ``tau_floor`` (where it is). The
+    minimum is searched up to ``max_tau`` (s), default taus[-1] / 3: the last points rest on
+    a few clusters only and scatter low.
     """
     taus = np.asarray(taus, dtype=float)
     adev = np.asarray(adev, dtype=float)
     if adev.shape != taus.shape or taus.ndim != 1 or taus.size < 2:
         raise ValueError(f"taus and adev must be 1-D of the same length >= 2, got {taus.shape}, {adev.shape}")
-    tmin = taus[0] if fs is None else 1.0 / fs
+    tmin = taus[0] if fs is None else 1.0 / _check_number("allan_summary", "fs", fs, positive=True)
     sel = (taus >= 2 * tmin * (1 - 1e-9)) & (taus <= min(20 * tmin, 1.0) * (1 + 1e-9))
     if not sel.any():
         sel = taus <= max(1.0, taus[0])
     arw = float(np.median(adev[sel] * np.sqrt(taus[sel])))
     adev_1s = float(np.exp(np.interp(0.0, np.log(taus), np.log(adev)))) if taus[0] <= 1.0 <= taus[-1] else math.nan
-    i = int(np.argmin(adev))
+    top = taus[-1] / 3.0 if max_tau is None else float(max_tau)
+    cand = np.flatnonzero(taus <= top)
+    if cand.size == 0:
+        cand = np.arange(taus.size)
+    i = int(cand[np.argmin(adev[cand])])
     return {"arw": arw, "adev_1s": adev_1s, "bias_instability": float(adev[i] / ALLAN_FLOOR),
             "tau_floor": float(taus[i])}
 
