@@ -11,13 +11,16 @@ from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
 from fusion._ekf import EKF, IIREKF
+from fusion._madgwick import Madgwick
+from fusion._ukf import UKF
+from fusion._cfekf import CFEKF
 from fusion._prefilter import Butterworth, SlidingMean
 
-__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF",
+__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF",
            "Butterworth", "SlidingMean"]
 __version__ = "0.1.0"
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF)}
 
 
 def available():

@@ -1,0 +1,8 @@
+from fusion._ekf cimport EKF
+from fusion._mahony cimport Mahony
+
+cdef class CFEKF(EKF):
+    cdef readonly double cf_noise
+    cdef Mahony cf            # the complementary filter whose attitude is the measurement
+    cdef bint cf_started
+    cdef void quat_update(self, const double* z, double r) noexcept nogil

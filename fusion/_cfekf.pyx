@@ -1,0 +1,162 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`cf-ekf`: seed 004's fusion (docs/cfekf.md): sliding-mean prefilter, an explicit
+complementary filter (Mahony) whose quaternion is the measurement of the 7-state EKF."""
+import numbers
+
+import numpy as np
+from libc.math cimport sqrt
+
+from fusion._core cimport Estimator
+from fusion._ekf cimport EKF
+from fusion._mahony cimport Mahony
+from fusion._prefilter cimport SlidingMean
+from fusion._core import check_positive
+from fusion._mahony import Mahony as _Mahony
+from fusion._qmath cimport quat_normalise
+
+WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
+
+
+def default_window(fs):
+    """Samples in the seed's 20 ms window at sample rate fs (at least 1)."""
+    return max(1, int(round(WINDOW_S * fs)))
+
+
+cdef class CFEKF(EKF):
+    """Seed 004: gyro, accelerometer and magnetometer through a sliding mean; Mahony's
+    complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
+    4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
+    whose prediction integrates the averaged gyro."""
+    name = "cf-ekf"
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
+              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005}
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        Estimator.__init__(self, fs, frame, on_invalid)
+        p = self._take_params(params)
+        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_positive("bias_noise", p["bias_noise"], allow_zero=True)
+        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"], allow_zero=True)
+        self.cf_noise = check_positive("cf_noise", p["cf_noise"])
+        kp = check_positive("kp", p["kp"])
+        ki = check_positive("ki", p["ki"], allow_zero=True)
+        w = p["window"]
+        if w is None:
+            w = default_window(self.fs)
+        elif (isinstance(w, (bool, np.bool_)) or not isinstance(w, numbers.Integral) or w < 1):
+            raise ValueError(f"window must be an integer >= 1 (samples) or None "
+                             f"(round(0.02 fs)), got {w!r}")
+        self.pre_gyr = SlidingMean(int(w))
+        self.pre_acc = SlidingMean(int(w))
+        self.pre_mag = SlidingMean(int(w))
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki)
+        self.reset()
+
+    cdef void _reset_state(self) noexcept nogil:
+        EKF._reset_state(self)
+        self.cf_started = False
+
+    cdef void quat_update(self, const double* z, double r) noexcept nogil:
+        """Kalman update with the quaternion measurement z (already sign-aligned with q),
+        H = [I4 0], noise variance r per component; Joseph form."""
+        cdef double* P = self.P
+        cdef double L[16]     # Cholesky factor of S = Pqq + r I4
+        cdef double Ld[4]     # 1 / diag(L)
+        cdef double K[28]     # 7x4
+        cdef double T[49]     # (I - K H) P
+        cdef double y[4]
+        cdef double d, s
+        cdef int i, j, k
+        # S = L L^T; K = P H^T S^-1, row by row: solve S k_i = (P H^T)_i
+        for j in range(4):
+            d = P[j * 8] + r
+            for k in range(j):
+                d -= L[j * 4 + k] * L[j * 4 + k]
+            d = 1.0 / sqrt(d)
+            Ld[j] = d
+            for i in range(j + 1, 4):
+                s = P[i * 7 + j]
+                for k in range(j):
+                    s -= L[i * 4 + k] * L[j * 4 + k]
+                L[i * 4 + j] = s * d
+        for i in range(7):
+            for j in range(4):          # forward: L u = p_i
+                s = P[i * 7 + j]
+                for k in range(j):
+                    s -= L[j * 4 + k] * K[i * 4 + k]
+                K[i * 4 + j] = s * Ld[j]
+            for j in range(3, -1, -1):  # back: L^T k = u
+                s = K[i * 4 + j]
+                for k in range(j + 1, 4):
+                    s -= L[k * 4 + j] * K[i * 4 + k]
+                K[i * 4 + j] = s * Ld[j]
+        for j in range(4):
+            y[j] = z[j] - self.q[j]
+        for i in range(4):
+            self.q[i] += K[i * 4] * y[0] + K[i * 4 + 1] * y[1] + K[i * 4 + 2] * y[2] + K[i * 4 + 3] * y[3]
+        for i in range(3):
+            self.b[i] += (K[(4 + i) * 4] * y[0] + K[(4 + i) * 4 + 1] * y[1]
+                          + K[(4 + i) * 4 + 2] * y[2] + K[(4 + i) * 4 + 3] * y[3])
+        quat_normalise(self.q)
+        # Joseph form: T = P - K P[:4, :]; P = T - T[:, :4] K^T + r K K^T
+        for i in range(7):
+            for j in range(7):
+                T[i * 7 + j] = P[i * 7 + j] - (K[i * 4] * P[j] + K[i * 4 + 1] * P[7 + j]
+                                               + K[i * 4 + 2] * P[14 + j] + K[i * 4 + 3] * P[21 + j])
+        for i in range(7):
+            for j in range(i, 7):
+                s = T[i * 7 + j] - (T[i * 7] * K[j * 4] + T[i * 7 + 1] * K[j * 4 + 1]
+                                    + T[i * 7 + 2] * K[j * 4 + 2] + T[i * 7 + 3] * K[j * 4 + 3])
+                s += r * (K[i * 4] * K[j * 4] + K[i * 4 + 1] * K[j * 4 + 1]
+                          + K[i * 4 + 2] * K[j * 4 + 2] + K[i * 4 + 3] * K[j * 4 + 3])
+                P[i * 7 + j] = s
+                P[j * 7 + i] = s
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        cdef double z[4]
+        cdef int i
+        if not self.cf_started:         # the complementary filter starts where the EKF does
+            for i in range(4):
+                self.cf.q[i] = self.q[i]
+            self.cf.eint[0] = 0.0
+            self.cf.eint[1] = 0.0
+            self.cf.eint[2] = 0.0
+            self.cf_started = True
+        self.cf._step(gyr, acc, mag, dt)
+        if gyr != NULL:
+            self.predict(gyr, dt)
+        if acc != NULL or mag != NULL:
+            if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]
+                    + self.cf.q[3] * self.q[3]) < 0.0:
+                for i in range(4):
+                    z[i] = -self.cf.q[i]
+            else:
+                for i in range(4):
+                    z[i] = self.cf.q[i]
+            self.quat_update(z, self.cf_noise * self.cf_noise / dt)
+        quat_normalise(self.q)
+
+    @property
+    def window(self):
+        """Sliding-mean window, samples."""
+        return (<object>self.pre_gyr).window
+
+    @property
+    def kp(self):
+        return self.cf.kp
+
+    @property
+    def ki(self):
+        return self.cf.ki
+
+    @property
+    def cf_quaternion(self):
+        """The complementary filter's own attitude (the last measurement), in the estimator's
+        frame."""
+        cdef double out[4]
+        cdef Estimator e = self.cf
+        e.ned = self.ned
+        e._output_q(out)
+        return np.array([out[0], out[1], out[2], out[3]])

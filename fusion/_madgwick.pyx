@@ -1,0 +1,93 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`madgwick`: Madgwick's gradient-descent orientation filter (docs/madgwick.md)."""
+import numpy as np
+from libc.math cimport sqrt
+
+from fusion._core cimport Estimator
+from fusion._core import check_positive
+from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
+                            jac_rot_to_body, up_in_body, jac_up_in_body, unit3)
+
+# |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
+cdef double DEAD_ZONE2 = 1e-20
+
+
+cdef inline void add_gradient(const double* H, const double* v, const double* s,
+                              double* g) noexcept nogil:
+    """g += H^T (v - s), H 3x4 row-major."""
+    cdef double f0 = v[0] - s[0], f1 = v[1] - s[1], f2 = v[2] - s[2]
+    cdef int k
+    for k in range(4):
+        g[k] += H[k] * f0 + H[4 + k] * f1 + H[8 + k] * f2
+
+
+cdef class Madgwick(Estimator):
+    """Madgwick's gradient-descent filter: a fixed-rate step (beta, rad/s) along the
+    normalised gradient of the gravity and north-folded field residuals; optional gyro-bias
+    learning with gain zeta (rad/s^2)."""
+    name = "madgwick"
+    PARAMS = {"beta": 0.041, "zeta": 0.0}
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        Estimator.__init__(self, fs, frame, on_invalid)
+        p = self._take_params(params)
+        self.beta = check_positive("beta", p["beta"])
+        self.zeta = check_positive("zeta", p["zeta"], allow_zero=True)
+        self.reset()
+
+    cdef void _reset_state(self) noexcept nogil:
+        self.bw[0] = 0.0
+        self.bw[1] = 0.0
+        self.bw[2] = 0.0
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        cdef double* q = self.q
+        cdef double s[3]
+        cdef double v[3]
+        cdef double h[3]
+        cdef double H[12]
+        cdef double g[4]
+        cdef double n2, k
+        if gyr != NULL:
+            quat_propagate(q, gyr[0] - self.bw[0], gyr[1] - self.bw[1], gyr[2] - self.bw[2], dt)
+        g[0] = 0.0
+        g[1] = 0.0
+        g[2] = 0.0
+        g[3] = 0.0
+        if acc != NULL:
+            unit3(acc, s)
+            up_in_body(q, v)
+            jac_up_in_body(q, H)
+            add_gradient(H, v, s, g)
+        if mag != NULL:
+            unit3(mag, s)
+            rot_to_nav(q, s, h)
+            h[1] = sqrt(h[0] * h[0] + h[1] * h[1])     # the field turned about z onto north
+            h[0] = 0.0
+            rot_to_body(q, h, v)
+            jac_rot_to_body(q, h, H)                   # reference direction held fixed
+            add_gradient(H, v, s, g)
+        n2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2] + g[3] * g[3]
+        if n2 > DEAD_ZONE2:
+            k = 1.0 / sqrt(n2)
+            g[0] *= k
+            g[1] *= k
+            g[2] *= k
+            g[3] *= k
+            if self.zeta > 0.0:     # w_eps = 2 vec(q* ⊗ g) = 2 Xi(q)^T g
+                k = 2.0 * self.zeta * dt
+                self.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
+                self.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
+                self.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
+            k = self.beta * dt
+            q[0] -= k * g[0]
+            q[1] -= k * g[1]
+            q[2] -= k * g[2]
+            q[3] -= k * g[3]
+        quat_normalise(q)
+
+    @property
+    def bias(self):
+        """The gyro bias learned with the zeta gain, rad/s (body frame; zero when zeta = 0)."""
+        return np.array([self.bw[0], self.bw[1], self.bw[2]])

@@ -1,0 +1,307 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`ukf`: unscented Kalman filter on the attitude error + gyro bias (docs/ukf.md), the UKF
+seed 003 compares against, with the process and measurement models of `ekf`."""
+import numpy as np
+from libc.math cimport sqrt
+
+from fusion._core cimport Estimator
+from fusion._core import check_positive
+from fusion._qmath cimport (half_angle_terms, quat_mul, quat_normalise, quat_propagate,
+                            rot_to_nav, rot_to_body, up_in_body, unit3)
+
+cdef double G0 = 9.81
+# scaled unscented transform, n = 6, alpha = 1, beta = 2, kappa = 0: lambda = 0
+DEF NS = 13                   # 2 n + 1 sigma points
+cdef double GAMMA = sqrt(6.0)          # sqrt(n + lambda)
+cdef double WM0 = 0.0                  # lambda / (n + lambda)
+cdef double WC0 = 2.0                  # WM0 + 1 - alpha^2 + beta
+cdef double WI = 1.0 / 12.0            # 1 / (2 (n + lambda)), both mean and covariance
+
+
+cdef inline void err_to_quat(const double* p, double* e) noexcept nogil:
+    """δq(p) = [16 - |p|², 8 p] / (16 + |p|²): the unit quaternion of p = 4 e_v / (1 + e_w)."""
+    cdef double s = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+    cdef double k = 1.0 / (16.0 + s)
+    e[0] = (16.0 - s) * k
+    k *= 8.0
+    e[1] = k * p[0]
+    e[2] = k * p[1]
+    e[3] = k * p[2]
+
+
+cdef inline void quat_to_err(const double* e, double* p) noexcept nogil:
+    """p = 4 e_v / (1 + e_w) with e's sign chosen so that e_w >= 0."""
+    cdef double k
+    if e[0] >= 0.0:
+        k = 4.0 / (1.0 + e[0])
+    else:
+        k = -4.0 / (1.0 - e[0])
+    p[0] = k * e[1]
+    p[1] = k * e[2]
+    p[2] = k * e[3]
+
+
+cdef inline void rate_quat(double wx, double wy, double wz, double dt, double* e) noexcept nogil:
+    """ε(w) = [cos(|w|dt/2), sin(|w|dt/2) w/|w|]: Φ(w, dt) q = q ⊗ ε(w)."""
+    cdef double c, s
+    half_angle_terms(wx, wy, wz, dt, &c, &s)
+    e[0] = c
+    e[1] = s * wx
+    e[2] = s * wy
+    e[3] = s * wz
+
+
+cdef class UKF(Estimator):
+    """Unscented Kalman filter: 13 sigma points on the 6-D error [attitude (4 x modified
+    Rodrigues parameters, body frame), gyro bias]; gyro process and accelerometer /
+    north-folded magnetometer measurements as the `ekf`."""
+    name = "ukf"
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+              "q_init_std": 0.05, "bias_init_std": 0.02}
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        Estimator.__init__(self, fs, frame, on_invalid)
+        p = self._take_params(params)
+        # every variance > 0: the sigma points need a positive-definite covariance
+        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_positive("bias_noise", p["bias_noise"])
+        self.acc_noise = check_positive("acc_noise", p["acc_noise"])
+        self.mag_noise = check_positive("mag_noise", p["mag_noise"])
+        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"])
+        self.reset()
+
+    cdef void _reset_state(self) noexcept nogil:
+        cdef int i
+        cdef double sq = 2.0 * self.q_init_std     # quaternion-component std -> angle std
+        for i in range(36):
+            self.P[i] = 0.0
+        for i in range(3):
+            self.P[i * 7] = sq * sq
+        for i in range(3, 6):
+            self.P[i * 7] = self.bias_init_std * self.bias_init_std
+        self.b[0] = 0.0
+        self.b[1] = 0.0
+        self.b[2] = 0.0
+
+    cdef void sigma_points(self, double* X) noexcept nogil:
+        """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
+        gives a zero column)."""
+        cdef double L[36]
+        cdef double* P = self.P
+        cdef double d, s
+        cdef int i, j, k
+        for i in range(36):
+            L[i] = 0.0
+        for j in range(6):
+            d = P[j * 7]
+            for k in range(j):
+                d -= L[j * 6 + k] * L[j * 6 + k]
+            if d <= 0.0:
+                continue
+            d = sqrt(d)
+            L[j * 7] = d
+            d = 1.0 / d
+            for i in range(j + 1, 6):
+                s = P[i * 6 + j]
+                for k in range(j):
+                    s -= L[i * 6 + k] * L[j * 6 + k]
+                L[i * 6 + j] = s * d
+        for k in range(6):
+            X[k] = 0.0
+        for j in range(6):
+            for k in range(6):
+                s = GAMMA * L[k * 6 + j]
+                X[(1 + j) * 6 + k] = s
+                X[(7 + j) * 6 + k] = -s
+
+    cdef void predict(self, const double* gyr, double dt) noexcept nogil:
+        cdef double X[NS * 6]
+        cdef double Y[NS * 6]
+        cdef double mean[6]
+        cdef double e0[4]
+        cdef double dq[4]
+        cdef double ei[4]
+        cdef double t[4]
+        cdef double* P = self.P
+        cdef double* x
+        cdef double w0x = gyr[0] - self.b[0], w0y = gyr[1] - self.b[1], w0z = gyr[2] - self.b[2]
+        cdef double s, wgt, qg, qb
+        cdef int i, j, k
+        self.sigma_points(X)
+        # sigma attitude q̂ ⊗ δq(p_i), bias b̂ + δb_i, propagated by Φ(ω - b_i); its error
+        # about the propagated centre q̂ ⊗ ε(ω - b̂) is ε(ω - b̂)* ⊗ δq(p_i) ⊗ ε(ω - b_i)
+        rate_quat(-w0x, -w0y, -w0z, dt, e0)        # ε(ω - b̂)* = ε(-(ω - b̂))
+        for i in range(NS):
+            x = X + i * 6
+            err_to_quat(x, dq)
+            rate_quat(w0x - x[3], w0y - x[4], w0z - x[5], dt, ei)
+            quat_mul(dq, ei, t)
+            quat_mul(e0, t, ei)
+            quat_to_err(ei, Y + i * 6)
+            Y[i * 6 + 3] = x[3]
+            Y[i * 6 + 4] = x[4]
+            Y[i * 6 + 5] = x[5]
+        for k in range(6):
+            s = WM0 * Y[k]
+            for i in range(1, NS):
+                s += WI * Y[i * 6 + k]
+            mean[k] = s
+        for i in range(NS):
+            for k in range(6):
+                Y[i * 6 + k] -= mean[k]
+        qg = self.gyro_noise * self.gyro_noise * dt
+        qb = self.bias_noise * self.bias_noise * dt
+        for j in range(6):
+            for k in range(j, 6):
+                s = WC0 * Y[j] * Y[k]
+                for i in range(1, NS):
+                    s += WI * Y[i * 6 + j] * Y[i * 6 + k]
+                P[j * 6 + k] = s
+                P[k * 6 + j] = s
+        for j in range(3):
+            P[j * 7] += qg
+            P[(j + 3) * 7] += qb
+        # the predicted mean is the propagated centre; the bias is unchanged
+        quat_propagate(self.q, w0x, w0y, w0z, dt)
+        quat_normalise(self.q)
+
+    cdef void correct(self, const double* X, const double* Z, const double* z,
+                      double r) noexcept nogil:
+        """Update with measurement z, sigma predictions Z (13 x 3, Z_0 = h(q̂)) of sigma errors
+        X (13 x 6) and noise variance r per axis."""
+        cdef double zh[3]
+        cdef double D[NS * 3]
+        cdef double S[9]
+        cdef double Si[9]
+        cdef double C[18]     # Pxz, 6x3
+        cdef double K[18]     # 6x3
+        cdef double nu[3]
+        cdef double dx[6]
+        cdef double dq[4]
+        cdef double qn[4]
+        cdef double* P = self.P
+        cdef double s, det
+        cdef int i, j, k
+        for k in range(3):
+            s = WM0 * Z[k]
+            for i in range(1, NS):
+                s += WI * Z[i * 3 + k]
+            zh[k] = s
+        for i in range(NS):
+            for k in range(3):
+                D[i * 3 + k] = Z[i * 3 + k] - zh[k]
+        for j in range(3):
+            for k in range(j, 3):
+                s = WC0 * D[j] * D[k]
+                for i in range(1, NS):
+                    s += WI * D[i * 3 + j] * D[i * 3 + k]
+                S[j * 3 + k] = s
+                S[k * 3 + j] = s
+        S[0] += r
+        S[4] += r
+        S[8] += r
+        for j in range(6):          # X_0 = 0: the centre adds nothing to Pxz
+            for k in range(3):
+                s = 0.0
+                for i in range(1, NS):
+                    s += X[i * 6 + j] * D[i * 3 + k]
+                C[j * 3 + k] = WI * s
+        Si[0] = S[4] * S[8] - S[5] * S[7]
+        Si[1] = S[2] * S[7] - S[1] * S[8]
+        Si[2] = S[1] * S[5] - S[2] * S[4]
+        det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
+        Si[3] = Si[1]
+        Si[4] = S[0] * S[8] - S[2] * S[6]
+        Si[5] = S[2] * S[3] - S[0] * S[5]
+        Si[6] = Si[2]
+        Si[7] = Si[5]
+        Si[8] = S[0] * S[4] - S[1] * S[3]
+        for i in range(9):
+            Si[i] *= det
+        for i in range(6):
+            for j in range(3):
+                K[i * 3 + j] = C[i * 3] * Si[j] + C[i * 3 + 1] * Si[3 + j] + C[i * 3 + 2] * Si[6 + j]
+        # innovation about the prediction at the mean, h(q̂) = Z_0 (docs/ukf.md)
+        nu[0] = z[0] - Z[0]
+        nu[1] = z[1] - Z[1]
+        nu[2] = z[2] - Z[2]
+        for i in range(6):
+            dx[i] = K[i * 3] * nu[0] + K[i * 3 + 1] * nu[1] + K[i * 3 + 2] * nu[2]
+        err_to_quat(dx, dq)
+        quat_mul(self.q, dq, qn)
+        self.q[0] = qn[0]
+        self.q[1] = qn[1]
+        self.q[2] = qn[2]
+        self.q[3] = qn[3]
+        quat_normalise(self.q)
+        self.b[0] += dx[3]
+        self.b[1] += dx[4]
+        self.b[2] += dx[5]
+        # P - K Pzz K^T = P - K Pxz^T, symmetrised
+        for i in range(6):
+            for j in range(i, 6):
+                s = P[i * 6 + j] - 0.5 * (K[i * 3] * C[j * 3] + K[i * 3 + 1] * C[j * 3 + 1]
+                                          + K[i * 3 + 2] * C[j * 3 + 2] + K[j * 3] * C[i * 3]
+                                          + K[j * 3 + 1] * C[i * 3 + 1] + K[j * 3 + 2] * C[i * 3 + 2])
+                P[i * 6 + j] = s
+                P[j * 6 + i] = s
+
+    cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
+        cdef double X[NS * 6]
+        cdef double Z[NS * 3]
+        cdef double z[3]
+        cdef double dq[4]
+        cdef double qi[4]
+        cdef double sa = self.acc_noise / G0
+        cdef int i
+        self.sigma_points(X)
+        for i in range(NS):
+            err_to_quat(X + i * 6, dq)
+            quat_mul(self.q, dq, qi)
+            up_in_body(qi, Z + i * 3)
+        unit3(acc, z)
+        self.correct(X, Z, z, sa * sa / dt)
+
+    cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
+        cdef double X[NS * 6]
+        cdef double Z[NS * 3]
+        cdef double z[3]
+        cdef double n[3]
+        cdef double dq[4]
+        cdef double qi[4]
+        cdef int i
+        unit3(mag, z)
+        rot_to_nav(self.q, z, n)
+        if sqrt(n[0] * n[0] + n[1] * n[1]) < 1e-9:     # field vertical: no heading information
+            return
+        self.sigma_points(X)
+        for i in range(NS):
+            err_to_quat(X + i * 6, dq)
+            quat_mul(self.q, dq, qi)
+            rot_to_nav(qi, z, n)
+            n[1] = sqrt(n[0] * n[0] + n[1] * n[1])     # folded onto north
+            n[0] = 0.0
+            rot_to_body(qi, n, Z + i * 3)
+        self.correct(X, Z, z, self.mag_noise * self.mag_noise / dt)
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        if gyr != NULL:
+            self.predict(gyr, dt)
+        if acc != NULL:
+            self.acc_update(acc, dt)
+        if mag != NULL:
+            self.mag_update(mag, dt)
+        quat_normalise(self.q)
+
+    @property
+    def bias(self):
+        """Estimated gyro bias, rad/s (body frame)."""
+        return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def covariance(self):
+        """6x6 covariance of the error [attitude (rad, body frame: the same in ENU and NED),
+        gyro bias (rad/s)]."""
+        return np.array([self.P[i] for i in range(36)]).reshape(6, 6)

@@ -1,0 +1,333 @@
+"""`madgwick`, `ukf` and `cf-ekf` against their plain-numpy references (tests/reference_more.py,
+written from docs/madgwick.md, docs/ukf.md, docs/cfekf.md), against the peer library
+ahrs.filters.Madgwick, and their parameters and composition."""
+import math
+
+import numpy as np
+import pytest
+
+import fusion
+import reference as ref
+import reference_more as rm
+from test_reference import (FS, N, TOL, compare_state, count_invalid, inject_invalid, qdiff,
+                            synthetic)
+
+N_SHORT = 600       # dt / NED / skip variants (the UKF reference takes ~0.5 ms per sample)
+NAMES = ["madgwick", "ukf", "cf-ekf"]
+CASES = [("madgwick", {}), ("ukf", {}), ("cf-ekf", {})]
+VARIANTS = [("madgwick", {"beta": 0.2, "zeta": 0.05}),
+            ("ukf", {"gyro_noise": 0.003, "bias_noise": 1e-3, "acc_noise": 0.3, "mag_noise": 0.1,
+                     "q_init_std": 0.2, "bias_init_std": 0.05}),
+            ("cf-ekf", {"window": 10, "kp": 2.0, "ki": 0.1, "cf_noise": 0.03, "gyro_noise": 0.003,
+                        "bias_noise": 1e-3, "q_init_std": 0.2, "bias_init_std": 0.05})]
+
+
+def ids(cases):
+    return [name + ("-" + "-".join(f"{k}={v}" for k, v in p.items()) if p else "-defaults")
+            for name, p in cases]
+
+
+@pytest.fixture(scope="module")
+def data():
+    return synthetic()
+
+
+def compare_more(est, r):
+    """compare_state, with the UKF's 6x6 covariance."""
+    if r.covariance is not None and r.covariance.shape == (6, 6):
+        assert est.covariance.shape == (6, 6)
+        assert np.abs(est.covariance - r.covariance).max() < TOL * np.abs(r.covariance).max()
+        assert np.abs(est.quaternion - r.quaternion).max() < TOL
+        assert np.abs(est.bias - r.bias).max() < TOL
+    else:
+        compare_state(est, r)
+
+
+# --- kernel == reference ------------------------------------------------------------------
+
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+@pytest.mark.parametrize("name, params", CASES, ids=ids(CASES))
+def test_kernel_equals_reference(data, name, params, nine_axis):
+    """10,000 noisy samples of a strongly moving body with gyro bias and linear acceleration."""
+    _, gyr, acc, mag = data
+    m = mag if nine_axis else None
+    est, r = fusion.make(name, FS, **params), rm.make(name, FS, **params)
+    q, qr = est.run(gyr, acc, m), r.run(gyr, acc, m)
+    assert q.shape == qr.shape == (N, 4)
+    assert qdiff(q, qr) < TOL
+    compare_more(est, r)
+    assert est.skipped == r.skipped == {"gyr": 0, "acc": 0, "mag": 0}
+
+
+@pytest.mark.parametrize("name, params", VARIANTS, ids=ids(VARIANTS))
+def test_kernel_equals_reference_other_parameters(data, name, params):
+    _, gyr, acc, mag = data
+    n = 1500
+    for m in (None, mag[:n]):
+        est, r = fusion.make(name, FS, **params), rm.make(name, FS, **params)
+        assert qdiff(est.run(gyr[:n], acc[:n], m), r.run(gyr[:n], acc[:n], m)) < TOL
+        compare_more(est, r)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_uneven_dt_ned_and_a_given_start(data, name):
+    _, gyr, acc, mag = data
+    gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
+    dt = np.random.default_rng(5).uniform(0.002, 0.03, N_SHORT)
+    est, r = fusion.make(name, FS), rm.make(name, FS)
+    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
+    compare_more(est, r)
+    est, r = fusion.make(name, FS, frame="NED"), rm.make(name, FS, frame="NED")
+    assert qdiff(est.run(gyr, acc, mag), r.run(gyr, acc, mag)) < TOL
+    compare_more(est, r)
+    q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))      # given in NED, then 6-axis
+    est.reset(q0)
+    r.reset(q0)
+    assert np.abs(est.quaternion - q0).max() < 1e-15
+    assert qdiff(est.run(gyr[:300], acc[:300]), r.run(gyr[:300], acc[:300])) < TOL
+    compare_more(est, r)
+
+
+@pytest.mark.parametrize("frame", ["ENU", "NED"])
+@pytest.mark.parametrize("name", NAMES)
+def test_skip_invalid_samples(data, name, frame):
+    _, gyr, acc, mag = data
+    gyr, acc, mag = inject_invalid(gyr, acc, mag)
+    gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
+    expected = count_invalid(gyr, acc, mag)
+    est = fusion.make(name, FS, frame=frame, on_invalid="skip")
+    r = rm.make(name, FS, frame=frame, on_invalid="skip")
+    q, qr = est.run(gyr, acc, mag), r.run(gyr, acc, mag)
+    assert qdiff(q, qr) < TOL
+    compare_more(est, r)
+    assert est.skipped == r.skipped == expected
+    identity = ref.C_NED if frame == "NED" else ref.IDENTITY
+    assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
+
+
+@pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])
+@pytest.mark.parametrize("name", NAMES)
+def test_run_equals_repeated_update(data, name, variant):
+    _, gyr, acc, mag = data
+    n = 2000
+    gyr, acc, mag = gyr[:n], acc[:n], mag[:n]
+    kw, dt = {}, None
+    if variant == "6axis":
+        mag = None
+    elif variant == "dt":
+        dt = np.random.default_rng(6).uniform(0.002, 0.03, n)
+    elif variant == "skip":
+        gyr, acc, mag = inject_invalid(gyr, acc, mag)
+        kw["on_invalid"] = "skip"
+    elif variant == "ned":
+        kw["frame"] = "NED"
+    a, b = fusion.make(name, FS, **kw), fusion.make(name, FS, **kw)
+    q = a.run(gyr, acc, mag, dt=dt)
+    qu = np.array([b.update(gyr[i], acc[i], None if mag is None else mag[i],
+                            dt=None if dt is None else dt[i]) for i in range(n)])
+    assert np.abs(q - qu).max() <= 1e-15
+    assert np.array_equal(a.quaternion, b.quaternion)
+    assert a.skipped == b.skipped
+    assert np.abs(a.bias - b.bias).max() <= 1e-15
+    if a.covariance is not None:
+        assert np.abs(a.covariance - b.covariance).max() <= 1e-15 * np.abs(a.covariance).max()
+
+
+# --- madgwick against the peer library ahrs -------------------------------------------------
+
+QZ90 = np.array([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])   # ahrs' x-north z-up -> ENU
+
+
+def ahrs_madgwick(q0, gyr, acc, mag, fs, beta):
+    """ahrs.filters.Madgwick sample by sample from q0 (ENU), output in ENU. Its earth frame has
+    north on x and z up, so q_enu = QZ90 ⊗ q_ahrs (a turn of +90 deg about z)."""
+    ahrs = pytest.importorskip("ahrs")
+    f = ahrs.filters.Madgwick(frequency=fs, gain=beta)
+    q = ref.qmul(ref.qconj(QZ90), q0)
+    out = np.empty((len(gyr), 4))
+    for i in range(len(gyr)):
+        if mag is None:
+            q = f.updateIMU(q, gyr[i], acc[i], dt=1.0 / fs)
+        else:
+            q = f.updateMARG(q, gyr[i], acc[i], mag[i], dt=1.0 / fs)
+        out[i] = ref.qmul(QZ90, q)
+    return out
+
+
+def exact_readings(q_true, fs):
+    """Noise-free readings of sample k >= 1: the constant rate over (k-1, k] that turns
+    q_true[k-1] into q_true[k], and gravity / field at q_true[k]."""
+    w = np.empty((len(q_true) - 1, 3))
+    for k in range(1, len(q_true)):
+        d = ref.qmul(ref.qconj(q_true[k - 1]), q_true[k])
+        s = np.linalg.norm(d[1:])
+        w[k - 1] = d[1:] / s * 2 * math.atan2(s, d[0]) * fs
+    Rt = np.stack([ref.rotmat(q).T for q in q_true[1:]])
+    return w, Rt @ [0.0, 0.0, ref.G], Rt @ [0.0, 0.4, -0.3]
+
+
+def err_deg(p, q, nine_axis):
+    """Total angle (9-axis) or inclination (6-axis: heading is free) between attitudes, deg."""
+    e = np.array([ref.qmul(a, ref.qconj(b)) for a, b in zip(p, q)])
+    if nine_axis:
+        return np.degrees(2 * np.arctan2(np.linalg.norm(e[:, 1:], axis=1), np.abs(e[:, 0])))
+    return np.degrees(2 * np.arctan2(np.hypot(e[:, 1], e[:, 2]), np.hypot(e[:, 0], e[:, 3])))
+
+
+def rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def madgwick_runs(fs, noisy, nine_axis, seconds=8.0, written_form=False):
+    """Kernel, ahrs (and optionally the written-form reference) from a 10 deg wrong start;
+    errors (deg) after the first 4 s."""
+    q_true, gyr, acc, mag = synthetic(n=int(seconds * fs) + 1, fs=fs, seed=3)
+    if noisy:
+        gyr, acc, mag = gyr[1:], acc[1:], mag[1:]
+    else:
+        gyr, acc, mag = exact_readings(q_true, fs)
+    q_true = q_true[1:]
+    m = mag if nine_axis else None
+    q0 = ref.qmul(np.r_[math.cos(0.0873), math.sin(0.0873) * ref.normalise(np.array([1.0, -1.0, 0.5]))],
+                  q_true[0])
+    beta = fusion.Madgwick.PARAMS["beta"]
+    est = fusion.make("madgwick", fs)
+    est.reset(q0)
+    out = {"kernel": est.run(gyr, acc, m), "ahrs": ahrs_madgwick(q0, gyr, acc, m, fs, beta)}
+    if written_form:
+        r = rm.RefMadgwick(fs, written_form=True)
+        r.reset(q0)
+        out["written"] = r.run(gyr, acc, m)
+    k = int(4 * fs)
+    res = {f"{a}-truth": rms(err_deg(out[a][k:], q_true[k:], nine_axis)) for a in out}
+    for a in out:
+        if a != "ahrs":
+            res[f"{a}-ahrs"] = rms(err_deg(out[a][k:], out["ahrs"][k:], nine_axis))
+    return res
+
+
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+def test_madgwick_matches_ahrs_noise_free(nine_axis):
+    """Exact readings: the two discretise the same ODE. ahrs takes a first-order Euler step with
+    the gradient at the previous attitude and this sample's vectors, so its error, and the
+    difference to the kernel, fall with dt (10 x from 100 to 1000 Hz); the kernel's exact
+    propagation stays on the truth (a few hundredths of a degree of chatter)."""
+    lo, hi = madgwick_runs(100.0, False, nine_axis), madgwick_runs(1000.0, False, nine_axis)
+    print(lo, hi)
+    assert hi["kernel-ahrs"] < 0.2 and hi["kernel-ahrs"] < 0.15 * lo["kernel-ahrs"]
+    assert lo["kernel-truth"] < 0.05 and hi["kernel-truth"] < 0.01
+    assert lo["kernel-truth"] < 0.1 * lo["ahrs-truth"]
+
+
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+def test_madgwick_matches_ahrs_noisy(nine_axis):
+    """Noisy readings with linear-acceleration bursts: with Madgwick's written objective
+    (R with 1 - 2(y² + z²) on the diagonal) the reference approaches ahrs as dt falls, which
+    checks the frame conversion and the objective; the kernel's homogeneous R only changes the
+    radial part of the gradient (docs/madgwick.md), which moves it by a fraction of either
+    filter's error, and it is as accurate."""
+    lo = madgwick_runs(100.0, True, nine_axis, written_form=True)
+    hi = madgwick_runs(1000.0, True, nine_axis, written_form=True)
+    print(lo, hi)
+    assert hi["written-ahrs"] < 0.4 * lo["written-ahrs"] and hi["written-ahrs"] < 0.35
+    for res in (lo, hi):
+        assert res["kernel-ahrs"] < 0.5 * min(res["kernel-truth"], res["ahrs-truth"])
+        assert res["kernel-truth"] < 1.2 * res["ahrs-truth"]
+
+
+# --- properties of the three ----------------------------------------------------------------
+
+def test_madgwick_learns_a_gyro_bias_with_zeta():
+    bias = np.array([0.01, -0.02, 0.015])
+    rng = np.random.default_rng(3)
+    n = 30000
+    q = ref.normalise(np.array([0.9, 0.2, -0.1, 0.3]))
+    gyr = bias + 0.003 * rng.standard_normal((n, 3))
+    acc = ref.rotmat(q).T @ [0, 0, ref.G] + 0.05 * rng.standard_normal((n, 3))
+    mag = ref.rotmat(q).T @ [0, 0.22, -0.42] + 0.005 * rng.standard_normal((n, 3))
+    est = fusion.make("madgwick", 100.0, zeta=0.01)
+    est.run(gyr, acc, mag)
+    assert np.linalg.norm(est.bias - bias) < 0.2 * np.linalg.norm(bias)
+    assert np.array_equal(fusion.make("madgwick", 100.0).bias, np.zeros(3))
+
+
+def test_ukf_covariance_is_the_body_frame_error_and_stays_positive_definite(data):
+    _, gyr, acc, mag = data
+    a, b = fusion.make("ukf", FS), fusion.make("ukf", FS, frame="NED")
+    a.run(gyr[:3000], acc[:3000], mag[:3000])
+    b.run(gyr[:3000], acc[:3000], mag[:3000])
+    assert np.array_equal(a.covariance, b.covariance)          # same error, either frame
+    assert np.linalg.eigvalsh(a.covariance).min() > 0
+    P0 = np.diag([(2 * 0.05) ** 2] * 3 + [0.02 ** 2] * 3)     # q_init_std 0.05 -> 0.1 rad
+    a.reset()
+    assert np.array_equal(a.covariance, P0)
+
+
+def test_ukf_centre_means_keep_exact_readings_exact():
+    """Why docs/ukf.md takes the means at the centre: with exact readings of a static body the
+    textbook UKF (sigma-point means, reference variant) walks off the true attitude (its
+    predicted reading, the mean of unit vectors about an anisotropic spread, is not the reading
+    at the mean), while the kernel stays on it."""
+    q = ref.normalise(np.array([0.9, 0.2, -0.1, 0.3]))
+    n = 300
+    gyr = np.zeros((n, 3))
+    acc = np.tile(ref.rotmat(q).T @ [0, 0, ref.G], (n, 1))
+    mag = np.tile(ref.rotmat(q).T @ [0, 0.22, -0.42], (n, 1))
+    est, textbook = fusion.make("ukf", FS), rm.RefUKF(FS, sigma_mean=True)
+    est.reset(q)
+    textbook.reset(q)
+    e_kernel = err_deg(est.run(gyr, acc, mag), np.tile(q, (n, 1)), True)
+    e_textbook = err_deg(textbook.run(gyr, acc, mag), np.tile(q, (n, 1)), True)
+    assert e_kernel.max() < 1e-9
+    assert e_textbook[-1] > 0.01
+
+
+def test_cf_ekf_measures_mahony_on_the_sliding_means(data):
+    """Composition: the complementary filter inside cf-ekf is `mahony` run on the sliding
+    means, from the same start."""
+    _, gyr, acc, mag = data
+    n = 3000
+    est = fusion.make("cf-ekf", FS, window=10, kp=1.0, ki=0.02)
+    q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))
+    est.reset(q0)
+    est.run(gyr[:n], acc[:n], mag[:n])
+    mahony = fusion.make("mahony", FS, kp=1.0, ki=0.02)
+    mahony.reset(q0)
+    mean = [fusion.SlidingMean(10).run(x[:n]) for x in (gyr, acc, mag)]
+    mahony.run(*mean)
+    assert np.abs(est.cf_quaternion - mahony.quaternion).max() < 1e-12
+    assert [type(p).__name__ for p in est.prefilters.values()] == ["SlidingMean"] * 3
+
+
+def test_cf_ekf_window_default_is_the_seeds_20_ms():
+    assert fusion.make("cf-ekf", 500.0).window == 10      # seed 004: 10 samples at 500 Hz
+    assert fusion.make("cf-ekf", 100.0).window == 2
+    assert fusion.make("cf-ekf", 10.0).window == 1
+    est = fusion.make("cf-ekf", 100.0, window=7)
+    assert est.window == 7 and est.params["window"] == 7
+    again = eval(repr(est), {"fusion": fusion})
+    assert again.params == est.params
+
+
+@pytest.mark.parametrize("name, params, match", [
+    ("madgwick", {"beta": 0.0}, r"beta must be finite and > 0"),
+    ("madgwick", {"beta": -0.1}, r"beta must be finite and > 0"),
+    ("madgwick", {"zeta": -1e-3}, r"zeta must be finite and >= 0"),
+    ("ukf", {"gyro_noise": 0.0}, r"gyro_noise must be finite and > 0"),
+    ("ukf", {"bias_noise": 0.0}, r"bias_noise must be finite and > 0"),
+    ("ukf", {"acc_noise": -1.0}, r"acc_noise must be finite and > 0"),
+    ("ukf", {"mag_noise": np.nan}, r"mag_noise must be finite and > 0"),
+    ("ukf", {"q_init_std": 0.0}, r"q_init_std must be finite and > 0"),
+    ("ukf", {"bias_init_std": 0.0}, r"bias_init_std must be finite and > 0"),
+    ("cf-ekf", {"window": 0}, r"window must be an integer >= 1"),
+    ("cf-ekf", {"window": 2.5}, r"window must be an integer >= 1"),
+    ("cf-ekf", {"window": True}, r"window must be an integer >= 1"),
+    ("cf-ekf", {"kp": 0.0}, r"kp must be finite and > 0"),
+    ("cf-ekf", {"ki": -0.1}, r"ki must be finite and >= 0"),
+    ("cf-ekf", {"cf_noise": 0.0}, r"cf_noise must be finite and > 0"),
+    ("cf-ekf", {"gyro_noise": -0.01}, r"gyro_noise must be finite and > 0"),
+    ("cf-ekf", {"acc_noise": 1.0}, r"unknown parameter\(s\) acc_noise"),
+])
+def test_bad_parameters_name_the_accepted_range(name, params, match):
+    with pytest.raises(ValueError, match=match):
+        fusion.make(name, 100.0, **params)
