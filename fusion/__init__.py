@@ -14,13 +14,14 @@ from fusion._ekf import EKF, IIREKF
 from fusion._madgwick import Madgwick
 from fusion._ukf import UKF
 from fusion._cfekf import CFEKF
+from fusion._aekf import AEKF
 from fusion._prefilter import Butterworth, SlidingMean
 
-__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF",
+__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
            "Butterworth", "SlidingMean"]
 __version__ = "0.1.0"
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
 
 
 def available():

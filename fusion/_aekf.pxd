@@ -1,0 +1,25 @@
+from fusion._ekf cimport EKF
+
+cdef class AEKF(EKF):
+    # thresholds (e_a1, e_a2 in m/s^2; e_m1 relative; e_m2 in degrees) and the rejection factor
+    cdef readonly double acc_norm_tol, acc_pred_tol, mag_norm_tol, mag_dip_tol
+    cdef readonly double acc_pred_timeout   # s: a longer disagreement is the estimate's fault
+    cdef double t_dir                       # how long the direction test has failed alone
+    cdef readonly double reject_factor, learn_time, quest_mag_weight
+    cdef double dip_tol_rad
+    cdef bint use_quest              # measurement == "quest"
+    # magnetic reference: given (mag_norm / mag_dip) or learned from the first samples
+    cdef object mag_norm_param, mag_dip_param
+    cdef bint learn_norm, learn_dip, have_ref
+    cdef double norm_given, dip_given   # mag_norm, mag_dip (degrees) when given
+    cdef long long n_learn, n_learned
+    cdef double norm_sum, dip_sum, norm_ref, dip_ref
+    cdef double ref_field[3]         # unit reference field, ENU: [0, cos dip, -sin dip]
+    # switching record
+    cdef long long n_acc_tested, n_acc_rej, n_mag_tested, n_mag_rej, n_quest
+    cdef int last_code
+    cdef bint logging
+    cdef unsigned char* log
+    cdef Py_ssize_t log_n, log_cap
+
+    cdef void quat_update(self, const double* z, double r, const double* v, double rv) noexcept nogil

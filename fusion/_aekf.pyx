@@ -1,0 +1,373 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`aekf`: seed 001's adaptive EKF from predicted measurements, on the 7-state `ekf`
+(docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of fusion/_wahba.pxd."""
+import numbers
+
+import numpy as np
+cimport numpy as cnp
+from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI
+from libc.stdlib cimport realloc, free
+
+from fusion._core cimport Estimator
+from fusion._ekf cimport EKF
+from fusion._core import check_positive
+from fusion._qmath cimport quat_normalise, up_in_body, unit3
+from fusion._wahba cimport quest2
+
+cnp.import_array()
+
+cdef double G0 = 9.81
+cdef double DEG = M_PI / 180.0
+cdef double UP[3]
+UP[:] = [0.0, 0.0, 1.0]
+
+MEASUREMENTS = ("vectors", "quest")
+
+# codes of est.decisions / est.last_decision (bits)
+ACC_REJECTED = 1
+MAG_REJECTED = 2
+QUEST_USED = 4
+
+
+def _check_range(name, value, lo, hi, lo_open, hi_open, unit=""):
+    """float(value) if it is a real number in the interval, else a ValueError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    v = float(value)
+    ok = np.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+    if not ok:
+        rng = (("(" if lo_open else "[") + f"{lo:g}, " + (f"{hi:g}" if np.isfinite(hi) else "inf")
+               + (")" if hi_open or not np.isfinite(hi) else "]"))
+        raise ValueError(f"{name} must be finite and in {rng}{unit}, got {value!r}")
+    return v
+
+
+def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
+    """QUEST solution of Wahba's problem for two vector pairs: the unit quaternion [w, x, y, z]
+    (w >= 0) minimising w1 |r1 - R(q) b1|² + w2 |r2 - R(q) b2|² (b: body vectors, r: reference
+    vectors, normalised here), or None when b1 ∥ b2 or r1 ∥ r2. The kernels call the inline
+    fusion._wahba.quest2 directly."""
+    cdef double v[4][3]
+    cdef double q[4]
+    cdef double n
+    cdef int i, j
+    for i, x in enumerate((b1, b2, r1, r2)):
+        a = np.asarray(x, dtype=np.float64)
+        if a.shape != (3,):
+            raise ValueError(f"{('b1', 'b2', 'r1', 'r2')[i]} must have shape (3,), got {a.shape}")
+        n = float(np.sqrt(a @ a))
+        if not (np.isfinite(n) and n > 0):
+            raise ValueError(f"{('b1', 'b2', 'r1', 'r2')[i]} must be finite and non-zero")
+        for j in range(3):
+            v[i][j] = a[j] / n
+    cdef double c1 = check_positive("w1", w1)
+    cdef double c2 = check_positive("w2", w2)
+    if not quest2(v[0], v[1], v[2], v[3], c1, c2, q):
+        return None
+    return np.array([q[0], q[1], q[2], q[3]])
+
+
+cdef class AEKF(EKF):
+    """Seed 001's adaptive EKF: the `ekf` whose accelerometer / magnetometer variances switch
+    to reject_factor times their values when the readings disagree with what the predicted
+    attitude expects (linear acceleration, magnetic disturbance); with measurement="quest" a
+    QUEST quaternion is the measurement while both sensors are accepted."""
+    name = "aekf"
+    PARAMS = dict(EKF.PARAMS, acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+                  mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
+                  mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        own = set(self.PARAMS) - set(EKF.PARAMS)
+        p = self._take_params(params)       # unknown names: a ValueError naming the accepted
+        self.acc_norm_tol = check_positive("acc_norm_tol", p["acc_norm_tol"])
+        self.acc_pred_tol = check_positive("acc_pred_tol", p["acc_pred_tol"])
+        self.acc_pred_timeout = check_positive("acc_pred_timeout", p["acc_pred_timeout"])
+        self.mag_norm_tol = check_positive("mag_norm_tol", p["mag_norm_tol"])
+        self.mag_dip_tol = check_positive("mag_dip_tol", p["mag_dip_tol"], upper=180.0)
+        self.dip_tol_rad = self.mag_dip_tol * DEG
+        self.reject_factor = _check_range("reject_factor", p["reject_factor"], 1.0, np.inf,
+                                          False, True)
+        self.learn_time = check_positive("learn_time", p["learn_time"], allow_zero=True)
+        self.quest_mag_weight = _check_range("quest_mag_weight", p["quest_mag_weight"], 0.0, 1.0,
+                                             True, True)
+        m = p["measurement"]
+        if not isinstance(m, str) or m not in MEASUREMENTS:
+            raise ValueError(f"measurement must be one of {MEASUREMENTS}, got {m!r}")
+        self.use_quest = m == "quest"
+        self.mag_norm_param = (None if p["mag_norm"] is None
+                               else check_positive("mag_norm", p["mag_norm"]))
+        self.mag_dip_param = (None if p["mag_dip"] is None
+                              else _check_range("mag_dip", p["mag_dip"], -90.0, 90.0, True, True,
+                                                " degrees"))
+        self.learn_norm = self.mag_norm_param is None
+        self.learn_dip = self.mag_dip_param is None
+        self.norm_given = 0.0 if self.learn_norm else self.mag_norm_param
+        self.dip_given = 0.0 if self.learn_dip else self.mag_dip_param
+        fs_ = check_positive("fs", fs)
+        self.n_learn = (max(1, int(round(self.learn_time * fs_)))
+                        if (self.learn_norm or self.learn_dip) else 0)
+        EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
+
+    def __dealloc__(self):
+        free(self.log)
+
+    cdef void _reset_state(self) noexcept nogil:
+        EKF._reset_state(self)
+        self.n_learned = 0
+        self.t_dir = 0.0
+        self.norm_sum = 0.0
+        self.dip_sum = 0.0
+        self.have_ref = not (self.learn_norm or self.learn_dip)
+        self.norm_ref = 0.0 if self.learn_norm else self.norm_given
+        self.dip_ref = 0.0 if self.learn_dip else self.dip_given * DEG
+        self.ref_field[0] = 0.0
+        self.ref_field[1] = cos(self.dip_ref)
+        self.ref_field[2] = -sin(self.dip_ref)
+        self.n_acc_tested = 0
+        self.n_acc_rej = 0
+        self.n_mag_tested = 0
+        self.n_mag_rej = 0
+        self.n_quest = 0
+        self.last_code = 0
+        self.log_n = 0
+
+    cdef void quat_update(self, const double* z, double r, const double* v, double rv) noexcept nogil:
+        """Kalman update with the quaternion itself as the measurement: H = [I4 0], noise
+        covariance Rm = r I4 + rv v vᵀ, Joseph form."""
+        cdef double S[16]
+        cdef double L[16]    # Cholesky factor of S, lower
+        cdef double Li[16]   # its inverse, lower
+        cdef double Si[16]
+        cdef double K[28]    # P Hᵀ S⁻¹, 7x4
+        cdef double T[49]    # (I - K H) P
+        cdef double y[4]
+        cdef double Kv[7]
+        cdef double* P = self.P
+        cdef double s
+        cdef int i, j, k
+        for i in range(4):
+            for j in range(4):
+                S[i * 4 + j] = 0.5 * (P[i * 7 + j] + P[j * 7 + i]) + rv * v[i] * v[j]
+            S[i * 5] += r
+        for j in range(4):
+            s = S[j * 5]
+            for k in range(j):
+                s -= L[j * 4 + k] * L[j * 4 + k]
+            L[j * 5] = sqrt(s)
+            for i in range(j + 1, 4):
+                s = S[i * 4 + j]
+                for k in range(j):
+                    s -= L[i * 4 + k] * L[j * 4 + k]
+                L[i * 4 + j] = s / L[j * 5]
+        for j in range(4):
+            Li[j * 5] = 1.0 / L[j * 5]
+            for i in range(j + 1, 4):
+                s = 0.0
+                for k in range(j, i):
+                    s -= L[i * 4 + k] * Li[k * 4 + j]
+                Li[i * 4 + j] = s / L[i * 5]
+        for i in range(4):      # S⁻¹ = L⁻ᵀ L⁻¹
+            for j in range(i, 4):
+                s = 0.0
+                for k in range(j, 4):
+                    s += Li[k * 4 + i] * Li[k * 4 + j]
+                Si[i * 4 + j] = s
+                Si[j * 4 + i] = s
+        for i in range(7):
+            for j in range(4):
+                K[i * 4 + j] = (P[i * 7] * Si[j] + P[i * 7 + 1] * Si[4 + j]
+                                + P[i * 7 + 2] * Si[8 + j] + P[i * 7 + 3] * Si[12 + j])
+        for i in range(4):
+            y[i] = z[i] - self.q[i]
+        for i in range(4):
+            self.q[i] += K[i * 4] * y[0] + K[i * 4 + 1] * y[1] + K[i * 4 + 2] * y[2] + K[i * 4 + 3] * y[3]
+        for i in range(3):
+            self.b[i] += (K[(4 + i) * 4] * y[0] + K[(4 + i) * 4 + 1] * y[1]
+                          + K[(4 + i) * 4 + 2] * y[2] + K[(4 + i) * 4 + 3] * y[3])
+        quat_normalise(self.q)
+        # Joseph form: T = P - K P[0:4, :], P = T - T[:, 0:4] Kᵀ + r K Kᵀ + rv (K v)(K v)ᵀ
+        for i in range(7):
+            Kv[i] = K[i * 4] * v[0] + K[i * 4 + 1] * v[1] + K[i * 4 + 2] * v[2] + K[i * 4 + 3] * v[3]
+        for i in range(7):
+            for j in range(7):
+                T[i * 7 + j] = P[i * 7 + j] - (K[i * 4] * P[j] + K[i * 4 + 1] * P[7 + j]
+                                               + K[i * 4 + 2] * P[14 + j] + K[i * 4 + 3] * P[21 + j])
+        for i in range(7):
+            for j in range(i, 7):
+                s = T[i * 7 + j] - (T[i * 7] * K[j * 4] + T[i * 7 + 1] * K[j * 4 + 1]
+                                    + T[i * 7 + 2] * K[j * 4 + 2] + T[i * 7 + 3] * K[j * 4 + 3])
+                s += r * (K[i * 4] * K[j * 4] + K[i * 4 + 1] * K[j * 4 + 1]
+                          + K[i * 4 + 2] * K[j * 4 + 2] + K[i * 4 + 3] * K[j * 4 + 3])
+                s += rv * Kv[i] * Kv[j]
+                P[i * 7 + j] = s
+                P[j * 7 + i] = s
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        cdef double u[3]
+        cdef double ah[3]
+        cdef double mh[3]
+        cdef double qm[4]
+        cdef double v[4]
+        cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
+        cdef bint acc_rej = False, mag_rej = False, mag_tested = False
+        if gyr != NULL:
+            self.predict(gyr, dt)
+        # the tests: measured readings against those the predicted attitude expects
+        up_in_body(self.q, u)
+        if acc != NULL:
+            na = sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+            dx = acc[0] - G0 * u[0]
+            dy = acc[1] - G0 * u[1]
+            dz = acc[2] - G0 * u[2]
+            if fabs(na - G0) > self.acc_norm_tol:
+                acc_rej = True
+                self.t_dir = 0.0
+            elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
+                # quiet by its norm, yet not where the attitude expects it: a linear
+                # acceleration, unless this lasts so long that the estimate must be wrong
+                self.t_dir += dt
+                acc_rej = self.t_dir <= self.acc_pred_timeout
+            else:
+                self.t_dir = 0.0
+            self.n_acc_tested += 1
+            if acc_rej:
+                self.n_acc_rej += 1
+                self.last_code |= 1
+        if mag != NULL:
+            nm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+            if acc != NULL and self.n_learned < self.n_learn:
+                # learning the reference: running means over the first samples
+                self.n_learned += 1
+                if self.learn_norm:
+                    self.norm_sum += nm
+                    self.norm_ref = self.norm_sum / self.n_learned
+                if self.learn_dip:
+                    c = -(mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / (nm * na)
+                    c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+                    self.dip_sum += asin(c)
+                    self.dip_ref = self.dip_sum / self.n_learned
+                    self.ref_field[1] = cos(self.dip_ref)
+                    self.ref_field[2] = -sin(self.dip_ref)
+                self.have_ref = True
+            if self.have_ref:
+                mag_tested = True
+                c = -(mag[0] * u[0] + mag[1] * u[1] + mag[2] * u[2]) / nm
+                c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+                mag_rej = (fabs(nm / self.norm_ref - 1.0) > self.mag_norm_tol
+                           or fabs(asin(c) - self.dip_ref) > self.dip_tol_rad)
+                self.n_mag_tested += 1
+                if mag_rej:
+                    self.n_mag_rej += 1
+                    self.last_code |= 2
+        if self.use_quest and acc != NULL and mag_tested and not acc_rej and not mag_rej:
+            unit3(acc, ah)
+            unit3(mag, mh)
+            # |u × m̂|²: the horizontal share of the field seen from the predicted attitude
+            c = ((u[1] * mh[2] - u[2] * mh[1]) ** 2 + (u[2] * mh[0] - u[0] * mh[2]) ** 2
+                 + (u[0] * mh[1] - u[1] * mh[0]) ** 2)
+            if c > 1e-18 and quest2(ah, mh, UP, self.ref_field, 1.0 - self.quest_mag_weight,
+                                    self.quest_mag_weight, qm):
+                if qm[0] * self.q[0] + qm[1] * self.q[1] + qm[2] * self.q[2] + qm[3] * self.q[3] < 0.0:
+                    qm[0] = -qm[0]; qm[1] = -qm[1]; qm[2] = -qm[2]; qm[3] = -qm[3]
+                # Rm: tilt as the accelerometer's, heading (rotation about the predicted up
+                # axis u) as the magnetometer's horizontal part: σa² (I4 - v vᵀ)/4 + σh² v vᵀ/4,
+                # v = Ξ(q) u, σh² = σm² / |u × m̂|²
+                sa = self.acc_noise * self.acc_noise / (G0 * G0 * dt)
+                sm = self.mag_noise * self.mag_noise / (dt * c)
+                v[0] = -self.q[1] * u[0] - self.q[2] * u[1] - self.q[3] * u[2]
+                v[1] = self.q[0] * u[0] - self.q[3] * u[1] + self.q[2] * u[2]
+                v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
+                v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
+                self.quat_update(qm, 0.25 * sa, v, 0.25 * (sm - sa))
+                self.n_quest += 1
+                self.last_code |= 4
+                quat_normalise(self.q)
+                return
+        # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
+        if acc != NULL:
+            self.acc_update(acc, dt / self.reject_factor if acc_rej else dt)
+        if mag != NULL:
+            self.mag_update(mag, dt / self.reject_factor if mag_rej else dt)
+        quat_normalise(self.q)
+
+    cdef void _process(self, const double* gyr, const double* acc, const double* mag,
+                       double dt) noexcept nogil:
+        cdef unsigned char* p
+        cdef Py_ssize_t cap
+        self.last_code = 0
+        Estimator._process(self, gyr, acc, mag, dt)
+        if self.logging:
+            if self.log_n == self.log_cap:
+                cap = 2 * self.log_cap if self.log_cap > 0 else 4096
+                p = <unsigned char*>realloc(self.log, cap)
+                if p == NULL:       # out of memory: stop recording, keep what there is
+                    self.logging = False
+                    return
+                self.log = p
+                self.log_cap = cap
+            self.log[self.log_n] = <unsigned char>self.last_code
+            self.log_n += 1
+
+    # --- the switching, for figures ------------------------------------------------------
+    def record_decisions(self, on=True):
+        """Start (on=True) or stop recording one decision code per sample (est.decisions);
+        starting forgets what was recorded before."""
+        if on not in (True, False):
+            raise ValueError(f"on must be True or False, got {on!r}")
+        self.logging = bool(on)
+        if on:
+            self.log_n = 0
+
+    @property
+    def decisions(self):
+        """Per-sample codes recorded since record_decisions() (uint8 array): bit 0 (1)
+        accelerometer rejected, bit 1 (2) magnetometer rejected, bit 2 (4) QUEST measurement
+        used; 0 where the sensors were accepted or absent/invalid."""
+        out = np.empty(self.log_n, dtype=np.uint8)
+        cdef unsigned char[::1] o = out
+        cdef Py_ssize_t i
+        for i in range(self.log_n):
+            o[i] = self.log[i]
+        return out
+
+    @property
+    def last_decision(self):
+        """The code (as in est.decisions) of the last sample processed."""
+        return int(self.last_code)
+
+    @property
+    def rejected(self):
+        """Counts of accelerometer / magnetometer samples rejected since the last reset."""
+        return {"acc": self.n_acc_rej, "mag": self.n_mag_rej}
+
+    @property
+    def tested(self):
+        """Counts of accelerometer / magnetometer samples tested since the last reset."""
+        return {"acc": self.n_acc_tested, "mag": self.n_mag_tested}
+
+    @property
+    def quest_updates(self):
+        """Samples whose measurement was the QUEST quaternion since the last reset."""
+        return self.n_quest
+
+    @property
+    def mag_reference(self):
+        """(field norm, dip angle in degrees) the magnetometer is tested against, or None
+        before it is known (learned from the first samples unless mag_norm / mag_dip given)."""
+        if not self.have_ref:
+            return None
+        return (self.norm_ref, self.dip_ref / DEG)
+
+    @property
+    def measurement(self):
+        return "quest" if self.use_quest else "vectors"
+
+    @property
+    def mag_norm(self):
+        return self.mag_norm_param
+
+    @property
+    def mag_dip(self):
+        return self.mag_dip_param
