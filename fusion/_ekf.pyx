@@ -7,7 +7,7 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_positive
-from fusion._qmath cimport (phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
+from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3)
 
@@ -109,7 +109,7 @@ cdef class EKF(Estimator):
         cdef double T[49]    # (I - K H) P
         cdef double y[3]
         cdef double* P = self.P
-        cdef double s, det
+        cdef double s
         cdef int i, j, k
         for i in range(7):
             for k in range(3):
@@ -126,18 +126,7 @@ cdef class EKF(Estimator):
         S[0] += r
         S[4] += r
         S[8] += r
-        Si[0] = S[4] * S[8] - S[5] * S[7]
-        Si[1] = S[2] * S[7] - S[1] * S[8]
-        Si[2] = S[1] * S[5] - S[2] * S[4]
-        det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
-        Si[3] = Si[1]
-        Si[4] = S[0] * S[8] - S[2] * S[6]
-        Si[5] = S[2] * S[3] - S[0] * S[5]
-        Si[6] = Si[2]
-        Si[7] = Si[5]
-        Si[8] = S[0] * S[4] - S[1] * S[3]
-        for i in range(9):
-            Si[i] *= det
+        sym3_inverse(S, Si)
         for i in range(7):
             for j in range(3):
                 K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]

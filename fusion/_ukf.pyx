@@ -6,7 +6,7 @@ from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
 from fusion._core import check_positive
-from fusion._qmath cimport (half_angle_terms, quat_mul, quat_normalise, quat_propagate,
+from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3)
 
 cdef double G0 = 9.81
@@ -181,7 +181,7 @@ cdef class UKF(Estimator):
         cdef double dq[4]
         cdef double qn[4]
         cdef double* P = self.P
-        cdef double s, det
+        cdef double s
         cdef int i, j, k
         for k in range(3):
             s = WM0 * Z[k]
@@ -207,18 +207,7 @@ cdef class UKF(Estimator):
                 for i in range(1, NS):
                     s += X[i * 6 + j] * D[i * 3 + k]
                 C[j * 3 + k] = WI * s
-        Si[0] = S[4] * S[8] - S[5] * S[7]
-        Si[1] = S[2] * S[7] - S[1] * S[8]
-        Si[2] = S[1] * S[5] - S[2] * S[4]
-        det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
-        Si[3] = Si[1]
-        Si[4] = S[0] * S[8] - S[2] * S[6]
-        Si[5] = S[2] * S[3] - S[0] * S[5]
-        Si[6] = Si[2]
-        Si[7] = Si[5]
-        Si[8] = S[0] * S[4] - S[1] * S[3]
-        for i in range(9):
-            Si[i] *= det
+        sym3_inverse(S, Si)
         for i in range(6):
             for j in range(3):
                 K[i * 3 + j] = C[i * 3] * Si[j] + C[i * 3 + 1] * Si[3 + j] + C[i * 3 + 2] * Si[6 + j]
