@@ -1,0 +1,227 @@
+"""Speed of the spherical-robot environment (targets in issue 5, numbers in docs/envs/).
+
+    .venv/bin/python benchmarks/env_speed.py            # full run (10,000 resets: about a minute)
+    .venv/bin/python benchmarks/env_speed.py --quick    # 1,000 resets
+
+Prints, in one run on one core:
+  - the raw PyBullet step rate of the same world (stepSimulation only, and with the drive
+    motor's per-step joint read and torque command), the floor under everything else;
+  - environment steps per second at the defaults (50 Hz control, 200 Hz IMU, 400 Hz physics)
+    with estimator="ekf" and with "truth", and the estimator's share of the step time;
+  - reset() time (mean, median, 99th percentile);
+  - resident memory before and after N resets in one process, and whether physics clients
+    leak (create and close environments: the client slot must be reused);
+  - the physics-rate convergence check behind the 400 Hz default (a 10 s drive with a turn
+    at 200, 400, 800 and 1600 Hz).
+"""
+import argparse
+import gc
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import pybullet as p  # noqa: E402
+
+from envs.robot import DCMotor, RobotParams, build_robot, set_steer  # noqa: E402
+from envs.sphere import SphereRobotEnv  # noqa: E402
+
+
+def rss_mb():
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def pin_one_core():
+    try:
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+        return True
+    except (AttributeError, OSError):
+        return False
+
+
+def env_rates(estimators, steps, repeats=5):
+    """Best steps/s of each estimator, runs interleaved (so that load changes on the machine
+    hit all alike), plus the measured time inside est.update per env step (us)."""
+    envs_ = {e: SphereRobotEnv(task="track", estimator=e) for e in estimators}
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, 2)).astype(np.float32)
+    actions[:, 0] = np.abs(actions[:, 0]) * 0.8          # mostly forward, changing steering
+    best = {e: 0.0 for e in estimators}
+    for r in range(repeats):
+        for e, env in envs_.items():
+            env.reset(seed=r)
+            t = time.perf_counter()
+            for a in actions:
+                _, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    env.reset()
+            best[e] = max(best[e], steps / (time.perf_counter() - t))
+    update_us = {}
+    for e, env in envs_.items():
+        est = env._est
+        if est is not None:                                # the estimator's own cost per env step
+            inner = est
+            spent = [0.0, 0]
+
+            class Timed:
+                def update(self, *a):
+                    t0 = time.perf_counter()
+                    q = inner.update(*a)
+                    spent[0] += time.perf_counter() - t0
+                    spent[1] += 1
+                    return q
+
+                def __getattr__(self, name):
+                    return getattr(inner, name)
+            env._est = Timed()
+            env.reset(seed=0)
+            for a in actions[:2000]:
+                _, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    env.reset()
+            env._est = inner
+            update_us[e] = spent[0] / 2000 * 1e6
+        env.close()
+    return best, update_us
+
+
+def raw_pybullet_rate(steps=20000):
+    params, motor = RobotParams(), None
+    motor = DCMotor(params)
+    c = p.connect(p.DIRECT)
+    p.resetSimulation(physicsClientId=c)
+    p.setGravity(0, 0, -9.81, physicsClientId=c)
+    p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
+    floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+    p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
+    b = build_robot(p, c, params, (0, 0), 0.0)
+    set_steer(p, c, b, params, 0.2)
+    t = time.perf_counter()
+    for _ in range(steps):
+        p.stepSimulation(c)
+    plain = steps / (time.perf_counter() - t)
+    t = time.perf_counter()
+    for _ in range(steps):
+        tau = motor.torque(3.0, p.getJointState(b, 0, c)[1])
+        p.setJointMotorControl2(b, 0, p.TORQUE_CONTROL, force=tau, physicsClientId=c)
+        p.stepSimulation(c)
+    with_motor = steps / (time.perf_counter() - t)
+    p.disconnect(c)
+    return plain, with_motor
+
+
+def reset_times(n=300):
+    env = SphereRobotEnv(estimator="ekf")
+    env.reset(seed=0)
+    ts = []
+    for i in range(n):
+        t = time.perf_counter()
+        env.reset(seed=i)
+        ts.append(time.perf_counter() - t)
+    env.close()
+    ts = np.array(ts) * 1e3
+    return ts.mean(), np.median(ts), np.percentile(ts, 99)
+
+
+def reset_memory(n):
+    env = SphereRobotEnv(estimator="ekf", bumps=5, mag_zones="random")
+    for i in range(100):                                   # warm-up: caches, allocator
+        env.reset(seed=i)
+        env.step([0.5, 0.1])
+    gc.collect()
+    before = rss_mb()
+    t = time.perf_counter()
+    for i in range(n):
+        env.reset(seed=i)
+        if i % 10 == 0:
+            env.step([0.5, 0.1])
+    el = time.perf_counter() - t
+    gc.collect()
+    after = rss_mb()
+    env.close()
+    # client leak: create and close environments; PyBullet reuses a freed client slot
+    ids = []
+    for i in range(50):
+        e = SphereRobotEnv(estimator="truth")
+        e.reset(seed=i)
+        ids.append(e._client)
+        e.close()
+    return before, after, el / n * 1e3, max(ids), len(set(ids))
+
+
+def convergence():
+    params = RobotParams()
+    motor = DCMotor(params)
+    rows = []
+    for hz in (200, 400, 800, 1600):
+        c = p.connect(p.DIRECT)
+        p.resetSimulation(physicsClientId=c)
+        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setPhysicsEngineParameter(fixedTimeStep=1.0 / hz, deterministicOverlappingPairs=1, physicsClientId=c)
+        floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+        p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
+        b = build_robot(p, c, params, (0, 0), 0.0)
+        for k in range(int(10 * hz)):
+            if k == 3 * hz:
+                set_steer(p, c, b, params, 0.3)
+            tau = motor.torque(5.0, p.getJointState(b, 0, c)[1])
+            p.setJointMotorControl2(b, 0, p.TORQUE_CONTROL, force=tau, physicsClientId=c)
+            p.stepSimulation(c)
+        pos, orn = p.getBasePositionAndOrientation(b, c)
+        lin, _ = p.getBaseVelocity(b, c)
+        yaw = math.degrees(p.getEulerFromQuaternion(orn)[2])
+        rows.append((hz, pos[0], pos[1], yaw, math.hypot(lin[0], lin[1])))
+        p.disconnect(c)
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
+    ap.add_argument("--steps", type=int, default=5000, help="env steps per timing repeat")
+    args = ap.parse_args()
+    pinned = pin_one_core()
+    print(f"one core: {'pinned' if pinned else 'not pinned'}; python {sys.version.split()[0]}")
+
+    plain, with_motor = raw_pybullet_rate()
+    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the motor's joint read and "
+          f"torque command: {with_motor:,.0f}/s  (= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
+
+    rates, update_us = env_rates(["ekf", "truth"], args.steps)
+    r_ekf, r_truth = rates["ekf"], rates["truth"]
+    share_diff = 1.0 - r_ekf / r_truth
+    share_direct = update_us["ekf"] * 1e-6 * r_ekf
+    print(f"env steps/s (50 Hz control, 200 Hz IMU mpu9250, 400 Hz physics): ekf {r_ekf:,.0f}   "
+          f"truth {r_truth:,.0f}")
+    print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
+          f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step)")
+    print(f"  target >= 2,000 with ekf: {'met' if r_ekf >= 2000 else 'NOT met'}; "
+          f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+
+    mean, med, p99 = reset_times()
+    print(f"reset(): mean {mean:.2f} ms, median {med:.2f} ms, p99 {p99:.2f} ms  "
+          f"(target < 10 ms: {'met' if mean < 10 else 'NOT met'})")
+
+    n = 1000 if args.quick else 10000
+    before, after, per, max_id, distinct = reset_memory(n)
+    print(f"{n:,} resets in one process: RSS {before:.1f} MB -> {after:.1f} MB "
+          f"(growth {after - before:+.1f} MB; target < 50 MB: {'met' if after - before < 50 else 'NOT met'}), "
+          f"{per:.2f} ms per reset; 50 envs created and closed used {distinct} client slot(s), "
+          f"highest id {max_id}")
+
+    print("physics-rate convergence (10 s at 5 V, 17 deg steering from 3 s):")
+    print("  physics Hz    x (m)    y (m)   yaw (deg)   speed (m/s)")
+    for hz, x, y, yaw, v in convergence():
+        print(f"  {hz:10d} {x:8.3f} {y:8.3f} {yaw:10.2f} {v:12.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,735 @@
+"""Gymnasium environment of the pendulum-driven spherical robot with a simulated IMU and an
+attitude estimator in the loop. Documentation: docs/envs/robot.md, docs/envs/sphere_bot_track.md,
+docs/envs/sphere_bot_waypoints.md.
+
+The physics client is created by the environment (at the first ``reset``), never at
+import, so environments can be built in subprocesses; every ``reset`` empties the world
+(``resetSimulation``) and rebuilds it, so that an episode depends only on the seed.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+
+import fusion
+from fusion import imu as fimu
+
+from envs.robot import DRIVE_JOINT, STEER_JOINT, DCMotor, RobotParams, build_robot, set_steer
+
+__all__ = ["SphereRobotEnv", "TASKS", "ESTIMATORS", "OBS_NAMES"]
+
+TASKS = ("track", "waypoints")
+G = 9.81
+#: Earth field (uT, ENU) of the seeds' region (Nanjing, WMM: total 50.6 uT, inclination
+#: 48 deg); declination set to 0 so that magnetic north is the world's +y and the estimated
+#: heading has the same zero as the true one.
+EARTH_FIELD = (0.0, 33.9, -37.6)
+OBS_NAMES = ("q_w", "q_x", "q_y", "q_z", "rate_x", "rate_y", "rate_z", "encoder_speed",
+             "last_drive", "last_steer", "task_0", "task_1", "task_2", "task_3")
+_TASK_NAMES = {"track": ("speed_cmd", "speed_error", "sin_heading_error", "cos_heading_error"),
+               "waypoints": ("target_forward", "target_left", "sin_bearing", "cos_bearing")}
+_DEFAULT_EPISODE_S = {"track": 30.0, "waypoints": 60.0}
+
+
+def ESTIMATORS():
+    """Names accepted by ``estimator=``: fusion's estimators and "truth"."""
+    return list(fusion.available()) + ["truth"]
+
+
+def _wrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _number(name, value, lo, hi, lo_open=False, allow_zero=False):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {value!r}")
+    v = float(value)
+    if (v == 0 and allow_zero):
+        return v
+    if v < lo or v > hi or (lo_open and v == lo):
+        raise ValueError(f"{name} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+                         f"{' or 0' if allow_zero else ''}, got {value!r}")
+    return v
+
+
+def _multiple(a, b):
+    """Whether a / b is a whole number (within rounding)."""
+    n = round(a / b)
+    return n >= 1 and abs(n * b - a) <= 1e-9 * a
+
+
+class SphereRobotEnv(gym.Env):
+    """Pendulum-driven spherical robot, IMU in the loop (see the module docstring).
+
+    Arguments (all keyword; ranges are checked, ``ValueError`` names the argument):
+
+    task: "track" (follow a commanded speed and heading that change during the episode)
+        or "waypoints" (drive through a sequence of points, position by dead reckoning).
+    estimator: a name of ``fusion.available()`` or "truth" (the true attitude and rate).
+    estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters).
+    imu: a preset of ``fusion.imu.available()`` (default "mpu9250") or an ``IMUSpec``.
+    imu_calibrated: use the preset's residuals after a power-on calibration (default True).
+    imu_hz: IMU output rate (Hz, default 200); physics_hz: physics rate, a whole multiple
+        of imu_hz and of control_hz (default 400); control_hz: agent rate (default 50).
+    imu_offset: (m) the IMU's position on the inner frame, from the axle centre.
+    episode_s: episode length (s), default 30 (track) or 60 (waypoints).
+    robot: ``RobotParams``, or a dict of overrides of its fields.
+    arena_size: side of the square arena (m) centred on the origin; leaving it ends the episode.
+    bumps: number of low cylindrical bumps (height ``bump_height``) laid on the floor.
+    ramps: number of ramps (slope ``ramp_deg``, height ``ramp_height``) on the floor.
+    mag_zones: None, "random" (``n_mag_zones`` dipoles placed by the seed) or a list of
+        (x, y, field_uT): a magnetic dipole in the floor at (x, y) whose field at the
+        IMU's height above it is field_uT (a steel plate, a motor).
+    earth_field: (uT, ENU) the undisturbed field.
+    n_waypoints, waypoint_radius (m): the waypoints task.
+    position_fix_hz, position_fix_std (m): an optional slow, noisy position fix for the
+        dead reckoning (0 Hz: none).
+    render_mode: None, "rgb_array" (TinyRenderer, headless) or "human" (PyBullet window).
+    render_size: (width, height) of rgb_array frames.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+    def __init__(self, task="track", estimator="ekf", imu="mpu9250", *, estimator_params=None,
+                 imu_calibrated=True, imu_hz=200.0, physics_hz=400.0, control_hz=50.0,
+                 imu_offset=(0.02, 0.0, 0.03), episode_s=None, robot=None, arena_size=20.0,
+                 bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
+                 mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, n_waypoints=4,
+                 waypoint_radius=0.3, position_fix_hz=0.0, position_fix_std=0.5,
+                 render_mode=None, render_size=(320, 240)):
+        super().__init__()
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")
+        if estimator not in ESTIMATORS():
+            raise ValueError(f"unknown estimator {estimator!r}; accepted: {', '.join(ESTIMATORS())}")
+        if isinstance(imu, fimu.IMUSpec):
+            spec = imu
+        elif isinstance(imu, str) and imu in fimu.available():
+            spec = fimu.preset(imu, calibrated=bool(imu_calibrated))
+        else:
+            raise ValueError(f"unknown IMU preset {imu!r}; accepted: {', '.join(fimu.available())} "
+                             "(or a fusion.imu.IMUSpec)")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; accepted: None, "
+                             f"{', '.join(self.metadata['render_modes'])}")
+        self.task = task
+        self.estimator_name = estimator
+        self.render_mode = render_mode
+        self.imu_hz = _number("imu_hz", imu_hz, 0.0, 10000.0, lo_open=True)
+        self.physics_hz = _number("physics_hz", physics_hz, 0.0, 20000.0, lo_open=True)
+        self.control_hz = _number("control_hz", control_hz, 0.0, 1000.0, lo_open=True)
+        if not _multiple(self.physics_hz, self.imu_hz):
+            raise ValueError(f"physics_hz must be a whole multiple of imu_hz = {self.imu_hz:g} Hz "
+                             f"(range: k * {self.imu_hz:g}, k = 1, 2, ...), got {physics_hz!r}")
+        if not _multiple(self.physics_hz, self.control_hz):
+            raise ValueError(f"physics_hz must be a whole multiple of control_hz = {self.control_hz:g} Hz "
+                             f"(range: k * {self.control_hz:g}, k = 1, 2, ...), got {physics_hz!r}")
+        if self.physics_hz < 100.0:
+            raise ValueError(f"physics_hz must be >= 100 Hz for stable contact, got {physics_hz!r}")
+        self.robot = RobotParams.from_any(robot)
+        self.arena_size = _number("arena_size", arena_size, 2.0, 1000.0)
+        eps = _DEFAULT_EPISODE_S[task] if episode_s is None else episode_s
+        self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
+        self.max_steps = max(1, int(round(self.episode_s * self.control_hz)))
+        try:
+            off = tuple(float(v) for v in imu_offset)
+        except (TypeError, ValueError):
+            off = ()
+        if len(off) != 3 or not all(math.isfinite(v) for v in off) or \
+                math.sqrt(sum(v * v for v in off)) > self.robot.shell_radius * 0.9:
+            raise ValueError(f"imu_offset must be 3 finite numbers (m) within 0.9 * shell_radius = "
+                             f"{0.9 * self.robot.shell_radius:g} m of the centre, got {imu_offset!r}")
+        self.imu_offset = off
+        self._has_offset = any(v != 0.0 for v in off)
+        for name, v in (("bumps", bumps), ("ramps", ramps), ("n_mag_zones", n_mag_zones),
+                        ("n_waypoints", n_waypoints)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not 0 <= v <= 1000:
+                raise ValueError(f"{name} must be an integer in [0, 1000], got {v!r}")
+        if n_waypoints < 1:
+            raise ValueError(f"n_waypoints must be an integer in [1, 1000], got {n_waypoints!r}")
+        self.bumps, self.ramps, self.n_mag_zones, self.n_waypoints = int(bumps), int(ramps), int(n_mag_zones), \
+            int(n_waypoints)
+        self.bump_height = _number("bump_height", bump_height, 0.001, 0.5 * self.robot.shell_radius)
+        self.ramp_deg = _number("ramp_deg", ramp_deg, 0.5, 30.0)
+        self.ramp_height = _number("ramp_height", ramp_height, 0.005, 1.0)
+        self.waypoint_radius = _number("waypoint_radius", waypoint_radius, 0.05, 10.0)
+        self.position_fix_hz = _number("position_fix_hz", position_fix_hz, 0.0, self.control_hz)
+        self.position_fix_std = _number("position_fix_std", position_fix_std, 0.0, 100.0)
+        try:
+            ef = tuple(float(v) for v in earth_field)
+        except (TypeError, ValueError):
+            ef = ()
+        if len(ef) != 3 or not all(math.isfinite(v) for v in ef) or not 0 < math.sqrt(sum(v * v for v in ef)) < 1e4:
+            raise ValueError(f"earth_field must be 3 finite numbers (uT, ENU) with a norm in (0, 1e4), "
+                             f"got {earth_field!r}")
+        self.earth_field = ef
+        if mag_zones is None or mag_zones == "random":
+            self._mag_zone_spec = mag_zones
+        else:
+            zs = []
+            try:
+                for z in mag_zones:
+                    x, y, f = (float(v) for v in z)
+                    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(f) and 0 < f <= 1e4):
+                        raise ValueError
+                    zs.append((x, y, f))
+            except (TypeError, ValueError):
+                raise ValueError("mag_zones must be None, 'random' or a list of (x, y, field_uT) with "
+                                 f"field_uT in (0, 1e4], got {mag_zones!r}") from None
+            self._mag_zone_spec = zs
+        try:
+            rw, rh = (int(v) for v in render_size)
+        except (TypeError, ValueError):
+            rw = rh = 0
+        if not (16 <= rw <= 4096 and 16 <= rh <= 4096):
+            raise ValueError(f"render_size must be (width, height), each in [16, 4096], got {render_size!r}")
+        self.render_size = (rw, rh)
+
+        self.imu_spec = spec.replace(rate_hz=self.imu_hz)
+        self._est_params = dict(estimator_params or {})
+        if estimator != "truth":
+            # build once here so that bad parameters fail at construction
+            self._est = fusion.make(estimator, self.imu_hz, on_invalid="skip", **self._est_params)
+        else:
+            if self._est_params:
+                raise ValueError("estimator_params must be empty for estimator='truth'")
+            self._est = None
+        self._imu = None
+        self._motor = DCMotor(self.robot)
+        self._n_sub = int(round(self.physics_hz / self.control_hz))
+        self._dt = 1.0 / self.physics_hz
+        self._settle_steps = int(round(0.1 * self.physics_hz))
+
+        high = np.array([1, 1, 1, 1, 20, 20, 20, 50, 1, 1] + ([5.0, 5.0, 1, 1] if task == "track"
+                                                             else [50.0, 50.0, 1, 1]), dtype=np.float32)
+        self._obs_high = high
+        self.observation_space = spaces.Box(-high, high, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self.obs_names = OBS_NAMES[:10] + _TASK_NAMES[task]
+
+        self._p = None
+        self._client = None
+        self._body = None
+        self._needs_reset = True
+        #: None, or a list that receives one tuple per physics step (see enable_signal_log)
+        self.signal_log = None
+
+    # ------------------------------------------------------------------------------------
+    # physics client and world
+
+    def _connect(self):
+        import pybullet as p
+        self._p = p
+        if self.render_mode == "human":
+            self._client = p.connect(p.GUI)
+        else:
+            self._client = p.connect(p.DIRECT)
+        if self._client < 0:
+            raise RuntimeError("could not connect to PyBullet")
+
+    def _build_world(self, start_xy, start_yaw, bumps, ramps):
+        p, c = self._p, self._client
+        p.resetSimulation(physicsClientId=c)
+        p.setGravity(0.0, 0.0, -G, physicsClientId=c)
+        p.setPhysicsEngineParameter(fixedTimeStep=self._dt, numSubSteps=0, deterministicOverlappingPairs=1,
+                                    physicsClientId=c)
+        visual = self.render_mode is not None
+        plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
+        floor = p.createMultiBody(0, plane, physicsClientId=c)
+        statics = [floor]
+        for (x, y, yaw) in bumps:
+            h = self.bump_height
+            col = p.createCollisionShape(p.GEOM_CAPSULE, radius=h, height=0.6, physicsClientId=c)
+            vis = p.createVisualShape(p.GEOM_CAPSULE, radius=h, length=0.6, rgbaColor=[0.5, 0.35, 0.2, 1],
+                                      physicsClientId=c) if visual else -1
+            # capsule axis z turned horizontal (about x by 90 deg), then yawed
+            qa = (math.sin(math.pi / 4), 0.0, 0.0, math.cos(math.pi / 4))
+            qy = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+            orn = p.multiplyTransforms([0, 0, 0], qy, [0, 0, 0], qa)[1]
+            statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
+        for (x, y, yaw) in ramps:
+            h = self.ramp_height
+            run = h / math.tan(math.radians(self.ramp_deg))
+            top, w = 0.5, 0.8
+            xs = (-(top / 2 + run), -top / 2, top / 2, top / 2 + run)
+            verts = []
+            for yy in (-w / 2, w / 2):
+                verts += [[xs[0], yy, 0.0], [xs[1], yy, h], [xs[2], yy, h], [xs[3], yy, 0.0]]
+            col = p.createCollisionShape(p.GEOM_MESH, vertices=verts, physicsClientId=c)
+            vis = -1
+            if visual:
+                idx = [0, 1, 2, 0, 2, 3, 4, 6, 5, 4, 7, 6, 0, 4, 5, 0, 5, 1, 1, 5, 6, 1, 6, 2, 2, 6, 7, 2, 7, 3]
+                vis = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx, rgbaColor=[0.6, 0.6, 0.55, 1],
+                                          physicsClientId=c)
+            orn = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+            statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
+        for b in statics:
+            p.changeDynamics(b, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0,
+                             restitution=0.0, physicsClientId=c)
+        if visual:
+            self._add_floor_visual()
+        self._body = build_robot(p, c, self.robot, start_xy, start_yaw, visual=visual)
+
+    def _add_floor_visual(self):
+        import pybullet_data
+        p, c = self._p, self._client
+        vis = p.createVisualShape(p.GEOM_MESH, fileName=pybullet_data.getDataPath() + "/plane100.obj",
+                                  meshScale=[0.2, 0.2, 1.0], rgbaColor=[1, 1, 1, 1], physicsClientId=c)
+        b = p.createMultiBody(0, -1, vis, [0, 0, -0.0005], physicsClientId=c)
+        tex = p.loadTexture(pybullet_data.getDataPath() + "/checker_blue.png", physicsClientId=c)
+        p.changeVisualShape(b, -1, textureUniqueId=tex, physicsClientId=c)
+        self._mag_markers()
+
+    def _mag_markers(self):
+        p, c = self._p, self._client
+        for (cx, cy, cz, mx, my, mz, r2) in self._zones:
+            vis = p.createVisualShape(p.GEOM_CYLINDER, radius=0.15, length=0.004, rgbaColor=[0.8, 0.1, 0.1, 1],
+                                      physicsClientId=c)
+            p.createMultiBody(0, -1, vis, [cx, cy, 0.002], physicsClientId=c)
+
+    # ------------------------------------------------------------------------------------
+    # random draws of an episode (all from self.np_random, in a fixed order)
+
+    def _draw_layout(self):
+        rng = self.np_random
+        start_xy = rng.uniform(-0.5, 0.5, size=2)
+        start_yaw = float(rng.uniform(-math.pi, math.pi))
+        half = 0.5 * self.arena_size
+
+        def away(n, keep):
+            out = []
+            for _ in range(n):
+                xy = rng.uniform(-half + 1.0, half - 1.0, size=2)
+                yaw = float(rng.uniform(-math.pi, math.pi))
+                if math.hypot(xy[0] - start_xy[0], xy[1] - start_xy[1]) < keep:   # keep the start clear
+                    xy = xy + np.sign(xy + 1e-12) * keep
+                out.append((float(xy[0]), float(xy[1]), yaw))
+            return out
+
+        bumps = away(self.bumps, 0.6)
+        ramps = away(self.ramps, 1.2)
+        zones = []
+        r_imu = self.robot.shell_radius + self.imu_offset[2]
+        spec = self._mag_zone_spec
+        if spec == "random":
+            for _ in range(self.n_mag_zones):
+                xy = rng.uniform(-half + 1.0, half - 1.0, size=2)
+                f = float(rng.uniform(10.0, 60.0))
+                d = rng.normal(size=3)
+                d /= np.linalg.norm(d)
+                zones.append((float(xy[0]), float(xy[1]), f, tuple(float(v) for v in d)))
+        elif spec:
+            zones = [(x, y, f, (0.0, 0.0, 1.0)) for (x, y, f) in spec]
+        self._zones = []
+        for (x, y, f, d) in zones:
+            m = fimu.dipole_moment_for(f, r_imu)
+            # zone radius: where the on-axis field has fallen to 0.05 uT (below any preset's LSB)
+            cut = (0.2 * m / 0.05) ** (1.0 / 3.0)
+            self._zones.append((x, y, 0.0, m * d[0], m * d[1], m * d[2], cut * cut))
+        return start_xy, start_yaw, bumps, ramps
+
+    def _draw_task(self):
+        rng = self.np_random
+        if self.task == "track":
+            n = int(math.ceil(self.episode_s / 3.0)) + 1
+            gaps = rng.uniform(3.0, 8.0, size=n)
+            speeds = rng.uniform(0.1, 0.6, size=n)
+            turns = rng.uniform(-math.pi / 2, math.pi / 2, size=n)
+            turns[0] = rng.uniform(-math.pi, math.pi)
+            self._cmd_times = np.concatenate([[0.0], np.cumsum(gaps)])[:n]
+            self._cmd_speed = speeds
+            self._cmd_heading = np.array([_wrap(v) for v in (self._yaw0 + np.cumsum(turns))])
+            self._cmd_i = 0
+        else:
+            pts = []
+            x, y = float(self._xy0[0]), float(self._xy0[1])
+            lim = 0.4 * self.arena_size
+            ang = rng.uniform(-math.pi, math.pi, size=self.n_waypoints)
+            dist = rng.uniform(1.5, 3.5, size=self.n_waypoints)
+            for a, d in zip(ang, dist):
+                x = min(lim, max(-lim, x + d * math.cos(a)))
+                y = min(lim, max(-lim, y + d * math.sin(a)))
+                pts.append((x, y))
+            self._waypoints = np.array(pts)
+            self._wp_i = 0
+
+    # ------------------------------------------------------------------------------------
+    # the physics loop
+
+    def _sense(self, first=False):
+        """True IMU signals at the current physics step -> the IMU model -> the estimator.
+
+        Plain float arithmetic (no numpy): this runs at the physics rate."""
+        p, c, b = self._p, self._client, self._body
+        pos, orn = p.getBasePositionAndOrientation(b, c)
+        lin, ang = p.getBaseVelocity(b, c)
+        x, y, z, w = orn
+        # body -> world rotation matrix R
+        x2, y2, z2 = x + x, y + y, z + z
+        xx, yy, zz = x * x2, y * y2, z * z2
+        xy_, xz, yz, wx, wy, wz = x * y2, x * z2, y * z2, w * x2, w * y2, w * z2
+        r00, r01, r02 = 1.0 - (yy + zz), xy_ - wz, xz + wy
+        r10, r11, r12 = xy_ + wz, 1.0 - (xx + zz), yz - wx
+        r20, r21, r22 = xz - wy, yz + wx, 1.0 - (xx + yy)
+        wx_, wy_, wz_ = ang
+        vx, vy, vz = lin
+        if self._has_offset:
+            # IMU point: v + w x (R r)
+            ox, oy, oz = self.imu_offset
+            rx = r00 * ox + r01 * oy + r02 * oz
+            ry = r10 * ox + r11 * oy + r12 * oz
+            rz = r20 * ox + r21 * oy + r22 * oz
+            vx += wy_ * rz - wz_ * ry
+            vy += wz_ * rx - wx_ * rz
+            vz += wx_ * ry - wy_ * rx
+        else:
+            rx = ry = rz = 0.0
+        if first:
+            ax = ay = 0.0
+            az = G
+        else:
+            k = self.physics_hz
+            pv = self._v_prev
+            ax, ay, az = (vx - pv[0]) * k, (vy - pv[1]) * k, (vz - pv[2]) * k + G   # a - g, g = (0, 0, -G)
+        self._v_prev = (vx, vy, vz)
+        bx, by, bz = self.earth_field
+        if self._zones:
+            px, py, pz = pos[0] + rx, pos[1] + ry, pos[2] + rz
+            for (cx, cy, cz, mx, my, mz, r2) in self._zones:
+                dx, dy, dz = px - cx, py - cy, pz - cz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < r2:
+                    d = math.sqrt(max(d2, 1e-4))
+                    ux, uy, uz = dx / d, dy / d, dz / d
+                    mr = mx * ux + my * uy + mz * uz
+                    s = 0.1 / (d * d * d)           # mu0 / 4 pi in uT m^3 / (A m^2)
+                    bx += s * (3 * ux * mr - mx)
+                    by += s * (3 * uy * mr - my)
+                    bz += s * (3 * uz * mr - mz)
+        # world -> body: R^T v
+        gyr = (r00 * wx_ + r10 * wy_ + r20 * wz_, r01 * wx_ + r11 * wy_ + r21 * wz_, r02 * wx_ + r12 * wy_ + r22 * wz_)
+        acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
+        mag = (r00 * bx + r10 * by + r20 * bz, r01 * bx + r11 * by + r21 * bz, r02 * bx + r12 * by + r22 * bz)
+        self._true = (pos, orn, lin, gyr, acc, mag)
+        s = self._imu.step(gyr, acc, mag)
+        if self.signal_log is not None:
+            self.signal_log.append((pos, orn, lin, ang, gyr, acc, mag, s))
+        if s is not None:
+            self._n_samples += 1
+            self._q_true_s = (w, x, y, z)
+            if self._est is not None:
+                self._q_est = self._est.update(s.gyr, s.acc, s.mag)
+                g = s.gyr
+            else:
+                g = gyr
+            self._gyr_last = g
+            self._gyr_sum_y += g[1]
+            self._gyr_n += 1
+
+    def _advance(self, n, voltage):
+        p, c, b = self._p, self._client, self._body
+        torque = self._motor.torque
+        torque_mode = p.TORQUE_CONTROL
+        getjs, setm, step, sense = p.getJointState, p.setJointMotorControl2, p.stepSimulation, self._sense
+        tau = 0.0
+        for _ in range(n):
+            tau = torque(voltage, getjs(b, DRIVE_JOINT, c)[1])
+            setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
+            step(c)
+            sense()
+        self._tau = tau
+
+    # ------------------------------------------------------------------------------------
+    # Gymnasium API
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        if self._client is None:
+            self._connect()
+        self._xy0, self._yaw0, bumps, ramps = self._draw_layout()
+        if options:
+            bad = sorted(set(options) - {"start_xy", "start_yaw"})
+            if bad:
+                raise ValueError(f"unknown reset option(s) {', '.join(bad)}; accepted: start_xy, start_yaw")
+            if "start_xy" in options:
+                xy = np.asarray(options["start_xy"], dtype=float)
+                if xy.shape != (2,) or not np.all(np.isfinite(xy)) or np.any(np.abs(xy) > 0.5 * self.arena_size):
+                    raise ValueError(f"options['start_xy'] must be (x, y) inside the arena, got {options['start_xy']!r}")
+                self._xy0 = xy
+            if "start_yaw" in options:
+                yaw = options["start_yaw"]
+                if isinstance(yaw, bool) or not isinstance(yaw, numbers.Real) or not math.isfinite(yaw):
+                    raise ValueError(f"options['start_yaw'] must be a finite angle (rad), got {yaw!r}")
+                self._yaw0 = float(yaw)
+        self._draw_task()
+        if self._imu is None:
+            self._imu = fimu.IMU(self.imu_spec, self.np_random, physics_rate_hz=self.physics_hz)
+        else:
+            self._imu.reset(rng=self.np_random)
+        self._build_world(self._xy0, self._yaw0, bumps, ramps)
+        if self._est is not None:
+            self._est.reset()
+        self._q_est = None
+        self._q_true_s = None
+        self._gyr_last = [0.0, 0.0, 0.0]
+        self._last_sample = None
+        self._n_samples = 0
+        self._gyr_sum_y, self._gyr_n = 0.0, 0
+        self._sense(first=True)
+        self._advance(self._settle_steps, 0.0)
+        # episode state
+        self._t = 0.0
+        self._steps = 0
+        self._action = (0.0, 0.0)
+        self._clipped = 0
+        self._stuck_t = 0.0
+        cpr = self.robot.encoder_cpr
+        self._enc_counts = math.floor(self._p.getJointState(self._body, DRIVE_JOINT, self._client)[0] * cpr
+                                      / (2 * math.pi))
+        self._enc_speed = 0.0
+        self._pos_est = [float(self._xy0[0]), float(self._xy0[1])]
+        self._next_fix = 0.0
+        self._gyr_sum_y, self._gyr_n = 0.0, 0
+        if self.task == "waypoints":
+            self._dist_prev = self._true_dist()
+        self._needs_reset = False
+        obs = self._observation()
+        info = self._info({"speed": 0.0, "heading": 0.0, "effort": 0.0} if self.task == "track" else
+                          {"progress": 0.0, "reached": 0.0, "time": 0.0, "effort": 0.0})
+        return obs, info
+
+    def step(self, action):
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step() (and after an episode ended)")
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
+        if a.shape != (2,):
+            raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
+        a0, a1 = float(a[0]), float(a[1])
+        if not (math.isfinite(a0) and math.isfinite(a1)):
+            raise ValueError(f"action must be finite, got {action!r}")
+        if a0 > 1.0 or a0 < -1.0 or a1 > 1.0 or a1 < -1.0:
+            self._clipped += 1
+            a0 = 1.0 if a0 > 1.0 else (-1.0 if a0 < -1.0 else a0)
+            a1 = 1.0 if a1 > 1.0 else (-1.0 if a1 < -1.0 else a1)
+        self._action = (a0, a1)
+        rp = self.robot
+        set_steer(self._p, self._client, self._body, rp, a1 * rp.steer_max)
+        self._gyr_sum_y, self._gyr_n = 0.0, 0
+        self._advance(self._n_sub, a0 * rp.motor_voltage)
+        self._steps += 1
+        self._t = self._steps / self.control_hz
+        # Hall encoder: counts over the control period
+        cpr = rp.encoder_cpr
+        counts = math.floor(self._p.getJointState(self._body, DRIVE_JOINT, self._client)[0] * cpr / (2 * math.pi))
+        self._enc_speed = (counts - self._enc_counts) * (2 * math.pi / cpr) * self.control_hz
+        self._enc_counts = counts
+        # the robot's own estimates: heading and dead reckoning
+        psi = self._heading_est()
+        rate_y = self._gyr_sum_y / self._gyr_n if self._gyr_n else 0.0
+        if self._est is not None and self._est.bias is not None:
+            rate_y -= float(self._est.bias[1])
+        v_est = rp.shell_radius * (self._enc_speed + rate_y)
+        step_len = v_est / self.control_hz
+        self._pos_est[0] += step_len * math.cos(psi)
+        self._pos_est[1] += step_len * math.sin(psi)
+        if self.position_fix_hz > 0 and self._t >= self._next_fix - 1e-9:
+            pos = self._true[0]
+            n = self.np_random.normal(size=2) * self.position_fix_std
+            self._pos_est = [pos[0] + float(n[0]), pos[1] + float(n[1])]
+            self._next_fix += 1.0 / self.position_fix_hz
+
+        # reward, termination (the referee uses the true state)
+        pos, orn, lin = self._true[0], self._true[1], self._true[2]
+        psi_true = self._heading_true()
+        v_fwd = lin[0] * math.cos(psi_true) + lin[1] * math.sin(psi_true)
+        effort = -0.01 * (a0 * a0 + a1 * a1)
+        terminated = False
+        if self.task == "track":
+            while self._cmd_i + 1 < len(self._cmd_times) and self._t >= self._cmd_times[self._cmd_i + 1]:
+                self._cmd_i += 1
+            vc, hc = float(self._cmd_speed[self._cmd_i]), float(self._cmd_heading[self._cmd_i])
+            terms = {"speed": -abs(v_fwd - vc) / 0.5, "heading": -abs(_wrap(psi_true - hc)) / math.pi,
+                     "effort": effort}
+        else:
+            d = self._true_dist()
+            progress = 10.0 * (self._dist_prev - d)
+            reached = 0.0
+            if d < self.waypoint_radius:
+                reached = 10.0
+                self._wp_i += 1
+                if self._wp_i >= len(self._waypoints):
+                    terminated = True
+                    self._wp_i = len(self._waypoints) - 1
+                    d = 0.0
+                else:
+                    d = self._true_dist()
+            self._dist_prev = d
+            terms = {"progress": progress, "reached": reached, "time": -0.02, "effort": effort}
+        reward = float(sum(terms.values()))
+        half = 0.5 * self.arena_size
+        out = abs(pos[0]) > half or abs(pos[1]) > half
+        speed = math.hypot(lin[0], lin[1])
+        if speed < 0.02 and abs(a0) > 0.5:
+            self._stuck_t += 1.0 / self.control_hz
+        else:
+            self._stuck_t = 0.0
+        stuck = self._stuck_t >= 3.0
+        terminated = terminated or out or stuck
+        truncated = (not terminated) and self._steps >= self.max_steps
+        if terminated or truncated:
+            self._needs_reset = True
+        obs = self._observation()
+        info = self._info(terms)
+        info["out_of_arena"] = out
+        info["stuck"] = stuck
+        if self.task == "waypoints":
+            info["goal_reached"] = bool(terminated and not out and not stuck)
+        return obs, reward, terminated, truncated, info
+
+    # ------------------------------------------------------------------------------------
+
+    def enable_signal_log(self):
+        """Diagnostics: from now on append, at every physics step, a tuple (position,
+        orientation [x, y, z, w] (PyBullet order), linear velocity, angular velocity (world),
+        true gyro, true specific force, true field (body frame), IMU sample or None) to
+        ``self.signal_log`` (a new list, returned). ``disable_signal_log()`` stops it."""
+        self.signal_log = []
+        return self.signal_log
+
+    def disable_signal_log(self):
+        self.signal_log = None
+
+    def true_state(self):
+        """The simulator's state now: dict of position (m), orientation (the inner frame's
+        quaternion [w, x, y, z]), velocity (m/s), body_rate (rad/s, frame axes), shell_rate
+        (rad/s, world frame), drive_angle and steer_angle (rad), drive_speed (rad/s)."""
+        if self._client is None:
+            raise RuntimeError("call reset() first")
+        p, c, b = self._p, self._client, self._body
+        pos, orn = p.getBasePositionAndOrientation(b, c)
+        lin, ang = p.getBaseVelocity(b, c)
+        shell = p.getLinkState(b, DRIVE_JOINT, computeLinkVelocity=1, physicsClientId=c)
+        js = p.getJointStates(b, [DRIVE_JOINT, STEER_JOINT], physicsClientId=c)
+        x, y, z, w = orn
+        R = np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
+        return {"position": np.array(pos), "orientation": np.array([w, x, y, z]), "velocity": np.array(lin),
+                "body_rate": R.T @ np.array(ang), "shell_rate": np.array(shell[7]),
+                "drive_angle": js[0][0], "drive_speed": js[0][1], "steer_angle": js[1][0],
+                "rotation": R}
+
+    def _q_est_wxyz(self):
+        if self._est is None or self._q_est is None:
+            return self._q_true_s
+        q = self._q_est
+        return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+    # Heading: the rolling direction, perpendicular to the axle (body y) in the horizontal
+    # plane: atan2(-R01, R11). Unlike the yaw of the body x axis it does not flip when the
+    # frame pitches past 90 deg (pendulum swung up by hard braking).
+    def _heading_est(self):
+        w, x, y, z = self._q_est_wxyz()
+        return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
+
+    def _heading_true(self):
+        x, y, z, w = self._true[1]
+        return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
+
+    def _true_dist(self):
+        pos = self._true[0]
+        wx, wy = self._waypoints[self._wp_i]
+        return math.hypot(wx - pos[0], wy - pos[1])
+
+    def _observation(self):
+        w, x, y, z = self._q_est_wxyz()
+        if w < 0:
+            w, x, y, z = -w, -x, -y, -z
+        g = self._gyr_last
+        if self._est is not None:
+            b = self._est.bias
+            if b is not None:
+                g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
+        psi = self._heading_est()
+        if self.task == "track":
+            vc, hc = float(self._cmd_speed[self._cmd_i]), float(self._cmd_heading[self._cmd_i])
+            e_psi = _wrap(hc - psi)
+            v_enc = self._enc_speed * self.robot.shell_radius
+            task = (vc, vc - v_enc, math.sin(e_psi), math.cos(e_psi))
+        else:
+            tx, ty = self._waypoints[self._wp_i]
+            dx, dy = tx - self._pos_est[0], ty - self._pos_est[1]
+            c, s = math.cos(psi), math.sin(psi)
+            fwd, left = c * dx + s * dy, -s * dx + c * dy
+            bear = math.atan2(left, fwd)
+            task = (fwd, left, math.sin(bear), math.cos(bear))
+        obs = np.array((w, x, y, z, g[0], g[1], g[2], self._enc_speed, self._action[0], self._action[1]) + task,
+                       dtype=np.float32)
+        np.clip(obs, -self._obs_high, self._obs_high, out=obs)
+        return obs
+
+    def _info(self, terms):
+        pos, orn, lin = self._true[0], self._true[1], self._true[2]
+        qt = self._q_true_s
+        qe = self._q_est_wxyz()
+        dot = abs(qt[0] * qe[0] + qt[1] * qe[1] + qt[2] * qe[2] + qt[3] * qe[3])
+        err = math.degrees(2.0 * math.acos(min(1.0, dot)))
+        info = {
+            "q_true": np.array(qt), "q_est": np.array(qe), "attitude_error_deg": err,
+            "position": np.array(pos), "velocity": np.array(lin),
+            "heading_true": self._heading_true(), "heading_est": self._heading_est(),
+            "encoder_speed": self._enc_speed, "motor_torque": self._tau,
+            "reward_terms": terms, "action_clipped": self._clipped,
+            "estimator_skipped": dict(self._est.skipped) if self._est is not None else {"gyr": 0, "acc": 0, "mag": 0},
+            "imu_samples": self._n_samples, "t": self._t,
+            # angle of the inner frame's z axis from the vertical: > 90 deg means the pendulum
+            # has swung over the top (hard braking or violent steering)
+            "frame_tilt_deg": math.degrees(math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (orn[0] ** 2 + orn[1] ** 2))))),
+        }
+        if self.task == "track":
+            info["command"] = (float(self._cmd_speed[self._cmd_i]), float(self._cmd_heading[self._cmd_i]))
+        else:
+            info["waypoint_index"] = self._wp_i
+            info["waypoint"] = self._waypoints[self._wp_i].copy()
+            info["position_est"] = np.array(self._pos_est)
+        return info
+
+    # ------------------------------------------------------------------------------------
+
+    def render(self):
+        if self.render_mode is None or self._client is None:
+            return None
+        p, c = self._p, self._client
+        pos = self._true[0]
+        if self.render_mode == "human":
+            p.resetDebugVisualizerCamera(1.2, 45.0, -30.0, pos, physicsClientId=c)
+            return None
+        w, h = self.render_size
+        view = p.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=pos, distance=0.9, yaw=self._heading_true() * 180.0 / math.pi - 60.0, pitch=-20.0,
+                                                   roll=0.0, upAxisIndex=2, physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(fov=60.0, aspect=w / h, nearVal=0.02, farVal=50.0, physicsClientId=c)
+        img = p.getCameraImage(w, h, view, proj, renderer=p.ER_TINY_RENDERER, shadow=1,
+                               lightDirection=[0.4, 0.3, 1.0], physicsClientId=c)
+        rgba = np.asarray(img[2], dtype=np.uint8).reshape(h, w, 4)
+        return np.ascontiguousarray(rgba[:, :, :3])
+
+    def close(self):
+        if self._client is not None and self._p is not None:
+            try:
+                self._p.disconnect(physicsClientId=self._client)
+            except Exception:   # already gone (e.g. the GUI window was closed)
+                pass
+        self._client = None
+        self._body = None
+        self._needs_reset = True
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass

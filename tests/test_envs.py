@@ -1,0 +1,337 @@
+"""envs: the spherical robot, its simulated IMU and the Gymnasium environments.
+
+Physics checks use imu="ideal" and estimator="truth" (docs/envs/)."""
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+pytest.importorskip("pybullet")
+
+import envs  # noqa: E402  (registers the ids)
+from envs.sphere import SphereRobotEnv  # noqa: E402
+
+G = 9.81
+
+
+def qmul(a, b):
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def rot(orn_xyzw):
+    x, y, z, w = orn_xyzw
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+@pytest.fixture(scope="module")
+def ideal():
+    env = SphereRobotEnv(estimator="truth", imu="ideal")
+    yield env
+    env.close()
+
+
+# --------------------------------------------------------------------------------------
+# registration, import
+
+
+def test_registered_ids_and_limits():
+    for env_id, steps in (("SphereBotTrack-v0", 1500), ("SphereBotWaypoints-v0", 3000)):
+        spec = gym.spec(env_id)
+        assert spec.max_episode_steps == steps
+    env = gym.make("SphereBotWaypoints-v0", estimator="mahony")
+    assert env.unwrapped.task == "waypoints"
+    env.close()
+
+
+def test_import_creates_no_physics_client():
+    code = "import envs, sys; print('pybullet' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+# --------------------------------------------------------------------------------------
+# physics checks
+
+
+def test_at_rest_accelerometer_reads_gravity_gyro_zero(ideal):
+    ideal.reset(seed=3)
+    log = ideal.enable_signal_log()
+    try:
+        for _ in range(50):
+            ideal.step([0.0, 0.0])
+    finally:
+        ideal.disable_signal_log()
+    samples = [s for *_, s in log if s is not None]
+    assert len(samples) == 200                       # 1 s at 200 Hz
+    acc = np.array([s.acc for s in samples])
+    gyr = np.array([s.gyr for s in samples])
+    assert np.abs(acc - [0.0, 0.0, G]).max() < 0.01
+    assert np.abs(gyr).max() < 1e-6
+
+
+def test_rolling_rate_is_speed_over_radius(ideal):
+    ideal.reset(seed=4)
+    for _ in range(250):                              # 5 s at constant voltage: steady speed
+        ideal.step([0.5, 0.0])
+    st = ideal.true_state()
+    v = np.linalg.norm(st["velocity"][:2])
+    axle = st["rotation"][:, 1]
+    rate = st["shell_rate"] @ axle
+    assert v > 0.3
+    assert rate == pytest.approx(v / ideal.robot.shell_radius, rel=0.02)
+    # the encoder speed (relative to the frame) agrees too at steady state
+    _, _, _, _, info = ideal.step([0.5, 0.0])
+    assert info["encoder_speed"] == pytest.approx(v / ideal.robot.shell_radius, rel=0.05)
+
+
+def test_gyro_equals_rate_from_orientation_differences(ideal):
+    ideal.reset(seed=5)
+    for _ in range(50):
+        ideal.step([0.8, 0.0])
+    log = ideal.enable_signal_log()
+    try:
+        for i in range(100):
+            ideal.step([0.8, 0.7 if i < 50 else -0.7])
+    finally:
+        ideal.disable_signal_log()
+    dt = 1.0 / ideal.physics_hz
+    rates, errs = [], []
+    for a, b in zip(log[:-1], log[1:]):
+        q0 = np.array([a[1][3], *a[1][:3]])
+        q1 = np.array([b[1][3], *b[1][:3]])
+        qr = qmul(q0 * [1, -1, -1, -1], q1)
+        if qr[0] < 0:
+            qr = -qr
+        n = np.linalg.norm(qr[1:])
+        w = qr[1:] / n * 2 * math.atan2(n, qr[0]) / dt if n > 0 else np.zeros(3)
+        rates.append(np.abs(b[4]).max())
+        errs.append(np.abs(w - np.array(b[4])).max())
+    assert max(rates) > 0.5                           # the robot did turn and pitch
+    assert max(errs) < 1e-3 * max(1.0, max(rates))
+
+
+def test_specific_force_from_velocity_differences(ideal):
+    ideal.reset(seed=6)
+    log = ideal.enable_signal_log()
+    try:
+        for _ in range(60):
+            ideal.step([1.0, 0.5])
+    finally:
+        ideal.disable_signal_log()
+    off = np.array(ideal.imu_offset)
+    worst = 0.0
+    for a, b in zip(log[:-1], log[1:]):
+        va = np.array(a[2]) + np.cross(a[3], rot(a[1]) @ off)
+        vb = np.array(b[2]) + np.cross(b[3], rot(b[1]) @ off)
+        f_world = (vb - va) * ideal.physics_hz + [0.0, 0.0, G]
+        worst = max(worst, np.abs(rot(b[1]).T @ f_world - np.array(b[5])).max())
+    assert worst < 1e-9
+
+
+def test_magnetometer_is_earth_field_in_body_frame_outside_zones():
+    env = SphereRobotEnv(estimator="truth", imu="ideal", mag_zones=[(0.0, 0.0, 40.0)])
+    env.reset(seed=7, options={"start_xy": (0.0, 0.0)})
+    log = env.enable_signal_log()
+    for i in range(200):                              # start in the zone, drive out of it
+        env.step([0.8, 0.0])
+    env.close()
+    zone = np.array([0.0, 0.0, 0.0])
+    earth = np.array(env.earth_field)
+    outside = inside = 0
+    for pos, orn, lin, ang, gyr, acc, mag, s in log:
+        expect = rot(orn).T @ earth
+        d = np.linalg.norm(np.array(pos) - zone)
+        if d > math.sqrt(env._zones[0][6]):
+            outside += 1
+            assert np.abs(np.array(mag) - expect).max() < 1e-9
+            if s is not None:
+                assert np.abs(s.mag - expect).max() < 1e-9
+        elif d < 0.3:
+            inside += 1
+            assert np.linalg.norm(np.array(mag) - expect) > 1.0
+    assert outside > 100 and inside > 100
+
+
+def test_steering_turns_the_robot(ideal):
+    turns = []
+    for steer in (0.8, -0.8):
+        _, info = ideal.reset(seed=8)
+        h_start = info["heading_true"]
+        for _ in range(150):
+            _, _, _, _, info = ideal.step([0.6, steer])
+        turns.append((info["heading_true"] - h_start + math.pi) % (2 * math.pi) - math.pi)
+    assert turns[0] > 0.5 and turns[1] < -0.5         # positive steering turns left (yaw up)
+
+
+# --------------------------------------------------------------------------------------
+# Gymnasium contract
+
+
+def run_episode(seed, n=120, **kw):
+    env = gym.make("SphereBotTrack-v0", **kw)
+    obs, info = env.reset(seed=seed)
+    rng = np.random.default_rng(123)
+    out = [obs]
+    infos = [info["q_est"]]
+    for _ in range(n):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1.2, 1.2, 2).astype(np.float32))
+        out.append(obs)
+        infos.append(np.concatenate([info["q_est"], info["position"], [r]]))
+        if term or trunc:
+            break
+    env.close()
+    return out, infos
+
+
+def test_same_seed_gives_bit_identical_episodes():
+    a, ia = run_episode(11, estimator="ekf", imu="mpu9250", bumps=10, mag_zones="random")
+    b, ib = run_episode(11, estimator="ekf", imu="mpu9250", bumps=10, mag_zones="random")
+    c, _ = run_episode(12, estimator="ekf", imu="mpu9250", bumps=10, mag_zones="random")
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert x.tobytes() == y.tobytes()
+    for x, y in zip(ia, ib):
+        assert x.tobytes() == y.tobytes()
+    assert any(x.tobytes() != y.tobytes() for x, y in zip(a, c))
+
+
+def test_reset_with_same_seed_in_one_env_repeats():
+    env = SphereRobotEnv(estimator="ekf")
+    runs = []
+    for _ in range(2):
+        obs, _ = env.reset(seed=21)
+        seq = [obs]
+        for i in range(30):
+            seq.append(env.step([0.5, 0.3])[0])
+        runs.append(np.array(seq))
+    env.close()
+    assert runs[0].tobytes() == runs[1].tobytes()
+
+
+def test_gymnasium_env_checker():
+    from gymnasium.utils.env_checker import check_env
+    for task in ("track", "waypoints"):
+        env = SphereRobotEnv(task=task, estimator="ekf")
+        check_env(env, skip_render_check=True)
+        env.close()
+
+
+def test_sb3_env_checker():
+    sb3 = pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env
+    env = SphereRobotEnv(task="waypoints", estimator="mahony")
+    check_env(env, warn=True)
+    env.close()
+
+
+def _make_track():
+    return gym.make("SphereBotTrack-v0", estimator="ekf")
+
+
+def test_subproc_vec_env_runs():
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+    venv = SubprocVecEnv([_make_track, _make_track])
+    try:
+        venv.seed(0)
+        obs = venv.reset()
+        assert obs.shape == (2, 14)
+        for _ in range(10):
+            obs, rew, done, info = venv.step(np.zeros((2, 2), dtype=np.float32))
+        assert np.all(np.isfinite(obs))
+    finally:
+        venv.close()
+
+
+def test_observation_info_and_action_clipping():
+    env = SphereRobotEnv(task="waypoints", estimator="ekf")
+    obs, info = env.reset(seed=2)
+    assert env.observation_space.contains(obs)
+    for key in ("q_true", "q_est", "attitude_error_deg", "position", "velocity", "reward_terms",
+                "estimator_skipped", "action_clipped", "position_est", "waypoint"):
+        assert key in info
+    obs, r, term, trunc, info = env.step(np.array([3.0, -0.2], dtype=np.float32))
+    assert info["action_clipped"] == 1
+    assert obs[8] == 1.0                              # the applied (clipped) drive command
+    obs, r, term, trunc, info = env.step([0.2, -0.2])
+    assert info["action_clipped"] == 1
+    assert r == pytest.approx(sum(info["reward_terms"].values()))
+    for bad in ([np.nan, 0.0], [0.0, np.inf]):
+        with pytest.raises(ValueError, match="finite"):
+            env.step(bad)
+    with pytest.raises(ValueError, match="shape"):
+        env.step([0.1, 0.2, 0.3])
+    env.close()
+
+
+def test_truncation_at_time_limit_and_termination_out_of_arena():
+    env = gym.make("SphereBotTrack-v0", estimator="truth", imu="ideal", episode_s=1.0)
+    env.reset(seed=0)
+    for i in range(50):
+        _, _, term, trunc, _ = env.step([0.0, 0.0])
+    assert trunc and not term
+    env.close()
+    env = SphereRobotEnv(estimator="truth", imu="ideal", arena_size=2.0)
+    env.reset(seed=0)
+    for i in range(400):
+        _, _, term, trunc, info = env.step([1.0, 0.0])
+        if term or trunc:
+            break
+    assert term and info["out_of_arena"] and not trunc
+    with pytest.raises(RuntimeError):
+        env.step([0.0, 0.0])
+    env.close()
+
+
+def test_rgb_array_render_headless():
+    env = SphereRobotEnv(estimator="truth", imu="ideal", render_mode="rgb_array", render_size=(96, 64))
+    env.reset(seed=0)
+    env.step([0.5, 0.0])
+    frame = env.render()
+    env.close()
+    assert frame.shape == (64, 96, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5.0                          # not a blank image
+
+
+def test_close_disconnects():
+    import pybullet as p
+    env = SphereRobotEnv(estimator="truth", imu="ideal")
+    env.reset(seed=0)
+    cid = env._client
+    assert p.getConnectionInfo(cid)["isConnected"]
+    env.close()
+    assert not p.getConnectionInfo(cid)["isConnected"]
+
+
+# --------------------------------------------------------------------------------------
+# bad input
+
+
+@pytest.mark.parametrize("kw, words", [
+    ({"estimator": "kalman"}, ["ekf", "truth"]),
+    ({"imu": "bmi088"}, ["mpu9250", "ideal"]),
+    ({"task": "race"}, ["track", "waypoints"]),
+    ({"robot": {"shell_mass": -1.0}}, ["robot.shell_mass"]),
+    ({"robot": {"pendulum_mass": 0.0}}, ["robot.pendulum_mass"]),
+    ({"robot": {"wheel": 1.0}}, ["wheel", "shell_mass"]),
+    ({"imu_hz": 300.0}, ["physics_hz", "imu_hz"]),
+    ({"control_hz": 60.0}, ["physics_hz", "control_hz"]),
+    ({"physics_hz": -400.0}, ["physics_hz"]),
+    ({"episode_s": 0.0}, ["episode_s"]),
+    ({"render_mode": "ascii"}, ["rgb_array", "human"]),
+    ({"mag_zones": [(0.0, 1.0)]}, ["mag_zones"]),
+    ({"imu_offset": (0.0, 0.0, 0.5)}, ["imu_offset"]),
+])
+def test_bad_arguments_raise_value_error(kw, words):
+    with pytest.raises(ValueError) as e:
+        SphereRobotEnv(**kw)
+    for w in words:
+        assert w in str(e.value)
