@@ -1,178 +1,567 @@
 #!/usr/bin/env python
-"""Samples per second of every estimator of ours and of the peers (vqf, imufusion, ahrs),
-measured side by side in one run: `update` per call from a Python loop and `run` (batch),
-6-axis and 9-axis. Median of 5 repeats after a warm-up. Writes Markdown + CSV.
+"""Throughput of our estimators and of peer libraries, in samples per second.
 
-    python benchmarks/throughput.py [--quick] [--out results/benchmarks]
+For every estimator in ``fusion.available()`` and, in the same run, for the peers
+(vqf.VQF / vqf.BasicVQF, imufusion.Ahrs, ahrs.filters.Madgwick / Mahony / EKF), four modes:
 
-imufusion has no batch call: its "run" figure is its Python loop (said in the table). ahrs
-filters are pure Python: their batch constructors are timed on fewer samples.
+- ``update 6-axis`` / ``update 9-axis``: one sample per call, called from a Python loop over
+  the rows of (N, 3) float64 arrays (the rows are views; the loop itself is part of the cost,
+  the same loop for everyone). For peers whose per-sample call returns nothing (VQF, imufusion)
+  the loop also fetches the quaternion each sample (getQuat6D/getQuat9D, get_quaternion), so
+  every row ends with the attitude in hand, as ``est.update`` does.
+- ``run 6-axis`` / ``run 9-axis``: a whole recording in one call (``est.run``,
+  ``VQF.updateBatch``, the ``ahrs`` batch constructors ``Madgwick(gyr=, acc=, mag=)``).
+  imufusion has no batch API: its figure is its Python loop writing an (N, 4) array (marked †).
+
+Data: the ``mixed`` synthetic scenario of ``fusion.scenarios`` (100 Hz, rotations up to about
+3 rad/s plus linear-acceleration bursts), given to each library in its own units and frame:
+ours, VQF, ahrs.Madgwick/Mahony rad/s and m/s^2 (specific force); imufusion deg/s and g
+(convention ENU); ahrs.EKF rad/s and m/s^2 as gravity (minus the specific force), frame NED;
+the magnetometer as 50 uT (VQF, imufusion: uT; ahrs: nT; ours: the scenario's unit).
+
+Method: N is scaled per cell so one call takes about ``--target`` seconds (0.3 s), capped at
+the 200,000 generated samples; one warm-up call per cell at that N, then 5 timed rounds
+(time.perf_counter), each round timing every cell once (interleaved, so a slow spell of a
+shared machine hits every method alike), each call on a freshly built estimator (construction
+is not timed, except for the ahrs batch constructors, which are the batch call); the median of
+the 5. Speed only: a quick sanity check (finite, unit-norm, moving quaternions that track the
+true tilt) is printed first, not scored.
+
+    .venv/bin/python benchmarks/throughput.py            # about 1.5-2 minutes
+    .venv/bin/python benchmarks/throughput.py --quick    # under a minute
+    .venv/bin/python benchmarks/throughput.py --out DIR  # default results/benchmarks/
 """
 import argparse
 import csv
 import os
 import platform
+import statistics
+import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
-import fusion
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
+import fusion                                    # noqa: E402
+from fusion import quat                          # noqa: E402
+from fusion.scenarios import make_scenario       # noqa: E402
+
+FS = 100.0
+G = 9.81
+UT_PER_UNIT = 100.0          # scenario field |B| = 0.5 unit -> 50 uT
 MODES = ("update 6-axis", "update 9-axis", "run 6-axis", "run 9-axis")
+DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
 
 
-def signals(n, fs=100.0, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) / fs
-    gyr = 0.5 * np.column_stack([np.sin(0.7 * t), np.cos(0.3 * t), np.sin(0.2 * t)]) + rng.normal(0, 0.01, (n, 3))
-    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.2, (n, 3))
-    mag = np.array([0.0, 20.0, -40.0]) + rng.normal(0, 0.5, (n, 3))
-    return gyr, acc, mag
+# ---------------------------------------------------------------------------------------------
+# data
+
+class Data:
+    """The scenario in every library's units. All arrays C-contiguous float64, (N, 3)."""
+
+    def __init__(self, n, seed=1):
+        sc = make_scenario("mixed", fs=FS, duration=n / FS, seed=seed)
+        c = np.ascontiguousarray
+        self.q_true = sc.q_true
+        self.gyr = c(sc.gyr, dtype=np.float64)                # rad/s
+        self.acc = c(sc.acc, dtype=np.float64)                # m/s^2
+        self.mag = c(sc.mag, dtype=np.float64)                # scenario unit
+        self.mag_ut = c(sc.mag * UT_PER_UNIT)                 # uT
+        self.mag_nt = c(sc.mag * UT_PER_UNIT * 1e3)           # nT
+        self.gyr_dps = c(np.degrees(sc.gyr))                  # deg/s
+        self.acc_g = c(sc.acc / G)                            # g
+        self.acc_down = c(-sc.acc)                            # m/s^2, gravity (ahrs.EKF, see there)
+        f = np.asarray(sc.field, dtype=float)
+        # dip angle of the scenario field (ENU [0, north, up]); ahrs.EKF takes it as magnetic_ref
+        self.dip_deg = float(np.degrees(np.arctan2(-f[2], np.hypot(f[0], f[1]))))
 
 
-def median_rate(fn, n, repeats):
-    fn()                                   # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return n / float(np.median(times))
+# ---------------------------------------------------------------------------------------------
+# methods: each builds, for (data, n, nine), a fresh zero-argument callable that processes the
+# first n samples and returns the last quaternion ("update") or the (n, 4) quaternions ("run").
+
+class Method:
+    def __init__(self, name, group, update=None, run=None, run_note="", drifts=False, up=1.0):
+        self.name, self.group, self.drifts = name, group, drifts
+        self.up = up                 # +1: output is body -> z-up frame (ENU, NWU); -1: z-down (NED)
+        self.builders = {"update": update, "run": run}
+        self.run_note = run_note
 
 
-def ours(name, fs, g, a, m, n_call, repeats):
-    est = fusion.make(name, fs)
+def ours(name):
+    def update(d, n, nine):
+        est = fusion.make(name, FS)
+        upd = est.update
+        g, a = d.gyr[:n], d.acc[:n]
+        if nine:
+            m = d.mag[:n]
 
-    def loop(mag):
-        def f():
-            est.reset()
-            upd = est.update
-            if mag is None:
-                for i in range(n_call):
-                    upd(g[i], a[i])
+            def go():
+                q = None
+                for gi, ai, mi in zip(g, a, m):
+                    q = upd(gi, ai, mi)
+                return q
+        else:
+            def go():
+                q = None
+                for gi, ai in zip(g, a):
+                    q = upd(gi, ai)
+                return q
+        return go
+
+    def run(d, n, nine):
+        est = fusion.make(name, FS)
+        g, a, m = d.gyr[:n], d.acc[:n], (d.mag[:n] if nine else None)
+        return lambda: est.run(g, a, m)
+
+    return Method(f"fusion.{name}", "ours", update, run, drifts=(name == "gyro"))
+
+
+def vqf_method(cls_name):
+    import vqf
+    cls = getattr(vqf, cls_name)
+
+    def update(d, n, nine):
+        v = cls(1.0 / FS)
+        upd = v.update
+        g, a = d.gyr[:n], d.acc[:n]
+        if nine:
+            m, get = d.mag_ut[:n], v.getQuat9D
+
+            def go():
+                q = None
+                for gi, ai, mi in zip(g, a, m):
+                    upd(gi, ai, mi)
+                    q = get()
+                return q
+        else:
+            get = v.getQuat6D
+
+            def go():
+                q = None
+                for gi, ai in zip(g, a):
+                    upd(gi, ai)
+                    q = get()
+                return q
+        return go
+
+    def run(d, n, nine):
+        v = cls(1.0 / FS)
+        g, a = d.gyr[:n], d.acc[:n]
+        if nine:
+            m = d.mag_ut[:n]
+            return lambda: v.updateBatch(g, a, m)["quat9D"]
+        return lambda: v.updateBatch(g, a)["quat6D"]
+
+    return Method(f"vqf.{cls_name}", "peer", update, run)
+
+
+def imufusion_method():
+    import imufusion
+
+    def make():
+        ahrs = imufusion.Ahrs()
+        s = imufusion.AhrsSettings()          # defaults, but ENU like our data and 100 Hz
+        s.convention = imufusion.CONVENTION_ENU
+        s.sample_rate = FS
+        ahrs.set_settings(s)
+        ahrs.set_sample_period(1.0 / FS)      # this version takes no dt argument in update()
+        return ahrs
+
+    def loops(d, n, nine, store):
+        ahrs = make()
+        get = ahrs.get_quaternion
+        g, a = d.gyr_dps[:n], d.acc_g[:n]
+        out = np.empty((n, 4)) if store else None
+        if nine:
+            upd, m = ahrs.update, d.mag_ut[:n]
+            if store:
+                def go():
+                    for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
+                        upd(gi, ai, mi)
+                        out[i] = get()
+                    return out
             else:
-                for i in range(n_call):
-                    upd(g[i], a[i], m[i])
-        return f
+                def go():
+                    q = None
+                    for gi, ai, mi in zip(g, a, m):
+                        upd(gi, ai, mi)
+                        q = get()
+                    return q
+        else:
+            upd = ahrs.update_no_magnetometer
+            if store:
+                def go():
+                    for i, (gi, ai) in enumerate(zip(g, a)):
+                        upd(gi, ai)
+                        out[i] = get()
+                    return out
+            else:
+                def go():
+                    q = None
+                    for gi, ai in zip(g, a):
+                        upd(gi, ai)
+                        q = get()
+                    return q
+        return go
 
-    def batch(mag):
-        def f():
-            est.reset()
-            est.run(g, a, mag)
-        return f
-
-    return {"update 6-axis": median_rate(loop(None), n_call, repeats),
-            "update 9-axis": median_rate(loop(m), n_call, repeats),
-            "run 6-axis": median_rate(batch(None), len(g), repeats),
-            "run 9-axis": median_rate(batch(m), len(g), repeats)}
+    return Method("imufusion.Ahrs", "peer",
+                  lambda d, n, nine: loops(d, n, nine, False),
+                  lambda d, n, nine: loops(d, n, nine, True),
+                  run_note="Python loop, no batch API")
 
 
-def peers(fs, g, a, m, n_call, n_py, repeats):
-    rows = {}
-    dt = 1.0 / fs
+def ahrs_method(cls_name):
+    from ahrs import filters
+    cls = getattr(filters, cls_name)
+    # ahrs.EKF runs in its default NED frame and models the accelerometer as reading gravity
+    # (its a_ref is [0, 0, 1] in NED), the opposite sign of the specific force the others
+    # take: fed the specific force it settles upside down. (Its frame="ENU" option gave a
+    # worse 9-axis tilt on this data, so the default is used.) Madgwick and Mahony take the
+    # specific force and return body -> z-up quaternions.
+    acc_of = (lambda d: d.acc_down) if cls_name == "EKF" else (lambda d: d.acc)
+
+    def kwargs(d):
+        kw = dict(frequency=FS)
+        if cls_name == "EKF":
+            kw.update(frame="NED", magnetic_ref=d.dip_deg)
+        return kw
+
+    def update(d, n, nine):
+        g, a = d.gyr[:n], acc_of(d)[:n]
+        m = d.mag_nt[:n] if nine else None
+        # the library's own start attitude: its batch constructor on the first sample
+        q0 = cls(gyr=g[:1], acc=a[:1], mag=None if m is None else m[:1], **kwargs(d)).Q[0].copy()
+        f = cls(**kwargs(d))
+        if cls_name == "EKF":
+            upd = f.update
+            if nine:
+                # ahrs 0.4.0: EKF.h()/dhdq() pick 6- or 9-axis from self.mag (set only by the
+                # batch constructor), so a per-sample 9-axis update needs it set by hand
+                f.mag = m
+        else:
+            upd = f.updateMARG if nine else f.updateIMU
+        if nine:
+            def go():
+                q = q0
+                for gi, ai, mi in zip(g, a, m):
+                    q = upd(q, gi, ai, mi)
+                return q
+        else:
+            def go():
+                q = q0
+                for gi, ai in zip(g, a):
+                    q = upd(q, gi, ai)
+                return q
+        return go
+
+    def run(d, n, nine):
+        g, a = d.gyr[:n], acc_of(d)[:n]
+        m = d.mag_nt[:n] if nine else None
+        kw = kwargs(d)
+        return lambda: cls(gyr=g, acc=a, mag=m, **kw).Q
+
+    return Method(f"ahrs.{cls_name}", "peer", update, run, up=-1.0 if cls_name == "EKF" else 1.0)
+
+
+def all_methods(log):
+    methods = [ours(name) for name in fusion.available()]
+    peers = []
     try:
         import vqf
-        gc, ac, mc = (np.ascontiguousarray(x) for x in (g, a, m))
-        r = {}
-        for label, mag in (("6-axis", None), ("9-axis", mc)):
-            def batch(mag=mag):
-                vqf.VQF(dt).updateBatch(gc, ac, mag)
+        peers.append(vqf_method("VQF"))
+        if hasattr(vqf, "BasicVQF"):
+            peers.append(vqf_method("BasicVQF"))
+    except ImportError as e:
+        log(f"skipping vqf: {e}")
+    try:
+        peers.append(imufusion_method())
+    except ImportError as e:
+        log(f"skipping imufusion: {e}")
+    try:
+        for c in ("Madgwick", "Mahony", "EKF"):
+            peers.append(ahrs_method(c))
+    except ImportError as e:
+        log(f"skipping ahrs: {e}")
+    return methods + peers
 
-            def loop(mag=mag):
-                v = vqf.VQF(dt)
-                for i in range(n_call):
-                    if mag is None:
-                        v.update(gc[i], ac[i])
-                    else:
-                        v.update(gc[i], ac[i], mag[i])
-            r["run " + label] = median_rate(batch, len(g), repeats)
-            r["update " + label] = median_rate(loop, n_call, repeats)
-        rows["vqf.VQF"] = r
-    except ImportError:
-        print("vqf not installed: pip install '.[bench]'")
+
+# ---------------------------------------------------------------------------------------------
+# timing
+
+def _time_once(build):
+    go = build()
+    t0 = time.perf_counter()
+    go()
+    return time.perf_counter() - t0
+
+
+def _nice(n):
+    """n rounded down to two significant digits."""
+    p = 10 ** max(int(np.floor(np.log10(max(n, 1)))) - 1, 0)
+    return int(n // p * p)
+
+
+def size_cell(method, kind, nine, d, n_max, target, n_min):
+    """N for one cell, scaled so that one call takes about `target` s (at most n_max)."""
+    builder = method.builders[kind]
+    n = min(200, n_max)
+    while True:                      # grow a probe until it takes a measurable time
+        dt = _time_once(lambda: builder(d, n, nine))
+        if dt >= target / 8 or n >= n_max:
+            break
+        n = min(n * 4, n_max)
+    return max(min(_nice(n * target / max(dt, 1e-9)), n_max), min(n_min, n_max))
+
+
+def measure_all(cells, d, repeats, log):
+    """Median samples/s of every cell: (method, mode, kind, nine, n) -> result dict.
+
+    One warm-up per cell, then `repeats` rounds, each timing every cell once: the repeats are
+    interleaved across cells so that a slow spell of a shared machine hits all methods alike
+    rather than all repeats of one of them."""
+    times = {key: [] for key in cells}
+    for key, (meth, kind, nine, n) in cells.items():
+        _time_once(lambda: meth.builders[kind](d, n, nine))          # warm-up at the measured size
+    for r in range(repeats):
+        for key, (meth, kind, nine, n) in cells.items():
+            times[key].append(_time_once(lambda: meth.builders[kind](d, n, nine)))
+        log(f"  round {r + 1}/{repeats} done")
+    out = {}
+    for key, (meth, kind, nine, n) in cells.items():
+        t = times[key]
+        med = statistics.median(t)
+        out[key] = dict(n=n, repeats=repeats, median_s=med, min_s=min(t), max_s=max(t), rate=n / med)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# sanity: finite, unit-norm, moving output that tracks the true tilt
+
+def tilt_error_deg(q_est, q_true, up=1.0):
+    """Angle between the estimated and the true "up" in the body frame, in deg.
+
+    q_est rotates body vectors into a navigation frame whose z axis points up (up=+1: ENU,
+    NWU) or down (up=-1: NED). Sign-aware: an estimate that settles upside down scores ~180."""
+    ez = np.array([0.0, 0.0, 1.0])
+    u = quat.rotate_inverse(np.atleast_2d(q_true), ez)
+    v = up * quat.rotate_inverse(quat.normalise(np.atleast_2d(q_est)), ez)
+    return np.degrees(np.arccos(np.clip(np.sum(u * v, axis=-1), -1.0, 1.0)))
+
+
+def sanity(method, kind, nine, d, n):
+    out = np.asarray(method.builders[kind](d, n, nine)(), dtype=float)
+    if kind == "update":
+        q, ref = out.reshape(1, 4), d.q_true[n - 1:n]
+    else:
+        q, ref = out.reshape(-1, 4)[n // 2:], d.q_true[n // 2:n]
+    finite = bool(np.isfinite(q).all())
+    unit = finite and bool(np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6))
+    moved = finite and bool(np.ptp(q, axis=0).max() > 1e-3) if len(q) > 1 else True
+    err = float(np.median(tilt_error_deg(q, ref, method.up))) if finite else float("nan")
+    ok = finite and unit and moved and (err < 10.0 or method.drifts)
+    return ok, err
+
+
+# ---------------------------------------------------------------------------------------------
+# report
+
+def fmt_rate(r):
+    if r is None or not np.isfinite(r):
+        return "–"
+    for div, suf in ((1e6, " M"), (1e3, " k")):
+        if r >= div:
+            return f"{r / div:.3g}{suf}"
+    return f"{r:.3g}"
+
+
+def build_table(methods, results):
+    """Rows of strings (Markdown) and of numbers (CSV)."""
+    header = ["method"] + [f"{m} (samples/s)" for m in MODES]
+    md_rows, csv_rows = [], []
+    for meth in methods:
+        cells, nums = [], []
+        for mode in MODES:
+            r = results.get((meth.name, mode))
+            rate = r["rate"] if r else None
+            mark = DAGGER if (meth.run_note and mode.startswith("run")) else ""
+            cells.append(fmt_rate(rate) + mark)
+            nums.append("" if rate is None else f"{rate:.6g}")
+        md_rows.append([meth.name if meth.group == "peer" else f"**{meth.name}**"] + cells)
+        csv_rows.append([meth.name, meth.group] + nums)
+
+    peers = [m for m in methods if m.group == "peer"]
+    best = {}
+    for mode in MODES:
+        cand = [(results[(p.name, mode)]["rate"], p.name) for p in peers if (p.name, mode) in results]
+        best[mode] = max(cand) if cand else None
+    md_rows.append(["best peer"] + [f"{b[1]} ({fmt_rate(b[0])})" if b else "–" for b in best.values()])
+    csv_rows.append(["best peer", "peer"] + [b[1] if b else "" for b in best.values()])
+    for meth in methods:
+        if meth.group != "ours":
+            continue
+        cells, nums = [], []
+        for mode in MODES:
+            r, b = results.get((meth.name, mode)), best[mode]
+            if r and b:
+                ratio = r["rate"] / b[0]
+                cells.append(f"{ratio:.2f}×")
+                nums.append(f"{ratio:.4g}")
+            else:
+                cells.append("–")
+                nums.append("")
+        md_rows.append([f"{meth.name} / best peer"] + cells)
+        csv_rows.append([f"{meth.name} / best peer", "ratio"] + nums)
+    return header, md_rows, ["method", "group"] + list(MODES), csv_rows, best
+
+
+def markdown(header, rows):
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" + "---:|" * (len(header) - 1)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def machine_info():
+    cpu = platform.processor() or ""
     try:
-        import imufusion
-        gd, ag = np.degrees(g), a / 9.81
-        r = {}
-        for label, use_mag in (("6-axis", False), ("9-axis", True)):
-            def loop(use_mag=use_mag):
-                ahrs = imufusion.Ahrs()
-                ahrs.set_sample_period(dt)
-                for i in range(n_call):
-                    if use_mag:
-                        ahrs.update(gd[i], ag[i], m[i])
-                    else:
-                        ahrs.update_no_magnetometer(gd[i], ag[i])
-            rate = median_rate(loop, n_call, repeats)
-            r["update " + label] = rate
-            r["run " + label] = rate          # no batch API: its Python loop
-        rows["imufusion.Ahrs (no batch: loop)"] = r
-    except ImportError:
-        print("imufusion not installed")
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
     try:
-        from ahrs.filters import EKF, Madgwick, Mahony
-        for cls in (Madgwick, Mahony, EKF):
-            r = {}
-            for label, mag in (("6-axis", None), ("9-axis", m)):
-                kw = dict(gyr=g[:n_py], acc=a[:n_py], frequency=fs)
-                if mag is not None:
-                    kw["mag"] = mag[:n_py]
-                r["run " + label] = median_rate(lambda kw=kw: cls(**kw), n_py, max(1, repeats // 2))
-            rows[f"ahrs.{cls.__name__}"] = r
-    except ImportError:
-        print("ahrs not installed")
-    return rows
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:
+        usable = os.cpu_count()
+    return dict(platform=platform.platform(), python=platform.python_version(), cpu=cpu,
+                cpu_count=os.cpu_count(), usable_cpus=usable)
+
+
+def versions():
+    out = {"fusion": getattr(fusion, "__version__", "?")}
+    for dist in ("numpy", "vqf", "imufusion", "AHRS"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    return out
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="fewer samples and repeats (< 1 min)")
-    p.add_argument("--out", default="results/benchmarks")
-    args = p.parse_args(argv)
-    n_batch, n_call, n_py, repeats = (50_000, 5_000, 500, 3) if args.quick else (200_000, 20_000, 2_000, 5)
-    fs = 100.0
-    g, a, m = signals(n_batch, fs)
-    import importlib.metadata as md
-    vers = {}
-    for pkg in ("numpy", "vqf", "imufusion", "ahrs"):
-        try:
-            vers[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            vers[pkg] = "absent"
-    print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
-          + ", ".join(f"{k} {v}" for k, v in vers.items()))
-    print(f"samples: batch {n_batch}, per call {n_call}, ahrs {n_py}; median of {repeats}")
-    rows = {}
-    for name in fusion.available():
-        rows[name] = ours(name, fs, g, a, m, n_call, repeats)
-        print(f"  measured {name}")
-    peer_rows = peers(fs, g, a, m, n_call, n_py, repeats)
-    rows.update(peer_rows)
-    best = {mode: max((r[mode] for k, r in peer_rows.items() if mode in r), default=float("nan"))
-            for mode in MODES}
-    header = ["method"] + [f"{mode} (samples/s)" for mode in MODES]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    table = []
-    for k, r in rows.items():
-        vals = [r.get(mode, float("nan")) for mode in MODES]
-        table.append([k] + vals)
-        lines.append("| " + k + " | " + " | ".join("-" if not np.isfinite(v) else f"{v:,.0f}" for v in vals) + " |")
-    lines.append("| **best peer** | " + " | ".join(f"{best[mode]:,.0f}" for mode in MODES) + " |")
-    for name in fusion.available():
-        ratios = [rows[name][mode] / best[mode] for mode in MODES]
-        table.append([f"{name} / best peer"] + ratios)
-        lines.append(f"| {name} / best peer | " + " | ".join(f"{x:.2f}x" for x in ratios) + " |")
-    md_text = "\n".join(lines)
-    print(md_text)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true",
+                    help="fewer samples and repeats (whole script under about a minute)")
+    ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks"),
+                    help="output folder for throughput.md / throughput.csv (default: %(default)s)")
+    ap.add_argument("--target", type=float, default=None,
+                    help="seconds per measurement used to scale N (default 0.3, quick 0.06)")
+    args = ap.parse_args(argv)
+
+    if args.quick:
+        n_run, n_upd, repeats, target, n_min, n_sanity = 50_000, 50_000, 3, 0.06, 200, 1500
+    else:
+        n_run, n_upd, repeats, target, n_min, n_sanity = 200_000, 200_000, 5, 0.3, 500, 3000
+    if args.target is not None:
+        target = args.target
+
+    t_start = time.perf_counter()
+    info, vers = machine_info(), versions()
+    print("# Estimator throughput (samples/s)\n")
+    print(f"machine: {info['platform']}, Python {info['python']}")
+    print(f"cpu: {info['cpu']}; {info['cpu_count']} CPUs ({info['usable_cpus']} usable); "
+          f"single-threaded measurements")
+    print("versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()))
+    print(f"settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; N <= {n_run:,} (run), "
+          f"<= {n_upd:,} (update), scaled to ~{target:g} s per measurement; "
+          f"median of {repeats} after 1 warm-up\n", flush=True)
+
+    d = Data(max(n_run, n_upd, n_sanity))
+    methods = all_methods(print)
+
+    # sanity first (also imports and warms every code path)
+    print("sanity (tilt error vs truth, deg; update: last sample, run: median of 2nd half; "
+          f"first {n_sanity} samples):")
+    sane = {}
+    for meth in methods:
+        cells = []
+        for mode in MODES:
+            kind, nine = mode.split()[0], mode.endswith("9-axis")
+            try:
+                ok, err = sanity(meth, kind, nine, d, n_sanity)
+            except Exception as e:                                     # noqa: BLE001
+                ok, err = False, float("nan")
+                print(f"  {meth.name} {mode}: {type(e).__name__}: {e}")
+            sane[(meth.name, mode)] = (ok, err)
+            cells.append(f"{mode} {err:6.2f}{'' if ok else ' CHECK'}")
+        print(f"  {meth.name:<22s} " + " | ".join(cells)
+              + ("  (gyro integration only: drifts by design)" if meth.drifts else ""), flush=True)
+    print()
+
+    print("sizing (N per cell for ~%g s per call):" % target, flush=True)
+    cells = {}
+    for meth in methods:
+        sizes = []
+        for mode in MODES:
+            kind, nine = mode.split()[0], mode.endswith("9-axis")
+            n_max = n_run if kind == "run" else n_upd
+            try:
+                n = size_cell(meth, kind, nine, d, n_max, target, n_min)
+            except Exception as e:                                     # noqa: BLE001
+                print(f"  {meth.name} {mode}: failed: {type(e).__name__}: {e}")
+                continue
+            cells[(meth.name, mode)] = (meth, kind, nine, n)
+            sizes.append(f"{mode} N={n:,}")
+        print(f"  {meth.name:<22s} " + " | ".join(sizes), flush=True)
+    print(f"timing ({repeats} interleaved rounds after 1 warm-up per cell):", flush=True)
+    results = measure_all(cells, d, repeats, lambda msg: print(msg, flush=True))
+    detail = []
+    for (name, mode), r in results.items():
+        meth, kind = cells[(name, mode)][0], cells[(name, mode)][1]
+        ok, err = sane[(name, mode)]
+        detail.append(dict(method=name, group=meth.group, mode=mode,
+                           note=meth.run_note if kind == "run" else "",
+                           sanity_ok=ok, tilt_err_deg=f"{err:.3g}",
+                           n=r["n"], repeats=r["repeats"], median_s=f"{r['median_s']:.6g}",
+                           min_s=f"{r['min_s']:.6g}", max_s=f"{r['max_s']:.6g}",
+                           samples_per_s=f"{r['rate']:.6g}",
+                           spread_max_over_min=f"{r['max_s'] / r['min_s']:.3g}"))
+
+    header, md_rows, csv_header, csv_rows, best = build_table(methods, results)
+    table = markdown(header, md_rows)
+    notes = (f"{DAGGER} imufusion has no batch API: its run figure is its Python loop writing an (N, 4) array.\n"
+             "update = one call per sample from a Python loop over array rows (VQF and imufusion also fetch "
+             "the quaternion each sample); run = one batch call. Ratios: ours / fastest peer in that column. "
+             "Median of %d repeats; N per cell in throughput_detail.csv." % repeats)
+    print("\n" + table + "\n\n" + notes + "\n")
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "throughput.md").write_text(md_text + "\n")
-    with open(out / "throughput.csv", "w", newline="") as f:
+    md_path, csv_path, det_path = out / "throughput.md", out / "throughput.csv", out / "throughput_detail.csv"
+    with open(md_path, "w") as f:
+        f.write("# Estimator throughput (samples/s)\n\n")
+        f.write(f"- machine: {info['platform']}, Python {info['python']}; cpu: {info['cpu']}; "
+                f"{info['cpu_count']} CPUs ({info['usable_cpus']} usable)\n")
+        f.write("- versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + "\n")
+        f.write(f"- settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; "
+                f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement\n\n")
+        f.write(table + "\n\n" + notes + "\n")
+    with open(csv_path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["method"] + list(MODES))
-        w.writerows(table)
-    print(f"wrote {out / 'throughput.md'} and {out / 'throughput.csv'}")
+        w.writerow(csv_header)
+        w.writerows(csv_rows)
+    with open(det_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(detail[0]) if detail else ["method"])
+        w.writeheader()
+        w.writerows(detail)
+    print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
+    print(f"total {time.perf_counter() - t_start:.0f} s")
 
 
 if __name__ == "__main__":
