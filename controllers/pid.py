@@ -1,0 +1,152 @@
+"""Cascaded PID for the spherical robot, from the observation only (estimated attitude,
+bias-corrected rates, encoder): what a robot without ground truth can do.
+
+Loops (all at the control rate, ``dt = 1 / control_hz``):
+
+- heading -> steering: PID on the heading error (the task's heading or bearing error, both
+  computed by the environment from the *estimated* heading), derivative on the measurement
+  (the world-frame yaw rate from the estimated attitude and the body rates), plus damping
+  of the sideways rocking (the frame's roll rate about its forward axis), which a
+  pendulum-steered sphere barely damps on its own;
+- speed -> drive voltage: feed-forward ``v / top_speed`` plus PI on the speed error, speed
+  measured as ``r (encoder + frame pitch rate)`` (the shell's rolling rate over the ground),
+  plus damping of the pendulum's fore-aft swing on the estimated pitch rate.
+
+Anti-windup by conditional integration (the integrator holds while its output saturates
+in the direction of the error), output limits [-1, 1]. Works on one observation (shape
+(14,)) or a batch (n, 14) from a vector environment; state is kept per row.
+
+Gains: ``PIDGains`` documents each, and how it was found (docs/controllers.md).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, asdict
+
+import numpy as np
+
+from controllers.base import Controller, obs_batch
+
+__all__ = ["PID", "PIDGains"]
+
+
+@dataclass(frozen=True)
+class PIDGains:
+    """Gains of the cascaded PID; units in brackets (action units are the [-1, 1] range)."""
+
+    heading_kp: float = 1.5        # [1/rad] steering per rad of heading error
+    heading_ki: float = 0.05       # [1/(rad s)]
+    heading_kd: float = 0.15       # [s/rad] on the measured yaw rate
+    roll_damping: float = 1.0      # [s/rad] on the frame's roll rate (sign: see PID.act)
+    heading_i_limit: float = 0.3   # [1] largest integral contribution
+    speed_kp: float = 0.6          # [s/m]
+    speed_ki: float = 0.4          # [1/m]
+    speed_i_limit: float = 0.4     # [1]
+    pitch_damping: float = 0.02    # [s/rad] on the frame's pitch rate
+    top_speed: float = 1.0         # [m/s] feed-forward: speed at full voltage
+    shell_radius: float = 0.125    # [m] encoder rate -> ground speed
+    # waypoints: the speed commanded from the distance and the bearing to the next point
+    wp_speed: float = 0.5          # [m/s] cruise speed
+    wp_slow_radius: float = 1.0    # [m] slow down linearly inside this distance
+    wp_min_speed: float = 0.15     # [m/s]
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"PIDGains.{f.name} must be a finite number >= 0, got {v!r}")
+        for name in ("top_speed", "shell_radius", "wp_slow_radius"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"PIDGains.{name} must be > 0, got {getattr(self, name)!r}")
+
+
+class PID(Controller):
+    """Cascaded PID (see the module docstring). ``task``: "track" or "waypoints" (the
+    meaning of the observation's last four values); ``control_hz``: the environment's rate."""
+
+    def __init__(self, task="track", gains=None, control_hz=50.0):
+        if task not in ("track", "waypoints"):
+            raise ValueError(f"unknown task {task!r}; accepted: track, waypoints")
+        if gains is None:
+            gains = PIDGains()
+        elif isinstance(gains, dict):
+            names = {f.name for f in fields(PIDGains)}
+            bad = sorted(set(gains) - names)
+            if bad:
+                raise ValueError(f"unknown PID gain(s) {', '.join(bad)}; accepted: {', '.join(sorted(names))}")
+            gains = PIDGains(**gains)
+        elif not isinstance(gains, PIDGains):
+            raise ValueError(f"gains must be None, a dict or a PIDGains, got {type(gains).__name__}")
+        if isinstance(control_hz, bool) or not isinstance(control_hz, (int, float)) or \
+                not math.isfinite(control_hz) or control_hz <= 0:
+            raise ValueError(f"control_hz must be a positive number (Hz), got {control_hz!r}")
+        self.task = task
+        self.gains = gains
+        self.dt = 1.0 / float(control_hz)
+        self._n = None
+
+    @classmethod
+    def for_env(cls, env, gains=None):
+        """A PID matching ``env``'s task and control rate (``env`` may be wrapped)."""
+        base = env.unwrapped
+        return cls(task=base.task, gains=gains, control_hz=base.control_hz)
+
+    def __repr__(self):
+        return f"PID(task={self.task!r}, gains={asdict(self.gains)!r}, control_hz={1.0 / self.dt:g})"
+
+    def reset(self, index=None):
+        """Clear the integrators: all rows, or only row(s) ``index`` (a vector env's done envs)."""
+        if self._n is None:
+            return
+        if index is None:
+            self._i_head[:] = 0.0
+            self._i_speed[:] = 0.0
+        else:
+            self._i_head[index] = 0.0
+            self._i_speed[index] = 0.0
+
+    def _ensure(self, n):
+        if self._n != n:
+            self._n = n
+            self._i_head = np.zeros(n)
+            self._i_speed = np.zeros(n)
+
+    def act(self, obs):
+        o, single = obs_batch(obs)
+        self._ensure(o.shape[0])
+        g, dt = self.gains, self.dt
+        w, x, y, z = o[:, 0], o[:, 1], o[:, 2], o[:, 3]
+        gx, gy, gz = o[:, 4], o[:, 5], o[:, 6]
+        # world-frame yaw rate: third row of R(q) times the body rate
+        yaw_rate = 2 * (x * z - w * y) * gx + 2 * (y * z + w * x) * gy + (1 - 2 * (x * x + y * y)) * gz
+        # sideways rocking: steering *with* the frame's roll rate about its forward axis damps
+        # it (the opposite sign drives it; measured in the gain search, docs/controllers.md)
+        roll_rate = -gx
+        v_meas = g.shell_radius * (o[:, 7] + gy)
+        if self.task == "track":
+            v_cmd = o[:, 10]
+            e_head = np.arctan2(o[:, 12], o[:, 13])
+        else:
+            fwd, left = o[:, 10], o[:, 11]
+            e_head = np.arctan2(o[:, 12], o[:, 13])
+            dist = np.hypot(fwd, left)
+            v_cmd = np.clip(g.wp_speed * dist / g.wp_slow_radius, g.wp_min_speed, g.wp_speed) \
+                * np.clip(np.cos(e_head), 0.2, 1.0)
+
+        steer_pd = g.heading_kp * e_head - g.heading_kd * yaw_rate - g.roll_damping * roll_rate
+        steer = steer_pd + self._i_head
+        # conditional integration: hold the integrator while saturated the same way
+        hold = ((steer >= 1.0) & (e_head > 0)) | ((steer <= -1.0) & (e_head < 0))
+        self._i_head = np.where(hold, self._i_head,
+                                np.clip(self._i_head + g.heading_ki * e_head * dt, -g.heading_i_limit,
+                                        g.heading_i_limit))
+
+        e_v = v_cmd - v_meas
+        drive_pd = v_cmd / g.top_speed + g.speed_kp * e_v - g.pitch_damping * gy
+        drive = drive_pd + self._i_speed
+        hold = ((drive >= 1.0) & (e_v > 0)) | ((drive <= -1.0) & (e_v < 0))
+        self._i_speed = np.where(hold, self._i_speed,
+                                 np.clip(self._i_speed + g.speed_ki * e_v * dt, -g.speed_i_limit,
+                                         g.speed_i_limit))
+        act = np.clip(np.stack([drive, steer], axis=1), -1.0, 1.0).astype(np.float32)
+        return act[0] if single else act

@@ -1,0 +1,316 @@
+"""Training, saving and loading stable-baselines3 policies for the spherical robot.
+
+A trained policy is three files with one stem, e.g. ``controllers/policies/ppo-waypoints-ekf``:
+
+- ``<stem>.zip``: the SB3 model (the best one found by the evaluation callback);
+- ``<stem>.vecnormalize.pkl``: the ``VecNormalize`` observation statistics it was trained with;
+- ``<stem>.json``: the exact command, algorithm, task, estimator, environment arguments,
+  timesteps, seed, wall time, training throughput, the observation names and the final
+  evaluation.
+
+``load_policy(stem_or_zip)`` returns a ``PolicyController`` (the ``Controller`` interface).
+Hyperparameters live in rl-zoo3-style YAML files, ``controllers/hyperparams/<algo>.yml``,
+keyed by environment id. Heavy imports (torch, SB3) happen inside the functions, so that
+``import controllers`` stays light.
+"""
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from controllers.base import Controller, obs_batch
+
+__all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_policy", "PolicyController",
+           "policy_stem", "PolicyError"]
+
+ALGOS = ("ppo", "sac")
+TASK_IDS = {"track": "SphereBotTrack-v0", "waypoints": "SphereBotWaypoints-v0"}
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+POLICY_DIR = Path(__file__).resolve().parent / "policies"
+
+
+class PolicyError(ValueError):
+    """A policy file that is missing, corrupt or does not fit the environment."""
+
+
+def _check_choice(name, value, accepted):
+    if value not in accepted:
+        raise ValueError(f"unknown {name} {value!r}; accepted: {', '.join(accepted)}")
+
+
+def policy_stem(algo, task, estimator, directory=POLICY_DIR):
+    """Where ``scripts/train.py`` puts the policy of (algo, task, estimator)."""
+    return Path(directory) / f"{algo}-{task}-{estimator}"
+
+
+def hyperparams(algo, task):
+    """The YAML entry of ``algo`` for ``task``'s environment id, as a dict (a copy)."""
+    import yaml
+    _check_choice("algorithm", algo, ALGOS)
+    _check_choice("task", task, tuple(TASK_IDS))
+    path = HYPERPARAMS_DIR / f"{algo}.yml"
+    with open(path) as f:
+        table = yaml.safe_load(f)
+    env_id = TASK_IDS[task]
+    if env_id not in table:
+        raise ValueError(f"{path} has no entry for {env_id}")
+    return dict(table[env_id])
+
+
+def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir):
+    def make():
+        import torch
+        torch.set_num_threads(1)
+        import gymnasium as gym
+        import envs  # noqa: F401  (registers the ids)
+        from stable_baselines3.common.monitor import Monitor
+        env = gym.make(TASK_IDS[task], estimator=estimator, **env_kwargs)
+        env = Monitor(env, None if monitor_dir is None else os.path.join(monitor_dir, str(rank)))
+        env.reset(seed=seed + rank)
+        env.action_space.seed(seed + rank)
+        return env
+    return make
+
+
+def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True):
+    """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``)."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir) for i in range(n_envs)]
+    if subprocess and n_envs > 1:
+        return SubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
+    return DummyVecEnv(fns)
+
+
+def _algo_class(algo):
+    from stable_baselines3 import PPO, SAC
+    return {"ppo": PPO, "sac": SAC}[algo]
+
+
+def _latest_checkpoint(ckpt_dir):
+    d = Path(ckpt_dir)
+    if not d.is_dir():
+        return None
+    best, best_steps = None, -1
+    for f in d.glob("ckpt_*_steps.zip"):
+        try:
+            steps = int(f.stem.split("_")[1])
+        except (IndexError, ValueError):
+            continue
+        if steps > best_steps:
+            best, best_steps = f, steps
+    return best
+
+
+def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
+          eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
+          command=None, log=print):
+    """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
+
+    Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
+    ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
+    the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
+    continues from the newest checkpoint to the same total ``timesteps``.
+    """
+    import torch
+    torch.set_num_threads(1)
+    import fusion
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    _check_choice("algorithm", algo, ALGOS)
+    _check_choice("task", task, tuple(TASK_IDS))
+    _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
+    hp = hyperparams(algo, task)
+    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
+    timesteps = int(default_steps if timesteps is None else timesteps)
+    if timesteps < 1:
+        raise ValueError(f"timesteps must be >= 1, got {timesteps}")
+    n_envs = int(default_envs if n_envs is None else n_envs)
+    normalize = hp.pop("normalize", True)
+    policy = hp.pop("policy", "MlpPolicy")
+    env_kwargs = dict(env_kwargs or {})
+    stem = Path(out) if out is not None else policy_stem(algo, task, estimator)
+    run_dir = Path(str(stem) + ".run")
+    ckpt_dir = run_dir / "checkpoints"
+    eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
+    checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
+
+    start_ckpt = None
+    if resume:
+        start_ckpt = _latest_checkpoint(ckpt_dir)
+        if start_ckpt is None:
+            raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+    venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"))
+    eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
+    cls = _algo_class(algo)
+    try:
+        if start_ckpt is not None:
+            vn_path = Path(str(start_ckpt).replace("ckpt_", "ckpt_vecnormalize_").replace(".zip", ".pkl"))
+            if normalize:
+                venv = VecNormalize.load(str(vn_path), venv)
+            model = cls.load(str(start_ckpt), env=venv, device="cpu")
+            log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
+        else:
+            if normalize:
+                venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hp.get("gamma", 0.99))
+            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hp)
+        if normalize:
+            eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+
+        class SaveBestStats(BaseCallback):
+            def _on_step(self):
+                if normalize:
+                    model.get_vec_normalize_env().save(str(run_dir / "best_vecnormalize.pkl"))
+                return True
+
+        ckpt = CheckpointCallback(checkpoint_freq, str(ckpt_dir), name_prefix="ckpt", save_vecnormalize=normalize)
+        ev = EvalCallback(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
+                          eval_freq=eval_freq, best_model_save_path=str(run_dir), log_path=str(run_dir),
+                          deterministic=True, verbose=0)
+
+        def save_checkpoint():
+            ckpt_dir.mkdir(parents=True, exist_ok=True)
+            path = ckpt_dir / f"ckpt_{model.num_timesteps}_steps.zip"
+            model.save(str(path))
+            if normalize:
+                model.get_vec_normalize_env().save(str(ckpt_dir / f"ckpt_vecnormalize_{model.num_timesteps}_steps.pkl"))
+            return path
+
+        remaining = timesteps - model.num_timesteps
+        t0, steps0 = time.perf_counter(), model.num_timesteps
+        try:
+            if remaining > 0:
+                model.learn(remaining, callback=CallbackList([ckpt, ev]), reset_num_timesteps=start_ckpt is None,
+                            progress_bar=progress)
+        except KeyboardInterrupt:
+            path = save_checkpoint()
+            log(f"\ninterrupted at {model.num_timesteps} steps: checkpoint saved to {path}; "
+                f"continue with --resume")
+            raise
+        wall = time.perf_counter() - t0
+        done = model.num_timesteps - steps0
+        rate = done / wall if wall > 0 else float("nan")
+        log(f"trained {done} steps in {wall:.0f} s: {rate:.0f} environment steps/s ({n_envs} envs)")
+        save_checkpoint()
+        best = run_dir / "best_model.zip"
+        if not best.exists():          # no evaluation ran (very short run): ship the last model
+            model.save(str(best))
+            if normalize:
+                model.get_vec_normalize_env().save(str(run_dir / "best_vecnormalize.pkl"))
+    finally:
+        venv.close()
+        eval_env.close()
+
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(best, str(stem) + ".zip")
+    if normalize:
+        os.replace(run_dir / "best_vecnormalize.pkl", str(stem) + ".vecnormalize.pkl")
+    from envs.sphere import OBS_NAMES
+    meta = {"command": command, "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
+            "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
+            "hyperparams": hyperparams(algo, task), "normalize": normalize,
+            "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "obs_size": len(OBS_NAMES),
+            "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
+    with open(str(stem) + ".json", "w") as f:
+        json.dump(meta, f, indent=2)
+    return stem
+
+
+class PolicyController(Controller):
+    """A trained SB3 policy behind the ``Controller`` interface (deterministic actions,
+    observations normalised with the statistics it was trained with)."""
+
+    def __init__(self, model, obs_rms=None, clip_obs=10.0, epsilon=1e-8, meta=None, path=None):
+        self.model = model
+        self.obs_rms = obs_rms
+        self.clip_obs = clip_obs
+        self.epsilon = epsilon
+        self.meta = dict(meta or {})
+        self.path = path
+        self.task = self.meta.get("task")
+
+    def __repr__(self):
+        return f"PolicyController({str(self.path)!r})"
+
+    def act(self, obs):
+        o, single = obs_batch(obs)
+        if o.shape[1] != self.model.observation_space.shape[0]:
+            raise ValueError(f"policy {self.path} takes observations of size "
+                             f"{self.model.observation_space.shape[0]}, got {o.shape[1]}")
+        if self.obs_rms is not None:
+            o = np.clip((o - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
+                        -self.clip_obs, self.clip_obs)
+        a, _ = self.model.predict(o.astype(np.float32), deterministic=True)
+        a = np.clip(a, -1.0, 1.0)
+        return a[0] if single else a
+
+
+def _resolve(path):
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix == ".zip" else p
+    return stem, Path(str(stem) + ".zip"), Path(str(stem) + ".json"), Path(str(stem) + ".vecnormalize.pkl")
+
+
+def load_policy(path, env=None):
+    """Load a policy saved by ``train`` (``path``: the stem or the ``.zip``). With ``env``,
+    also check that the policy was trained for its task and observation space."""
+    import torch
+    torch.set_num_threads(1)
+    stem, zip_path, json_path, vn_path = _resolve(path)
+    if not zip_path.is_file():
+        raise PolicyError(f"policy file {zip_path} does not exist")
+    meta = {}
+    if json_path.is_file():
+        try:
+            with open(json_path) as f:
+                meta = json.load(f)
+        except (OSError, ValueError) as e:
+            raise PolicyError(f"policy metadata {json_path} is corrupt: {e}") from None
+    algo = meta.get("algo")
+    try:
+        if algo in ALGOS:
+            model = _algo_class(algo).load(str(zip_path), device="cpu")
+        else:
+            from stable_baselines3.common.base_class import BaseAlgorithm  # noqa: F401
+            last = None
+            for cls in (_algo_class("ppo"), _algo_class("sac")):
+                try:
+                    model = cls.load(str(zip_path), device="cpu")
+                    break
+                except Exception as e:      # wrong algorithm class: try the next
+                    last = e
+            else:
+                raise last
+    except Exception as e:
+        raise PolicyError(f"policy file {zip_path} is corrupt or not an SB3 PPO/SAC model: {e}") from None
+    obs_rms, clip = None, 10.0
+    if vn_path.is_file():
+        try:
+            with open(vn_path, "rb") as f:
+                vn = pickle.load(f)
+            obs_rms, clip = vn.obs_rms, float(vn.clip_obs)
+        except Exception as e:
+            raise PolicyError(f"normalisation statistics {vn_path} are corrupt: {e}") from None
+    elif meta.get("normalize", False):
+        raise PolicyError(f"policy {zip_path} was trained with normalisation but {vn_path} is missing")
+    shape = model.observation_space.shape
+    if obs_rms is not None and tuple(np.shape(obs_rms.mean)) != tuple(shape):
+        raise PolicyError(f"{vn_path} has statistics for observations of shape {np.shape(obs_rms.mean)}, "
+                          f"the model takes {shape}")
+    if env is not None:
+        base = env.unwrapped
+        if tuple(env.observation_space.shape) != tuple(shape):
+            raise PolicyError(f"policy {zip_path} was trained for observations of shape {shape}; "
+                              f"this environment gives {env.observation_space.shape}")
+        if meta.get("task") not in (None, base.task):
+            raise PolicyError(f"policy {zip_path} was trained for task {meta.get('task')!r}; "
+                              f"this environment's task is {base.task!r}")
+    return PolicyController(model, obs_rms, clip, meta=meta, path=zip_path)

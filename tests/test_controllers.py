@@ -1,0 +1,146 @@
+"""Controllers: the PID, evaluation, training/loading of SB3 policies (tiny runs)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pybullet")
+pytest.importorskip("stable_baselines3")
+
+from controllers import PID, PIDGains
+from controllers import rl
+from controllers.evaluate import evaluate, aggregate
+from envs.sphere import SphereRobotEnv
+
+
+def test_pid_bad_input():
+    with pytest.raises(ValueError, match="task"):
+        PID(task="dance")
+    with pytest.raises(ValueError, match="heading_kp"):
+        PIDGains(heading_kp=-1)
+    with pytest.raises(ValueError, match="unknown PID gain"):
+        PID(gains={"kp": 1})
+    with pytest.raises(ValueError, match="control_hz"):
+        PID(control_hz=0)
+    with pytest.raises(ValueError, match="shape"):
+        PID().act(np.zeros((2, 2, 14)))
+
+
+def test_pid_batch_equals_rows():
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(5, 3, 14))
+    obs[..., :4] /= np.linalg.norm(obs[..., :4], axis=-1, keepdims=True)
+    batch, rows = PID(), [PID() for _ in range(3)]
+    for t in range(5):
+        a = batch.act(obs[t])
+        assert a.shape == (3, 2) and np.all(np.abs(a) <= 1)
+        for i in range(3):
+            np.testing.assert_allclose(a[i], rows[i].act(obs[t, i]), atol=1e-7)
+    batch.reset(index=[1])
+    rows[1].reset()
+    np.testing.assert_allclose(batch.act(obs[0])[1], rows[1].act(obs[0, 1]), atol=1e-7)
+
+
+def test_pid_anti_windup_holds_integrator():
+    pid = PID(task="track")
+    o = np.zeros(14)
+    o[0] = 1.0
+    o[10] = 5.0                       # a speed the robot cannot reach: drive saturates
+    o[12], o[13] = math.sin(3.0), math.cos(3.0)   # heading error near 180 deg: steer saturates
+    for _ in range(500):
+        a = pid.act(o)
+    assert a[0] == pytest.approx(1.0) and a[1] == pytest.approx(1.0)
+    # the integrators stopped when the outputs saturated instead of winding up to their limits
+    assert pid._i_speed[0] < pid.gains.speed_i_limit and pid._i_head[0] < pid.gains.heading_i_limit
+
+
+def test_pid_tracks_heading_under_truth():
+    res = evaluate(PID(task="track"), dict(task="track", estimator="truth", imu="ideal", episode_s=12.0),
+                   episodes=1, seed=3)
+    ep = res["episodes"][0]
+    assert ep["speed_rmse"] < 0.1
+    assert ep["heading_rmse"] < 45.0          # command steps of up to 90 deg included
+    assert ep["attitude_error"] < 1e-3
+
+
+def test_pid_reaches_waypoints_under_truth():
+    res = evaluate(PID(task="waypoints"), dict(task="waypoints", estimator="truth", n_waypoints=2), episodes=1,
+                   seed=0, record_path=True)
+    ep = res["episodes"][0]
+    assert ep["success"] == 1.0 and ep["time_to_goal"] < 60
+    assert ep["path"].shape[1] == 2 and ep["cross_track"] < 1.0
+
+
+def test_aggregate_ci():
+    eps = [{"return": v, "speed_rmse": v, "heading_rmse": v, "effort": v, "attitude_error": v,
+            "heading_est_error": v} for v in (1.0, 2.0, 3.0)]
+    s = aggregate(eps, "track")["return"]
+    assert s["mean"] == pytest.approx(2.0) and s["n"] == 3
+    assert s["ci95"] == pytest.approx(4.302653 * 1.0 / math.sqrt(3), rel=1e-5)
+
+
+def test_evaluate_bad_input():
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate(PID(), {"task": "track"}, episodes=0)
+
+
+@pytest.fixture(scope="module")
+def tiny_policy(tmp_path_factory):
+    stem = tmp_path_factory.mktemp("pol") / "ppo-track-truth"
+    rl.train("ppo", "track", "truth", timesteps=600, seed=1, out=stem, n_envs=1, progress=False,
+             eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    return stem
+
+
+def test_train_writes_policy_and_loads(tiny_policy):
+    stem = tiny_policy
+    for suffix in (".zip", ".vecnormalize.pkl", ".json"):
+        assert (stem.parent / (stem.name + suffix)).is_file()
+    meta = json.loads((stem.parent / (stem.name + ".json")).read_text())
+    assert meta["algo"] == "ppo" and meta["estimator"] == "truth" and meta["timesteps"] == 600
+    env = SphereRobotEnv(task="track", estimator="truth", episode_s=1.0)
+    ctrl = rl.load_policy(stem, env=env)
+    obs, _ = env.reset(seed=0)
+    a = ctrl.act(obs)
+    assert a.shape == (2,) and np.all(np.abs(a) <= 1)
+    assert ctrl.act(np.stack([obs, obs])).shape == (2, 2)
+    env.close()
+
+
+def test_resume_continues_from_checkpoint(tiny_policy):
+    stem = tiny_policy
+    ckpts = sorted((stem.parent / (stem.name + ".run") / "checkpoints").glob("ckpt_*_steps.zip"))
+    assert ckpts, "checkpoints were written"
+    rl.train("ppo", "track", "truth", timesteps=900, seed=1, out=stem, n_envs=1, progress=False, resume=True,
+             eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    meta = json.loads((stem.parent / (stem.name + ".json")).read_text())
+    assert meta["timesteps"] == 900
+    assert rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem == "ckpt_900_steps" or \
+        int(rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem.split("_")[1]) >= 900
+
+
+def test_resume_without_checkpoint(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "none", resume=True, progress=False)
+
+
+def test_train_bad_names(tmp_path):
+    with pytest.raises(ValueError, match="algorithm"):
+        rl.train("dqn", "track", "truth", out=tmp_path / "x")
+    with pytest.raises(ValueError, match="estimator"):
+        rl.train("ppo", "track", "kalman", out=tmp_path / "x")
+    with pytest.raises(ValueError, match="task"):
+        rl.train("ppo", "fly", "truth", out=tmp_path / "x")
+
+
+def test_load_policy_errors(tmp_path, tiny_policy):
+    with pytest.raises(rl.PolicyError, match="does not exist"):
+        rl.load_policy(tmp_path / "missing")
+    bad = tmp_path / "bad.zip"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(rl.PolicyError, match="corrupt"):
+        rl.load_policy(bad)
+    env = SphereRobotEnv(task="waypoints", estimator="truth")
+    with pytest.raises(rl.PolicyError, match="task"):
+        rl.load_policy(tiny_policy, env=env)
