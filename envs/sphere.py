@@ -99,7 +99,7 @@ class SphereRobotEnv(gym.Env):
                  imu_offset=(0.02, 0.0, 0.03), episode_s=None, robot=None, arena_size=20.0,
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
                  mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, n_waypoints=4,
-                 waypoint_radius=0.3, position_fix_hz=0.0, position_fix_std=0.5,
+                 waypoint_radius=0.5, position_fix_hz=0.0, position_fix_std=0.5,
                  render_mode=None, render_size=(320, 240)):
         super().__init__()
         if task not in TASKS:
