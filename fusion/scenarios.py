@@ -35,11 +35,16 @@ peaks of about 3 rad/s plus linear-acceleration bursts), ``shaking`` (gentle rot
 linear acceleration).
 """
 from dataclasses import dataclass, field as dc_field
+import numbers
+from typing import Optional
+
 import numpy as np
 
+from fusion import imu as imu_model
 from fusion import quat
 
-__all__ = ["Scenario", "SCENARIOS", "make_scenario", "G", "FIELD"]
+__all__ = ["Scenario", "SCENARIOS", "make_scenario", "G", "FIELD",
+           "SEED_SCENARIOS", "seed_scenario", "EARTH_FIELD_UT", "ACC_DISTURBED", "MAG_DISTURBED"]
 
 G = 9.81
 FIELD = (0.0, 0.4, -0.3)
@@ -80,10 +85,20 @@ class Scenario:
     field: np.ndarray        # (3,) earth field, ENU
     gyro_bias: np.ndarray    # (3,) rad/s
     params: dict = dc_field(default_factory=dict)
+    preset: str = ""                          # IMU model (seed scenarios; "" for make_scenario's)
+    acc_disturbed: Optional[np.ndarray] = None  # (N,) bool: |a_lin| > ACC_DISTURBED (seed scenarios)
+    mag_disturbed: Optional[np.ndarray] = None  # (N,) bool: field disturbance > MAG_DISTURBED |field|
 
     @property
     def n(self):
         return self.t.shape[0]
+
+    @property
+    def disturbed(self):
+        """(N,) bool: accelerometer or magnetometer disturbed, or None if not known."""
+        if self.acc_disturbed is None or self.mag_disturbed is None:
+            return None
+        return self.acc_disturbed | self.mag_disturbed
 
 
 def _sines(rng, amp_rad, freq, n_sines=3):
@@ -96,13 +111,25 @@ def _sines(rng, amp_rad, freq, n_sines=3):
     return a, f, p
 
 
-def _euler_path(tau, e0, sines):
-    """ZYX angles (yaw, pitch, roll) ``e0 + sum of sines`` at ``tau`` and their rates."""
+def _draw_path(rng, turn, tilt, freq):
+    """A random smooth path: start ``e0`` (any heading, pitch and roll within ±15 deg) and the
+    sines swinging yaw by up to ±``turn`` and pitch, roll by up to ±``tilt`` (deg)."""
+    e0 = np.array([rng.uniform(-np.pi, np.pi), *np.radians(rng.uniform(-15, 15, 2))])
+    return e0, _sines(rng, np.radians([turn, tilt, tilt]), freq)
+
+
+def _euler_path(tau, e0, sines, envelope=None):
+    """ZYX angles (yaw, pitch, roll) ``e0 + w(tau) * sum of sines`` at ``tau`` and their rates;
+    ``envelope`` (a function of tau returning ``(w, dw)``) fades the motion in and out, default
+    ``w = 1``."""
     a, f, p = sines
     arg = 2 * np.pi * f[None] * tau[:, None, None] + p[None]          # (N, 3, n_sines)
-    e = np.asarray(e0, dtype=float) + (a * np.sin(arg)).sum(axis=-1)
-    de = (a * 2 * np.pi * f * np.cos(arg)).sum(axis=-1)
-    return e, de
+    s = (a * np.sin(arg)).sum(axis=-1)
+    ds = (a * 2 * np.pi * f * np.cos(arg)).sum(axis=-1)
+    if envelope is not None:
+        w, dw = envelope(tau)
+        s, ds = w[:, None] * s, dw[:, None] * s + w[:, None] * ds
+    return np.asarray(e0, dtype=float) + s, ds
 
 
 def _body_rate(e, de):
@@ -180,9 +207,7 @@ def make_scenario(name="mixed", fs=100.0, duration=60.0, seed=0, *, ideal=False,
     dt = np.full(n, dt_s)
 
     # smooth motion: ZYX angles = start + sums of sines; the body rate follows analytically
-    e0 = np.array([motion_rng.uniform(-np.pi, np.pi), *np.radians(motion_rng.uniform(-15, 15, 2))])
-    sines = _sines(motion_rng, np.radians([preset["turn"], preset["tilt"], preset["tilt"]]),
-                   preset.get("freq", (0.05, 0.5)))
+    e0, sines = _draw_path(motion_rng, preset["turn"], preset["tilt"], preset.get("freq", (0.05, 0.5)))
     if q_start is None:
         q_start = quat.from_euler(_euler_path(np.array([-dt_s]), e0, sines)[0][0])
     q_start = quat.normalise(quat.as_quat(q_start, "q_start"))
@@ -203,3 +228,220 @@ def make_scenario(name="mixed", fs=100.0, duration=60.0, seed=0, *, ideal=False,
     return Scenario(name=name, fs=fs, seed=seed, t=t, dt=dt, q_true=q_true, q_start=q_start,
                     omega=omega, a_lin=a_lin, gyr=gyr, acc=acc, mag=mag, field=field_v,
                     gyro_bias=bias, params=params)
+
+
+# ---------------------------------------------------------------------------------------
+# Seed scenarios: the experiments of the four source documents, through the IMU model
+
+EARTH_FIELD_UT = 100.0 * np.asarray(FIELD)   # ENU, uT: 50 uT, dip 36.9 deg (FIELD in uT)
+ACC_DISTURBED = 0.5     # m/s^2: a sample is acc-disturbed above this |a_lin| (the aekf's e_a1)
+MAG_DISTURBED = 0.05    # a sample is mag-disturbed above this |B_disturbance| / |B_earth|
+
+
+def _field_ut(norm_ut, dip_deg):
+    """Earth field, ENU, pointing north and down by ``dip_deg``."""
+    d = np.radians(dip_deg)
+    return norm_ut * np.array([0.0, np.cos(d), -np.sin(d)])
+
+
+# Per scenario: IMU preset, output rate fs (Hz), physics rate = ratio * fs, length (samples or
+# s), motion (turn, tilt in deg, freq in Hz, as SCENARIOS), window (s: still before and after,
+# seed 001's experiment B), lever (m: IMU on an arm this far from the pivot, along body x: the
+# arm's own linear acceleration), bursts (per min, m/s^2), sustained (episodes, m/s^2, hold s),
+# magnet (a pass at a fraction of the record, closest m, speed m/s, on-axis peak uT), vibration.
+_SEED = {
+    "seed000-static": dict(
+        doc="seed 000: robot held still, mpu6050+mag3110 at 10 Hz, 150 s",
+        preset="mpu6050+mag3110", fs=10.0, ratio=100, duration=150.0),
+    "seed001-slow": dict(
+        doc="seed 001 exp. A: slow arm swinging (IMU 0.5 m from the shoulder), mti10 at 256 Hz, 30 s",
+        preset="mti10", fs=256.0, ratio=8, duration=30.0, field=(50.0, 32.0), lever=0.5,
+        motion=dict(turn=45.0, tilt=30.0, freq=(0.05, 0.3))),
+    "seed001-fast": dict(
+        doc="seed 001 exp. B: still, fast arm swinging from 6.5 to 15.4 s, still; a magnet passes "
+            "during the motion; mti10 at 256 Hz, 22 s",
+        preset="mti10", fs=256.0, ratio=8, duration=22.0, field=(50.0, 32.0), lever=0.5,
+        motion=dict(turn=60.0, tilt=40.0, freq=(0.3, 1.0)), window=(6.5, 15.4),
+        magnet=dict(when=(0.35, 0.65), closest=0.15, speed=0.15, peak=30.0)),
+    "seed001-faster": dict(
+        doc="seed 001 exp. C: as seed001-fast, swinging faster (rates up to about 6 rad/s)",
+        preset="mti10", fs=256.0, ratio=8, duration=22.0, field=(50.0, 32.0), lever=0.5,
+        motion=dict(turn=60.0, tilt=45.0, freq=(0.5, 1.4)), window=(6.5, 15.4),
+        magnet=dict(when=(0.35, 0.65), closest=0.15, speed=0.15, peak=30.0)),
+    "seed003-static": dict(
+        doc="seed 003: IMU still, icm20602+qmc5883l at 200 Hz, 5000 samples",
+        preset="icm20602+qmc5883l", fs=200.0, ratio=10, samples=5000),
+    "seed003-dynamic": dict(
+        doc="seed 003: normal attitude-measuring motion, icm20602+qmc5883l at 200 Hz, 4417 samples",
+        preset="icm20602+qmc5883l", fs=200.0, ratio=10, samples=4417, lever=0.1,
+        motion=dict(turn=30.0, tilt=20.0, freq=(0.1, 0.5))),
+    "seed003-vibration": dict(
+        doc="seed 003: IMU still on a mount with motors running (130-200 Hz, "
+            "imu.VIBRATION_SEED003), icm20602+qmc5883l at 200 Hz, 5000 samples",
+        preset="icm20602+qmc5883l", fs=200.0, ratio=10, samples=5000, vibration=True),
+    "seed004-static": dict(
+        doc="seed 004: mobile robot standing still, mpu9250 at 500 Hz, 60 s",
+        preset="mpu9250", fs=500.0, ratio=4, duration=60.0),
+    "seed004-fast": dict(
+        doc="seed 004: mobile robot driving fast (quick turns, driving accelerations), mpu9250 at 500 Hz, 30 s",
+        preset="mpu9250", fs=500.0, ratio=4, duration=30.0,
+        motion=dict(turn=60.0, tilt=10.0, freq=(0.1, 0.6)), bursts=(20.0, 3.0)),
+    "linear-acceleration": dict(
+        doc="gentle rotation with three sustained horizontal accelerations of 2-4 m/s^2 held 3-6 s, "
+            "icm20602+qmc5883l at 200 Hz, 60 s",
+        preset="icm20602+qmc5883l", fs=200.0, ratio=10, duration=60.0,
+        motion=dict(turn=20.0, tilt=5.0, freq=(0.03, 0.2)),
+        sustained=dict(n=3, amp=(2.0, 4.0), hold=(3.0, 6.0))),
+    "magnetic-disturbance": dict(
+        doc="gentle rotation; a magnet (motor) passes within 12 cm (up to 40 uT, about 4 s above "
+            "5 % of the earth field), icm20602+qmc5883l at 200 Hz, 60 s",
+        preset="icm20602+qmc5883l", fs=200.0, ratio=10, duration=60.0,
+        motion=dict(turn=30.0, tilt=10.0, freq=(0.03, 0.2)),
+        magnet=dict(when=(0.3, 0.7), closest=0.12, speed=0.1, peak=40.0)),
+}
+
+SEED_SCENARIOS = {name: d["doc"] for name, d in _SEED.items()}
+
+
+def _plateau(tau, t0, t1, ramp):
+    """Smooth window and its derivative: 0 before ``t0``, raised-cosine rise over ``ramp`` s, 1,
+    fall over ``ramp`` s to 0 at ``t1``."""
+    ramp = max(min(ramp, 0.5 * (t1 - t0)), 1e-9)
+    up, down = (tau - t0) / ramp, (t1 - tau) / ramp
+    u = np.clip(np.minimum(up, down), 0.0, 1.0)
+    rising = up < down
+    du = np.where((u > 0) & (u < 1), np.where(rising, 1.0, -1.0) / ramp, 0.0)
+    return 0.5 - 0.5 * np.cos(np.pi * u), 0.5 * np.pi * np.sin(np.pi * u) * du
+
+
+def _random_unit(rng, n=None):
+    v = rng.normal(size=(3,) if n is None else (n, 3))
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _lever_arm_acc(path, tau, lever, h=1e-3):
+    """Earth-frame acceleration of the point ``[lever, 0, 0]`` (body) of a body turning about a
+    fixed pivot along ``path``: second central difference of its position (the path is
+    analytic; truncation ~ h² ω⁴ r / 12 < 1e-4 m/s², rounding ~ 1e-9)."""
+    r = np.array([lever, 0.0, 0.0])
+    pos = lambda tt: quat.rotate(quat.from_euler(path(tt)[0]), r)
+    return (pos(tau + h) - 2.0 * pos(tau) + pos(tau - h)) / (h * h)
+
+
+def _sustained(rng, t, n, amp, hold, ramp=0.5):
+    """``n`` horizontal accelerations (earth frame), one in each n-th of the record, each of
+    a random direction and size in ``amp`` (m/s^2), held ``hold`` s between raised-cosine
+    ramps: a vehicle speeding up, or a turn, not a shake."""
+    a = np.zeros((t.shape[0], 3))
+    slot = (t[-1] - t[0]) / n
+    for k in range(n):
+        hk, u, az, size = rng.uniform(*hold), rng.uniform(), rng.uniform(-np.pi, np.pi), rng.uniform(*amp)
+        hk = min(hk, 0.8 * slot - 2 * ramp)      # short records: shorter episodes
+        if hk <= 0:
+            continue
+        start = t[0] + k * slot + u * (slot - hk - 2 * ramp)
+        w, _ = _plateau(t, start, start + hk + 2 * ramp, ramp)
+        a += size * w[:, None] * np.array([np.cos(az), np.sin(az), 0.0])
+    return a
+
+
+def _magnet_pass(rng, t, when, closest, speed, peak):
+    """Earth-frame field (uT) of a dipole (a magnet, a motor) moving past the sensor on a
+    straight line: closest approach ``closest`` m at a random fraction ``when`` of the record,
+    ``speed`` m/s, moment of random direction whose on-axis field at ``closest`` is ``peak`` uT."""
+    tc = t[0] + rng.uniform(*when) * (t[-1] - t[0])
+    d = _random_unit(rng)
+    u = _random_unit(rng)
+    u -= d * (u @ d)
+    u /= np.linalg.norm(u)
+    moment = imu_model.dipole_moment_for(peak, closest) * _random_unit(rng)
+    magnet = closest * d + np.outer((t - tc) * speed, u)        # relative to the sensor
+    return imu_model.dipole_field(-magnet, np.zeros(3), moment)
+
+
+def _seed_spec(imu, default, calibrated, fs, vibration):
+    """The IMUSpec of a seed scenario: a preset name (``calibrated`` applies) or an IMUSpec (as
+    given), at the scenario's rate, with seed 003's vibration where the scenario has it."""
+    if imu is None:
+        imu = default
+    if isinstance(imu, imu_model.IMUSpec):
+        spec = imu
+    elif isinstance(imu, str):
+        spec = imu_model.preset(imu, calibrated=calibrated)
+    else:
+        raise ValueError(f"imu must be None, an IMUSpec or one of the presets "
+                         f"{', '.join(imu_model.available())}; got {type(imu).__name__}")
+    spec = spec.replace(rate_hz=fs)
+    if vibration and spec.vibration is None:      # a spec's own vibration wins (e.g. gyro-only)
+        spec = spec.replace(vibration=imu_model.VIBRATION_SEED003)
+    return spec
+
+
+def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
+    """The experiment ``name`` (one of ``SEED_SCENARIOS``) through the IMU model: a ``Scenario``.
+
+    The true motion is generated at a physics rate (an integer multiple of the IMU rate, 800 Hz
+    to 2 kHz) and read by ``fusion.imu.IMU(spec).simulate``; the arrays are at the IMU's sample
+    instants (jitter included). duration: seconds (default the documented length; the sample
+    count is ``round(duration * fs)``). imu: a preset name or an ``IMUSpec`` in place of the
+    scenario's sensor (its rate is replaced by the scenario's; ``calibrated`` applies to preset
+    names: residual biases and iron after a power-on calibration). See docs/scenarios.md.
+    """
+    if not isinstance(name, str) or name not in _SEED:
+        raise ValueError(f"unknown seed scenario {name!r}; available: {', '.join(_SEED)}")
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    cfg = _SEED[name]
+    fs = cfg["fs"]
+    if duration is None:
+        n = cfg["samples"] if "samples" in cfg else int(round(cfg["duration"] * fs))
+    else:
+        if isinstance(duration, bool) or not isinstance(duration, numbers.Real) \
+                or not np.isfinite(duration) or duration <= 0:
+            raise ValueError(f"duration must be None or a finite number of seconds > 0, got {duration!r}")
+        n = int(round(duration * fs))
+        if n < 2:
+            raise ValueError(f"duration must give at least 2 samples at {fs:g} Hz "
+                             f"(>= {1.5 / fs:g} s), got {duration!r}")
+    spec = _seed_spec(imu, cfg["preset"], calibrated, fs, cfg.get("vibration", False))
+    physics = fs * cfg["ratio"]
+    motion_rng, dist_rng, imu_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+
+    # true motion at the physics rate; one IMU period spare for the last sample's jitter
+    tau = np.arange((n + 1) * cfg["ratio"]) / physics
+    mot = cfg.get("motion", dict(turn=0.0, tilt=0.0, freq=(0.05, 0.5)))
+    e0, sines = _draw_path(motion_rng, mot["turn"], mot["tilt"], mot["freq"])
+    window = cfg.get("window")
+    envelope = (lambda tt: _plateau(tt, window[0], window[1], 1.0)) if window else None
+    path = lambda tt: _euler_path(tt, e0, sines, envelope)
+    e, de = path(tau)
+    q_phys = quat.from_euler(e)
+    a_lin = _lever_arm_acc(path, tau, cfg["lever"]) if cfg.get("lever") else np.zeros((tau.shape[0], 3))
+    if "bursts" in cfg:
+        a_lin = a_lin + _bursts(dist_rng, tau, *cfg["bursts"])
+    if "sustained" in cfg:
+        a_lin = a_lin + _sustained(dist_rng, tau, **cfg["sustained"])
+    field = _field_ut(*cfg["field"]) if "field" in cfg else EARTH_FIELD_UT.copy()
+    b_dist = _magnet_pass(dist_rng, tau, **cfg["magnet"]) if "magnet" in cfg else np.zeros_like(a_lin)
+
+    sensor = imu_model.IMU(spec, imu_rng, physics_rate_hz=physics)
+    rec = sensor.simulate(tau, _body_rate(e, de), quat.rotate_inverse(q_phys, a_lin + [0.0, 0.0, G]),
+                          quat.rotate_inverse(q_phys, field + b_dist))
+    if len(rec) < n:       # cannot happen with a spare period and jitter clipped to 0.45 periods
+        raise RuntimeError(f"IMU produced {len(rec)} samples, expected {n}")
+    t, idx = rec.t[:n], rec.index[:n]
+
+    # truth at the sample instants (analytic path); disturbances at the physics step read
+    e_s, de_s = path(t)
+    q_start = quat.from_euler(path(np.array([t[0] - 1.0 / fs]))[0][0])
+    consts = sensor.constants
+    params = dict(doc=cfg["doc"], physics_rate=physics, duration=n / fs, calibrated=calibrated,
+                  imu_spec=spec.name, motion=mot, window=window, lever=cfg.get("lever", 0.0),
+                  bursts=cfg.get("bursts"), sustained=cfg.get("sustained"), magnet=cfg.get("magnet"),
+                  vibration=spec.vibration, imu_constants=consts, g=G)
+    return Scenario(name=name, fs=fs, seed=seed, t=t, dt=rec.dt[:n], q_true=quat.from_euler(e_s),
+                    q_start=q_start, omega=_body_rate(e_s, de_s), a_lin=a_lin[idx], gyr=rec.gyr[:n],
+                    acc=rec.acc[:n], mag=rec.mag[:n], field=field, gyro_bias=consts["gyro_bias"],
+                    params=params, preset=spec.name,
+                    acc_disturbed=np.linalg.norm(a_lin[idx], axis=1) > ACC_DISTURBED,
+                    mag_disturbed=np.linalg.norm(b_dist[idx], axis=1) > MAG_DISTURBED * np.linalg.norm(field))
