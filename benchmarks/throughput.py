@@ -18,6 +18,7 @@ Data: the ``mixed`` synthetic scenario of ``fusion.scenarios`` (100 Hz, rotation
 ours, VQF, ahrs.Madgwick/Mahony rad/s and m/s^2 (specific force); imufusion deg/s and g
 (convention ENU); ahrs.EKF rad/s and m/s^2 as gravity (minus the specific force), frame NED;
 the magnetometer as 50 uT (VQF, imufusion: uT; ahrs: nT; ours: the scenario's unit).
+The feeding of each library lives in benchmarks/peers.py, shared with accuracy.py.
 
 Method: N is scaled per cell so one call takes about ``--target`` seconds (0.3 s), capped at
 the 200,000 generated samples; one warm-up call per cell at that N, then 5 timed rounds
@@ -48,247 +49,11 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import fusion                                    # noqa: E402
-from fusion import quat                          # noqa: E402
-from fusion.scenarios import make_scenario       # noqa: E402
+from benchmarks.peers import Data, all_methods, sanity   # noqa: E402
 
 FS = 100.0
-G = 9.81
-UT_PER_UNIT = 100.0          # scenario field |B| = 0.5 unit -> 50 uT
 MODES = ("update 6-axis", "update 9-axis", "run 6-axis", "run 9-axis")
 DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
-
-
-# ---------------------------------------------------------------------------------------------
-# data
-
-class Data:
-    """The scenario in every library's units. All arrays C-contiguous float64, (N, 3)."""
-
-    def __init__(self, n, seed=1):
-        sc = make_scenario("mixed", fs=FS, duration=n / FS, seed=seed)
-        c = np.ascontiguousarray
-        self.q_true = sc.q_true
-        self.gyr = c(sc.gyr, dtype=np.float64)                # rad/s
-        self.acc = c(sc.acc, dtype=np.float64)                # m/s^2
-        self.mag = c(sc.mag, dtype=np.float64)                # scenario unit
-        self.mag_ut = c(sc.mag * UT_PER_UNIT)                 # uT
-        self.mag_nt = c(sc.mag * UT_PER_UNIT * 1e3)           # nT
-        self.gyr_dps = c(np.degrees(sc.gyr))                  # deg/s
-        self.acc_g = c(sc.acc / G)                            # g
-        self.acc_down = c(-sc.acc)                            # m/s^2, gravity (ahrs.EKF, see there)
-        f = np.asarray(sc.field, dtype=float)
-        # dip angle of the scenario field (ENU [0, north, up]); ahrs.EKF takes it as magnetic_ref
-        self.dip_deg = float(np.degrees(np.arctan2(-f[2], np.hypot(f[0], f[1]))))
-
-
-# ---------------------------------------------------------------------------------------------
-# methods: each builds, for (data, n, nine), a fresh zero-argument callable that processes the
-# first n samples and returns the last quaternion ("update") or the (n, 4) quaternions ("run").
-
-class Method:
-    def __init__(self, name, group, update=None, run=None, run_note="", drifts=False, up=1.0):
-        self.name, self.group, self.drifts = name, group, drifts
-        self.up = up                 # +1: output is body -> z-up frame (ENU, NWU); -1: z-down (NED)
-        self.builders = {"update": update, "run": run}
-        self.run_note = run_note
-
-
-def ours(name):
-    def update(d, n, nine):
-        est = fusion.make(name, FS)
-        upd = est.update
-        g, a = d.gyr[:n], d.acc[:n]
-        if nine:
-            m = d.mag[:n]
-
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    q = upd(gi, ai, mi)
-                return q
-        else:
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    q = upd(gi, ai)
-                return q
-        return go
-
-    def run(d, n, nine):
-        est = fusion.make(name, FS)
-        g, a, m = d.gyr[:n], d.acc[:n], (d.mag[:n] if nine else None)
-        return lambda: est.run(g, a, m)
-
-    return Method(f"fusion.{name}", "ours", update, run, drifts=(name == "gyro"))
-
-
-def vqf_method(cls_name):
-    import vqf
-    cls = getattr(vqf, cls_name)
-
-    def update(d, n, nine):
-        v = cls(1.0 / FS)
-        upd = v.update
-        g, a = d.gyr[:n], d.acc[:n]
-        if nine:
-            m, get = d.mag_ut[:n], v.getQuat9D
-
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    upd(gi, ai, mi)
-                    q = get()
-                return q
-        else:
-            get = v.getQuat6D
-
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    upd(gi, ai)
-                    q = get()
-                return q
-        return go
-
-    def run(d, n, nine):
-        v = cls(1.0 / FS)
-        g, a = d.gyr[:n], d.acc[:n]
-        if nine:
-            m = d.mag_ut[:n]
-            return lambda: v.updateBatch(g, a, m)["quat9D"]
-        return lambda: v.updateBatch(g, a)["quat6D"]
-
-    return Method(f"vqf.{cls_name}", "peer", update, run)
-
-
-def imufusion_method():
-    import imufusion
-
-    def make():
-        ahrs = imufusion.Ahrs()
-        s = imufusion.AhrsSettings()          # defaults, but ENU like our data and 100 Hz
-        s.convention = imufusion.CONVENTION_ENU
-        s.sample_rate = FS
-        ahrs.set_settings(s)
-        ahrs.set_sample_period(1.0 / FS)      # this version takes no dt argument in update()
-        return ahrs
-
-    def loops(d, n, nine, store):
-        ahrs = make()
-        get = ahrs.get_quaternion
-        g, a = d.gyr_dps[:n], d.acc_g[:n]
-        out = np.empty((n, 4)) if store else None
-        if nine:
-            upd, m = ahrs.update, d.mag_ut[:n]
-            if store:
-                def go():
-                    for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
-                        upd(gi, ai, mi)
-                        out[i] = get()
-                    return out
-            else:
-                def go():
-                    q = None
-                    for gi, ai, mi in zip(g, a, m):
-                        upd(gi, ai, mi)
-                        q = get()
-                    return q
-        else:
-            upd = ahrs.update_no_magnetometer
-            if store:
-                def go():
-                    for i, (gi, ai) in enumerate(zip(g, a)):
-                        upd(gi, ai)
-                        out[i] = get()
-                    return out
-            else:
-                def go():
-                    q = None
-                    for gi, ai in zip(g, a):
-                        upd(gi, ai)
-                        q = get()
-                    return q
-        return go
-
-    return Method("imufusion.Ahrs", "peer",
-                  lambda d, n, nine: loops(d, n, nine, False),
-                  lambda d, n, nine: loops(d, n, nine, True),
-                  run_note="Python loop, no batch API")
-
-
-def ahrs_method(cls_name):
-    from ahrs import filters
-    cls = getattr(filters, cls_name)
-    # ahrs.EKF runs in its default NED frame and models the accelerometer as reading gravity
-    # (its a_ref is [0, 0, 1] in NED), the opposite sign of the specific force the others
-    # take: fed the specific force it settles upside down. (Its frame="ENU" option gave a
-    # worse 9-axis tilt on this data, so the default is used.) Madgwick and Mahony take the
-    # specific force and return body -> z-up quaternions.
-    acc_of = (lambda d: d.acc_down) if cls_name == "EKF" else (lambda d: d.acc)
-
-    def kwargs(d):
-        kw = dict(frequency=FS)
-        if cls_name == "EKF":
-            kw.update(frame="NED", magnetic_ref=d.dip_deg)
-        return kw
-
-    def update(d, n, nine):
-        g, a = d.gyr[:n], acc_of(d)[:n]
-        m = d.mag_nt[:n] if nine else None
-        # the library's own start attitude: its batch constructor on the first sample
-        q0 = cls(gyr=g[:1], acc=a[:1], mag=None if m is None else m[:1], **kwargs(d)).Q[0].copy()
-        f = cls(**kwargs(d))
-        if cls_name == "EKF":
-            upd = f.update
-            if nine:
-                # ahrs 0.4.0: EKF.h()/dhdq() pick 6- or 9-axis from self.mag (set only by the
-                # batch constructor), so a per-sample 9-axis update needs it set by hand
-                f.mag = m
-        else:
-            upd = f.updateMARG if nine else f.updateIMU
-        if nine:
-            def go():
-                q = q0
-                for gi, ai, mi in zip(g, a, m):
-                    q = upd(q, gi, ai, mi)
-                return q
-        else:
-            def go():
-                q = q0
-                for gi, ai in zip(g, a):
-                    q = upd(q, gi, ai)
-                return q
-        return go
-
-    def run(d, n, nine):
-        g, a = d.gyr[:n], acc_of(d)[:n]
-        m = d.mag_nt[:n] if nine else None
-        kw = kwargs(d)
-        return lambda: cls(gyr=g, acc=a, mag=m, **kw).Q
-
-    return Method(f"ahrs.{cls_name}", "peer", update, run, up=-1.0 if cls_name == "EKF" else 1.0)
-
-
-def all_methods(log):
-    methods = [ours(name) for name in fusion.available()]
-    peers = []
-    try:
-        import vqf
-        peers.append(vqf_method("VQF"))
-        if hasattr(vqf, "BasicVQF"):
-            peers.append(vqf_method("BasicVQF"))
-    except ImportError as e:
-        log(f"skipping vqf: {e}")
-    try:
-        peers.append(imufusion_method())
-    except ImportError as e:
-        log(f"skipping imufusion: {e}")
-    try:
-        for c in ("Madgwick", "Mahony", "EKF"):
-            peers.append(ahrs_method(c))
-    except ImportError as e:
-        log(f"skipping ahrs: {e}")
-    return methods + peers
 
 
 # ---------------------------------------------------------------------------------------------
@@ -338,34 +103,6 @@ def measure_all(cells, d, repeats, log):
         med = statistics.median(t)
         out[key] = dict(n=n, repeats=repeats, median_s=med, min_s=min(t), max_s=max(t), rate=n / med)
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# sanity: finite, unit-norm, moving output that tracks the true tilt
-
-def tilt_error_deg(q_est, q_true, up=1.0):
-    """Angle between the estimated and the true "up" in the body frame, in deg.
-
-    q_est rotates body vectors into a navigation frame whose z axis points up (up=+1: ENU,
-    NWU) or down (up=-1: NED). Sign-aware: an estimate that settles upside down scores ~180."""
-    ez = np.array([0.0, 0.0, 1.0])
-    u = quat.rotate_inverse(np.atleast_2d(q_true), ez)
-    v = up * quat.rotate_inverse(quat.normalise(np.atleast_2d(q_est)), ez)
-    return np.degrees(np.arccos(np.clip(np.sum(u * v, axis=-1), -1.0, 1.0)))
-
-
-def sanity(method, kind, nine, d, n):
-    out = np.asarray(method.builders[kind](d, n, nine)(), dtype=float)
-    if kind == "update":
-        q, ref = out.reshape(1, 4), d.q_true[n - 1:n]
-    else:
-        q, ref = out.reshape(-1, 4)[n // 2:], d.q_true[n // 2:n]
-    finite = bool(np.isfinite(q).all())
-    unit = finite and bool(np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6))
-    moved = finite and bool(np.ptp(q, axis=0).max() > 1e-3) if len(q) > 1 else True
-    err = float(np.median(tilt_error_deg(q, ref, method.up))) if finite else float("nan")
-    ok = finite and unit and moved and (err < 10.0 or method.drifts)
-    return ok, err
 
 
 # ---------------------------------------------------------------------------------------------
@@ -482,7 +219,7 @@ def main(argv=None):
           f"<= {n_upd:,} (update), scaled to ~{target:g} s per measurement; "
           f"median of {repeats} after 1 warm-up\n", flush=True)
 
-    d = Data(max(n_run, n_upd, n_sanity))
+    d = Data.mixed(max(n_run, n_upd, n_sanity), fs=FS)
     methods = all_methods(print)
 
     # sanity first (also imports and warms every code path)

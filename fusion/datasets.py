@@ -13,16 +13,23 @@ the file (e.g. ``q_align``, ``q_earth_fix``) are kept in ``Trial.extra``.
             q = est.run(trial.gyr, trial.acc, trial.mag, dt=trial.dt)
 """
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
-__all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR"]
+__all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR", "EXPECTED", "REQUIRED"]
 
 ENV_VAR = "FUSION_DATA_DIR"
 _KNOWN = ("t", "gyr", "acc", "mag", "quat", "fs", "quality", "notes")
+# what each array key must hold: the error messages quote it
+EXPECTED = {"t": "(N,) time in s, increasing", "gyr": "(N, 3) angular rate in rad/s",
+            "acc": "(N, 3) specific force in m/s^2", "mag": "(N, 3) magnetometer (optional)",
+            "quat": "(N, 4) reference quaternion [w, x, y, z], IMU -> earth",
+            "fs": "a scalar: nominal sample rate in Hz"}
+REQUIRED = ("t", "gyr", "acc", "quat", "fs")
 
 
 @dataclass(eq=False)
@@ -73,32 +80,67 @@ class Trial:
                 f"mag={'yes' if self.has_mag else 'no'}, quality={self.quality!r})")
 
 
-def _rows(arr, n, cols, key, path):
-    arr = np.asarray(arr, dtype=float)
+def _get(d, key, path):
+    """``d[key]``; ValueError naming the file and key for what numpy will not load (a pickled
+    object array under allow_pickle=False)."""
+    try:
+        return d[key]
+    except ValueError as e:
+        raise ValueError(f"{path}: key {key!r} cannot be read ({e})") from None
+
+
+def _float(d, key, path):
+    """``d[key]`` as a float array; ValueError naming the file and key where it is not
+    numeric (strings, pickled objects)."""
+    arr = _get(d, key, path)
+    try:
+        return np.asarray(arr, dtype=float)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{path}: {key!r} must be numeric, {EXPECTED[key]} ({e})") from None
+
+
+def _rows(d, n, cols, key, path):
+    arr = _float(d, key, path)
     if arr.shape != (n, cols):
-        raise ValueError(f"{path}: {key!r} must have shape ({n}, {cols}), got {arr.shape}")
+        raise ValueError(f"{path}: {key!r} must have shape ({n}, {cols}), got {arr.shape} "
+                         f"(expected {EXPECTED[key]})")
     return arr
 
 
 def load_trial(path):
-    """Read one ``.npz`` trial into a ``Trial``; ValueError on missing keys or bad shapes."""
+    """Read one ``.npz`` trial into a ``Trial``. FileNotFoundError for a missing file;
+    ValueError naming the file, the key and what it must hold for a missing key, a bad shape
+    or a non-numeric array, and for a file numpy cannot read as ``.npz``."""
     path = Path(path)
-    with np.load(path, allow_pickle=False) as d:
-        missing = [k for k in ("t", "gyr", "acc", "quat", "fs") if k not in d.files]
+    if not path.is_file():
+        raise FileNotFoundError(f"trial file {str(path)!r} does not exist")
+    try:
+        d = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:   # not a file numpy can read
+        raise ValueError(f"{path}: not a readable .npz trial ({e})") from None
+    if not isinstance(d, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: expected an .npz archive of named arrays, got a single array")
+    with d:
+        missing = [k for k in REQUIRED if k not in d.files]
         if missing:
-            raise ValueError(f"{path}: missing key(s) {missing}; has {sorted(d.files)}")
-        t = np.asarray(d["t"], dtype=float)
+            want = "; ".join(f"{k!r}: {EXPECTED[k]}" for k in missing)
+            raise ValueError(f"{path}: missing key(s) {missing}, required (expected {want}); "
+                             f"the file has {sorted(d.files)}")
+        t = _float(d, "t", path)
         if t.ndim != 1:
-            raise ValueError(f"{path}: 't' must have shape (N,), got {t.shape}")
+            raise ValueError(f"{path}: 't' must have shape (N,), got {t.shape} (expected {EXPECTED['t']})")
         n = t.shape[0]
-        gyr = _rows(d["gyr"], n, 3, "gyr", path)
-        acc = _rows(d["acc"], n, 3, "acc", path)
-        mag = _rows(d["mag"], n, 3, "mag", path) if "mag" in d.files else None
-        q = _rows(d["quat"], n, 4, "quat", path)
-        fs = float(d["fs"])
-        quality = str(d["quality"]) if "quality" in d.files else "ok"
-        notes = str(d["notes"]) if "notes" in d.files else ""
-        extra = {k: np.asarray(d[k]) for k in d.files if k not in _KNOWN}
+        gyr = _rows(d, n, 3, "gyr", path)
+        acc = _rows(d, n, 3, "acc", path)
+        mag = _rows(d, n, 3, "mag", path) if "mag" in d.files else None
+        q = _rows(d, n, 4, "quat", path)
+        fs = _float(d, "fs", path)
+        if fs.size != 1:
+            raise ValueError(f"{path}: 'fs' must be {EXPECTED['fs']}, got shape {fs.shape}")
+        fs = float(fs.reshape(()))
+        quality = str(_get(d, "quality", path)) if "quality" in d.files else "ok"
+        notes = str(_get(d, "notes", path)) if "notes" in d.files else ""
+        extra = {k: np.asarray(_get(d, k, path)) for k in d.files if k not in _KNOWN}
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
     dt = np.empty(n)
@@ -115,10 +157,13 @@ def load_trial(path):
 def load_folder(folder, only_ok=False):
     """Every ``*.npz`` trial in ``folder`` and its sub-folders (a set folder, or the data root
     with one sub-folder per set), sorted by set and name. ``only_ok`` drops trials whose
-    quality is not 'ok'."""
+    quality is not 'ok'. ValueError with the path when ``folder`` does not exist or is not a
+    folder; ``load_trial``'s errors for a bad file."""
     folder = Path(folder)
-    if not folder.is_dir():
+    if not folder.exists():
         raise ValueError(f"data folder {str(folder)!r} does not exist")
+    if not folder.is_dir():
+        raise ValueError(f"data folder {str(folder)!r} is not a folder")
     trials = [load_trial(p) for p in sorted(folder.rglob("*.npz"))]
     trials.sort(key=lambda tr: (tr.set, tr.name))
     return [tr for tr in trials if tr.ok] if only_ok else trials

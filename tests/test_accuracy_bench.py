@@ -1,0 +1,58 @@
+"""benchmarks/accuracy.py end to end on a tiny subset (skipped without the peer libraries)."""
+import csv
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+
+for _peer in ("vqf", "imufusion", "ahrs"):
+    pytest.importorskip(_peer)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(f"_bench_{name}", ROOT / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+accuracy = _load("accuracy")
+from benchmarks import peers  # noqa: E402  (accuracy.py put the repository root on sys.path)
+
+
+def test_ideal_check_refuses_a_peer_fed_in_the_wrong_frame():
+    good = peers.ahrs_method("Madgwick")
+    bad = peers.ahrs_method("Madgwick")
+    bad.name, bad.nav = "madgwick-as-ENU", "ENU"      # its output is NWU: heading off by 90 deg
+    rows, failed = accuracy.ideal_check([good, bad], 10.0, print)
+    assert good.name not in failed
+    assert "madgwick-as-ENU" in failed and "heading" in failed["madgwick-as-ENU"]
+
+
+def test_quick_subset_writes_tables_and_figure(tmp_path):
+    res = accuracy.main(["--quick", "--max-trials", "1", "--trial-seconds", "5", "--duration", "5",
+                         "--scenarios", "slow", "--no-progress", "--out", str(tmp_path)])
+    # every peer's feeding (units, frame) passed the noise-free check
+    assert not [n for n, _ in res["failed"].items() if not n.startswith("fusion.")], res["failed"]
+    for f in ("accuracy.md", "accuracy.png", "accuracy_overall.csv", "accuracy_runs.csv",
+              "accuracy_ideal_check.csv", "accuracy_synthetic_9-axis.md"):
+        assert (tmp_path / f).stat().st_size > 0, f
+    assert res["rows"] and all(math.isfinite(r[k]) for r in res["rows"] for k in accuracy.ERRORS)
+
+    # the "ours / best peer" column is the best of ours over the best peer of each group
+    groups = {(r["set"], r["mode"]) for r in res["agg"]}
+    with open(tmp_path / "accuracy_overall.csv") as f:
+        overall = {(r["set"], r["mode"]): r for r in csv.DictReader(f)}
+    assert set(overall) == groups
+    for key in groups:
+        sub = [r for r in res["agg"] if (r["set"], r["mode"]) == key]
+        ours = min(r["total"] for r in sub if r["group"] == "ours")
+        peer = min(r["total"] for r in sub if r["group"] == "peer")
+        assert float(overall[key]["ours / best peer"]) == pytest.approx(ours / peer)
+        assert {r["method"] for r in sub} >= {"fusion.ekf", "vqf.VQF", "ahrs.EKF"}
+    if any(s == "repoimu_tstick" for s, _ in groups):     # recorded data present
+        assert ("repoimu_tstick", "9-axis") in groups and ("ese650", "6-axis") in groups
+        assert ("ese650", "9-axis") not in groups          # no magnetometer there

@@ -1,0 +1,117 @@
+"""fusion.datasets on bad input: every error names the file (or folder), the key and what is
+expected, instead of a raw numpy traceback."""
+import numpy as np
+import pytest
+
+from fusion import datasets
+
+
+def _arrays(n=20, fs=100.0):
+    return dict(t=np.arange(n) / fs, gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
+                mag=np.tile([0.0, 0.4, -0.3], (n, 1)), quat=np.tile([1.0, 0, 0, 0], (n, 1)),
+                fs=np.float64(fs), quality=np.str_("ok"), notes=np.str_("test"))
+
+
+def _write(path, **arrays):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **arrays)
+    return path
+
+
+def test_good_file_loads(tmp_path):
+    # the baseline the bad cases below differ from by one thing each
+    tr = datasets.load_trial(_write(tmp_path / "s" / "good.npz", **_arrays()))
+    assert tr.n == 20 and tr.has_mag and tr.ok
+
+
+@pytest.mark.parametrize("key", datasets.REQUIRED)
+def test_missing_required_key_names_file_key_and_expectation(tmp_path, key):
+    a = _arrays()
+    del a[key]
+    p = _write(tmp_path / "s" / f"no_{key}.npz", **a)
+    with pytest.raises(ValueError) as exc:
+        datasets.load_trial(p)
+    msg = str(exc.value)
+    assert str(p) in msg
+    assert f"'{key}'" in msg
+    assert datasets.EXPECTED[key] in msg          # what the key must hold
+    assert "missing" in msg
+
+
+def test_missing_key_also_from_load_folder(tmp_path):
+    a = _arrays()
+    del a["gyr"]
+    p = _write(tmp_path / "s" / "b.npz", **a)
+    _write(tmp_path / "s" / "a.npz", **_arrays())
+    with pytest.raises(ValueError, match="'gyr'") as exc:
+        datasets.load_folder(tmp_path)
+    assert str(p) in str(exc.value)
+
+
+def test_optional_mag_missing_is_fine(tmp_path):
+    a = _arrays()
+    del a["mag"]
+    assert datasets.load_trial(_write(tmp_path / "s" / "six.npz", **a)).mag is None
+
+
+@pytest.mark.parametrize("key, bad, expect", [
+    ("gyr", np.zeros((20, 2)), r"'gyr' must have shape \(20, 3\)"),
+    ("quat", np.zeros((19, 4)), r"'quat' must have shape \(20, 4\)"),
+    ("t", np.zeros((20, 1)), r"'t' must have shape \(N,\)"),
+    ("fs", np.array([100.0, 100.0]), r"'fs' must be a scalar"),
+    ("acc", np.full((20, 3), "x"), r"'acc' must be numeric"),
+])
+def test_bad_shape_or_type_names_file_and_key(tmp_path, key, bad, expect):
+    a = _arrays()
+    a[key] = bad
+    p = _write(tmp_path / "s" / f"bad_{key}.npz", **a)
+    with pytest.raises(ValueError, match=expect) as exc:
+        datasets.load_trial(p)
+    assert str(p) in str(exc.value)
+
+
+def test_pickled_object_array_is_a_clear_error(tmp_path):
+    a = _arrays()
+    a["extra"] = np.array([{"a": 1}], dtype=object)     # np.load refuses it without allow_pickle
+    p = _write(tmp_path / "s" / "obj.npz", **a)
+    with pytest.raises(ValueError, match="'extra' cannot be read") as exc:
+        datasets.load_trial(p)
+    assert str(p) in str(exc.value)
+
+
+@pytest.mark.parametrize("content", [b"not a numpy file at all", b"PK\x03\x04 truncated zip"])
+def test_unreadable_file_names_the_file(tmp_path, content):
+    p = tmp_path / "s" / "junk.npz"
+    p.parent.mkdir()
+    p.write_bytes(content)
+    with pytest.raises(ValueError, match="not a readable .npz trial") as exc:
+        datasets.load_trial(p)
+    assert str(p) in str(exc.value)
+
+
+def test_single_array_npy_is_rejected(tmp_path):
+    p = tmp_path / "one.npy"
+    np.save(p, np.zeros(3))
+    with pytest.raises(ValueError, match="expected an .npz archive"):
+        datasets.load_trial(p)
+
+
+def test_missing_trial_file(tmp_path):
+    p = tmp_path / "nope.npz"
+    with pytest.raises(FileNotFoundError, match="does not exist") as exc:
+        datasets.load_trial(p)
+    assert str(p) in str(exc.value)
+
+
+def test_missing_folder_names_the_path(tmp_path):
+    missing = tmp_path / "no" / "such" / "folder"
+    with pytest.raises(ValueError, match="does not exist") as exc:
+        datasets.load_folder(missing)
+    assert str(missing) in str(exc.value)
+
+
+def test_file_given_as_folder(tmp_path):
+    p = _write(tmp_path / "s" / "good.npz", **_arrays())
+    with pytest.raises(ValueError, match="is not a folder") as exc:
+        datasets.load_folder(p)
+    assert str(p) in str(exc.value)
