@@ -109,13 +109,16 @@ def _latest_checkpoint(ckpt_dir):
 
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, log=print):
+          command=None, init_from=None, log=print):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
 
     Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
     ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
     the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
-    continues from the newest checkpoint to the same total ``timesteps``.
+    continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
+    policy stem of the same algorithm and task whose weights and normalisation statistics
+    start the training (fine-tuning, e.g. a policy trained on the true attitude adapted
+    to an estimator); ``timesteps`` then counts the new steps only.
     """
     import torch
     torch.set_num_threads(1)
@@ -146,6 +149,16 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         start_ckpt = _latest_checkpoint(ckpt_dir)
         if start_ckpt is None:
             raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
+    init = None
+    if init_from is not None and start_ckpt is None:
+        _, init_zip, init_json, init_vn = _resolve(init_from)
+        if not init_zip.is_file():
+            raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
+        init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
+        if init_meta.get("algo", algo) != algo or init_meta.get("task", task) != task:
+            raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy for task "
+                             f"{init_meta.get('task')!r}; this run trains {algo} for {task!r}")
+        init = (init_zip, init_vn)
     run_dir.mkdir(parents=True, exist_ok=True)
 
     venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"))
@@ -158,6 +171,14 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
                 venv = VecNormalize.load(str(vn_path), venv)
             model = cls.load(str(start_ckpt), env=venv, device="cpu")
             log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
+        elif init is not None:
+            if normalize:
+                venv = VecNormalize.load(str(init[1]), venv)
+                venv.training = True
+            model = cls.load(str(init[0]), env=venv, device="cpu")
+            model.set_random_seed(seed)
+            model.num_timesteps = 0
+            log(f"starting from the weights of {init[0]}")
         else:
             if normalize:
                 venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hp.get("gamma", 0.99))
@@ -188,7 +209,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         t0, steps0 = time.perf_counter(), model.num_timesteps
         try:
             if remaining > 0:
-                model.learn(remaining, callback=CallbackList([ckpt, ev]), reset_num_timesteps=start_ckpt is None,
+                model.learn(remaining, callback=CallbackList([ckpt, ev]), reset_num_timesteps=start_ckpt is None and init is None,
                             progress_bar=progress)
         except KeyboardInterrupt:
             path = save_checkpoint()
@@ -217,6 +238,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     meta = {"command": command, "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": hyperparams(algo, task), "normalize": normalize,
+            "init_from": None if init is None else str(Path(init[0]).name),
             "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "obs_size": len(OBS_NAMES),
             "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
     with open(str(stem) + ".json", "w") as f:

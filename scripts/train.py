@@ -35,6 +35,9 @@ def main(argv=None):
     ap.add_argument("--n-envs", type=int, default=None, help="default: the YAML file's n_envs")
     ap.add_argument("--out", default=None, help="policy stem (default controllers/policies/<algo>-<task>-<estimator>)")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint")
+    ap.add_argument("--init-from", default=None,
+                    help="start from this policy's weights and statistics (same algo and task), e.g. "
+                         "controllers/policies/ppo-waypoints-truth")
     ap.add_argument("--eval-episodes", type=int, default=10, help="final evaluation episodes (0: none)")
     ap.add_argument("--env-kwargs", default="{}", help="JSON dict of extra environment arguments")
     ap.add_argument("--no-progress", action="store_true")
@@ -49,7 +52,7 @@ def main(argv=None):
     try:
         stem = rl.train(a.algo, a.task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=a.out,
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
-                        command=command)
+                        command=command, init_from=a.init_from)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError) as e:

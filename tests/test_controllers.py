@@ -120,6 +120,16 @@ def test_resume_continues_from_checkpoint(tiny_policy):
         int(rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem.split("_")[1]) >= 900
 
 
+def test_init_from_fine_tunes(tmp_path, tiny_policy):
+    stem = tmp_path / "ppo-track-gyro"
+    rl.train("ppo", "track", "gyro", timesteps=300, seed=2, out=stem, n_envs=1, progress=False, init_from=tiny_policy,
+             eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
+    assert meta["init_from"] == "ppo-track-truth.zip" and meta["estimator"] == "gyro"
+    with pytest.raises(ValueError, match="task"):
+        rl.train("ppo", "waypoints", "gyro", timesteps=10, out=tmp_path / "w", init_from=tiny_policy, progress=False)
+
+
 def test_resume_without_checkpoint(tmp_path):
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "none", resume=True, progress=False)
