@@ -63,8 +63,14 @@ def hyperparams(algo, task):
     return dict(table[env_id])
 
 
-def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir):
+def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir, worker=False):
     def make():
+        if worker:
+            # Ctrl-C reaches every process of the terminal's group: the workers ignore it and
+            # the main process, which saves a checkpoint, closes them (otherwise they die
+            # first and the close fails with a broken pipe)
+            import signal
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         import torch
         torch.set_num_threads(1)
         import gymnasium as gym
@@ -81,8 +87,10 @@ def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir):
 def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True):
     """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-    fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir) for i in range(n_envs)]
-    if subprocess and n_envs > 1:
+    sub = subprocess and n_envs > 1
+    fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir, worker=sub)
+           for i in range(n_envs)]
+    if sub:
         return SubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
     return DummyVecEnv(fns)
 
