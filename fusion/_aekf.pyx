@@ -5,12 +5,12 @@ import numbers
 
 import numpy as np
 cimport numpy as cnp
-from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI
+from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
 from libc.stdlib cimport realloc, free
 
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
-from fusion._core import check_positive
+from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT
 from fusion._qmath cimport quat_normalise, up_in_body, unit3
 from fusion._wahba cimport quest2
 
@@ -86,9 +86,9 @@ cdef class AEKF(EKF):
         self.mag_norm_tol = check_positive("mag_norm_tol", p["mag_norm_tol"])
         self.mag_dip_tol = check_positive("mag_dip_tol", p["mag_dip_tol"], upper=180.0)
         self.dip_tol_rad = self.mag_dip_tol * DEG
-        self.reject_factor = _check_range("reject_factor", p["reject_factor"], 1.0, np.inf,
-                                          False, True)
-        self.learn_time = check_positive("learn_time", p["learn_time"], allow_zero=True)
+        self.reject_factor = _check_range("reject_factor", p["reject_factor"], 1.0, 1e12,
+                                          False, False)
+        self.learn_time = check_param("learn_time", p["learn_time"], allow_zero=True)
         self.quest_mag_weight = _check_range("quest_mag_weight", p["quest_mag_weight"], 0.0, 1.0,
                                              True, True)
         m = p["measurement"]
@@ -104,13 +104,26 @@ cdef class AEKF(EKF):
         self.learn_dip = self.mag_dip_param is None
         self.norm_given = 0.0 if self.learn_norm else self.mag_norm_param
         self.dip_given = 0.0 if self.learn_dip else self.mag_dip_param
-        fs_ = check_positive("fs", fs)
+        fs_ = check_fs(fs)
         self.n_learn = (max(1, int(round(self.learn_time * fs_)))
                         if (self.learn_norm or self.learn_dip) else 0)
         EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
 
     def __dealloc__(self):
         free(self.log)
+
+    cdef list _state_fields(self):
+        # the decision log (record_decisions) is a recording, not state
+        return EKF._state_fields(self) + [
+            ("t_dir", <double[:1]>&self.t_dir, None), ("n_learned", <long long[:1]>&self.n_learned, COUNT),
+            ("norm_sum", <double[:1]>&self.norm_sum, None), ("dip_sum", <double[:1]>&self.dip_sum, None),
+            ("norm_ref", <double[:1]>&self.norm_ref, None), ("dip_ref", <double[:1]>&self.dip_ref, None),
+            ("ref_field", <double[:3]>self.ref_field, None), ("have_ref", <int[:1]><int*>&self.have_ref, FLAG),
+            ("n_acc_tested", <long long[:1]>&self.n_acc_tested, COUNT),
+            ("n_acc_rej", <long long[:1]>&self.n_acc_rej, COUNT),
+            ("n_mag_tested", <long long[:1]>&self.n_mag_tested, COUNT),
+            ("n_mag_rej", <long long[:1]>&self.n_mag_rej, COUNT),
+            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7))]
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
@@ -245,6 +258,9 @@ cdef class AEKF(EKF):
                     self.norm_ref = self.norm_sum / self.n_learned
                 if self.learn_dip:
                     c = -(mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / (nm * na)
+                    if not isfinite(c):     # |m| |a| over- or underflowed: from unit vectors
+                        c = -((mag[0] / nm) * (acc[0] / na) + (mag[1] / nm) * (acc[1] / na)
+                              + (mag[2] / nm) * (acc[2] / na))
                     c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
                     self.dip_sum += asin(c)
                     self.dip_ref = self.dip_sum / self.n_learned

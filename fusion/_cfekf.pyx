@@ -10,7 +10,7 @@ from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
-from fusion._core import check_positive
+from fusion._core import check_positive, check_param, FLAG
 from fusion._mahony import Mahony as _Mahony
 from fusion._qmath cimport quat_normalise
 
@@ -34,13 +34,13 @@ cdef class CFEKF(EKF):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
-        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_positive("bias_noise", p["bias_noise"], allow_zero=True)
-        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"], allow_zero=True)
-        self.cf_noise = check_positive("cf_noise", p["cf_noise"])
-        kp = check_positive("kp", p["kp"])
-        ki = check_positive("ki", p["ki"], allow_zero=True)
+        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
+        self.q_init_std = check_param("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
+        self.cf_noise = check_param("cf_noise", p["cf_noise"])
+        kp = check_param("kp", p["kp"])
+        ki = check_param("ki", p["ki"], allow_zero=True)
         w = p["window"]
         if w is None:
             w = default_window(self.fs)
@@ -52,6 +52,11 @@ cdef class CFEKF(EKF):
         self.pre_mag = SlidingMean(int(w))
         self.cf = _Mahony(self.fs, kp=kp, ki=ki)
         self.reset()
+
+    cdef list _state_fields(self):
+        # the inner complementary filter's whole state, under "cf."
+        return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG)]
+                + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)

@@ -2,6 +2,7 @@ cdef class Prefilter:
     """A per-sample filter on one 3-vector sensor stream (Butterworth, sliding mean, ...)."""
     cdef void apply(self, double* v) noexcept nogil    # in place
     cdef void clear(self) noexcept nogil              # forget the history
+    cdef list _state_fields(self)                     # its history, as Estimator._state_fields
 
 
 # The base class every estimator kernel derives from: sample validation, initial attitude,
@@ -26,3 +27,8 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
+    # Every C field that determines future outputs, as (name, typed memoryview onto the field,
+    # check) with check None, (lo, hi) for integers (hi None: unbounded) or "unit" for a
+    # quaternion. state() / load_state() / pickling are built on it in the base class; a
+    # kernel with state of its own extends its parent's list.
+    cdef list _state_fields(self)

@@ -22,17 +22,62 @@ C_NED_CONJ[:] = [0.0, -SQRT_HALF, -SQRT_HALF, 0.0]
 FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
+# --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
+STATE_VERSION = 1
+STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
+FLAG = (0, 1)           # check of a bint field
+COUNT = (0, None)       # check of a counter
 
-def check_positive(name, value, upper=None, allow_zero=False):
-    """Return value as float if it is a finite real number > 0 (>= 0 with allow_zero)."""
+
+# Time steps (given, or 1 / fs) the kernels accept: a longer gap is a restart (reset), a
+# shorter one is no IMU; beyond these, variances such as noise^2 / dt over- or underflow.
+DT_MIN = 1e-6
+DT_MAX = 100.0
+
+# Accepted ranges of the estimators' parameters, name: (smallest positive value, largest
+# value): wide enough for any real sensor and tuning (datasheet noise densities are about
+# 1e-4 rad/s/sqrt(Hz) and 2e-3 m/s^2/sqrt(Hz)), narrow enough that no combination with dt in
+# [DT_MIN, DT_MAX] and any valid sample over- or underflows to NaN or leaves the covariance
+# indefinite (tests/test_fuzz.py).
+PARAM_RANGES = {
+    "gyro_noise": (1e-5, 10.0), "bias_noise": (1e-9, 0.01), "acc_noise": (1e-3, 1e3),
+    "mag_noise": (1e-4, 10.0), "q_init_std": (1e-4, 1.0), "bias_init_std": (1e-6, 1.0),
+    "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
+    "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4),
+}
+
+
+def check_positive(name, value, upper=None, allow_zero=False, lower=None):
+    """Return value as float if it is a finite real number > 0 (>= 0 with allow_zero), and
+    (if given) >= lower (zero, where allowed, excepted) and <= upper."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number, got {value!r}")
     v = float(value)
-    ok = np.isfinite(v) and (v >= 0.0 if allow_zero else v > 0.0) and (upper is None or v <= upper)
+    ok = (np.isfinite(v) and (v >= 0.0 if allow_zero else v > 0.0)
+          and (upper is None or v <= upper) and (lower is None or v == 0.0 or v >= lower))
     if not ok:
-        rng = f"{'>= 0' if allow_zero else '> 0'}" + (f" and <= {upper}" if upper is not None else "")
+        rng = f"{'>= 0' if allow_zero else '> 0'}"
+        if lower is not None:
+            rng += f" and in [{lower:g}, {upper:g}]" + (" (or 0)" if allow_zero else "")
+        elif upper is not None:
+            rng += f" and <= {upper}"
         raise ValueError(f"{name} must be finite and {rng}, got {value!r}")
     return v
+
+
+def check_param(name, value, allow_zero=False):
+    """check_positive with the range of PARAM_RANGES[name]."""
+    lo, hi = PARAM_RANGES[name]
+    return check_positive(name, value, upper=hi, allow_zero=allow_zero, lower=lo)
+
+
+def check_fs(value):
+    """The sample rate in Hz: 1 / fs must be a valid dt."""
+    return check_positive("fs", value, lower=1.0 / DT_MAX, upper=1.0 / DT_MIN)
+
+
+def check_dt(value):
+    return check_positive("dt", value, lower=DT_MIN, upper=DT_MAX)
 
 
 def _as_samples(x, name, int n=-1):
@@ -81,6 +126,62 @@ cdef class Prefilter:
     cdef void clear(self) noexcept nogil:
         pass
 
+    cdef list _state_fields(self):
+        return []
+
+
+cdef list _fields_of(Estimator e):
+    """The estimator's state fields followed by those of its prefilters ("pre_acc.z1", ...)."""
+    fields = e._state_fields()
+    for key, pre in (("pre_gyr", e.pre_gyr), ("pre_acc", e.pre_acc), ("pre_mag", e.pre_mag)):
+        if pre is not None:
+            fields += [(f"{key}.{n}", v, c) for n, v, c in (<Prefilter>pre)._state_fields()]
+    return fields
+
+
+def _check_header(state):
+    if not isinstance(state, dict):
+        raise ValueError(f"state must be a dict made by est.state(), got {type(state).__name__}")
+    missing = [k for k in STATE_KEYS if k not in state]
+    if missing:
+        raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from est.state()")
+    v = state["version"]
+    if isinstance(v, bool) or not isinstance(v, int) or v != STATE_VERSION:
+        raise ValueError(f"state version {v!r} is not supported (this build reads version {STATE_VERSION})")
+    if not isinstance(state["fields"], dict) or not isinstance(state["params"], dict):
+        raise ValueError("state['fields'] and state['params'] must be dicts")
+
+
+def _checked_field(name, value, view, check):
+    """value as an array of the field's dtype and length, or a ValueError saying why not."""
+    target = np.asarray(view)
+    cdef Py_ssize_t n = target.shape[0]
+    is_float = target.dtype.kind == "f"
+    v = np.asarray(value)
+    if v.dtype.kind not in ("fiu" if is_float else "iub"):
+        kind = "real numbers" if is_float else "integers"
+        raise ValueError(f"state field {name!r} must hold {kind}, got {value!r}")
+    shape = () if n == 1 else (n,)
+    if v.shape != shape:
+        raise ValueError(f"state field {name!r} must have shape {shape}, got {v.shape}")
+    if is_float:
+        v = v.astype(np.float64)
+        if not np.isfinite(v).all():
+            raise ValueError(f"state field {name!r} must be finite, got {value!r}")
+        if check == "unit" and abs(float(np.sqrt(v @ v)) - 1.0) > 1e-9:
+            raise ValueError(f"state field {name!r} must be a unit quaternion, got {value!r}")
+    else:
+        lo, hi = check
+        hi = np.iinfo(target.dtype).max if hi is None else hi
+        if (v < lo).any() or (v > hi).any():
+            raise ValueError(f"state field {name!r} must be in [{lo}, {hi}], got {value!r}")
+    return v.astype(target.dtype).reshape(n)
+
+
+def _restore(cls, state):
+    """Unpickling: rebuild from the state (Estimator.__reduce__)."""
+    return cls.from_state(state)
+
 
 cdef class Estimator:
     """Base of every attitude estimator. Use fusion.make(name, fs, ...) to build one."""
@@ -91,7 +192,7 @@ cdef class Estimator:
     name = None
 
     def __init__(self, fs, frame="ENU", on_invalid="raise"):
-        self.fs = check_positive("fs", fs)
+        self.fs = check_fs(fs)
         self.dt_nominal = 1.0 / self.fs
         if frame not in FRAMES:
             raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
@@ -159,6 +260,13 @@ cdef class Estimator:
         self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
                    mag if mag_ok else NULL, dt)
 
+    cdef list _state_fields(self):
+        return [("q", <double[:4]>self.q, "unit"), ("q0", <double[:4]>self.q0, "unit"),
+                ("is_init", <int[:1]><int*>&self.is_init, FLAG), ("has_q0", <int[:1]><int*>&self.has_q0, FLAG),
+                ("n_skip_gyr", <long long[:1]>&self.n_skip_gyr, COUNT),
+                ("n_skip_acc", <long long[:1]>&self.n_skip_acc, COUNT),
+                ("n_skip_mag", <long long[:1]>&self.n_skip_mag, COUNT)]
+
     cdef void _output_q(self, double* out) noexcept nogil:
         if self.ned:
             quat_mul(C_NED, self.q, out)
@@ -211,7 +319,7 @@ cdef class Estimator:
         _read_vec3(acc, "acc", a)
         if mag is not None:
             _read_vec3(mag, "mag", m)
-        h = self.dt_nominal if dt is None else check_positive("dt", dt)
+        h = self.dt_nominal if dt is None else check_dt(dt)
         if not self.skip_invalid:
             if not vec3_finite(g):
                 raise ValueError(f"gyr must be finite, got {gyr!r} (on_invalid='skip' skips such samples)")
@@ -236,16 +344,17 @@ cdef class Estimator:
         cdef double dt_const = self.dt_nominal
         if dt is not None:
             if np.ndim(dt) == 0:
-                dt_const = check_positive("dt", dt)
+                dt_const = check_dt(dt)
             else:
                 D = np.asarray(dt)
                 if D.dtype.kind not in "fiu" or D.shape != (n,):
                     raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), "
                                      f"got dtype {D.dtype} shape {D.shape}")
                 D = np.ascontiguousarray(D, dtype=np.float64)
-                bad = np.flatnonzero(~(np.isfinite(D) & (D > 0)))
+                bad = np.flatnonzero(~((D >= DT_MIN) & (D <= DT_MAX)))     # NaN fails too
                 if bad.size:
-                    raise ValueError(f"dt must be finite and > 0; dt[{bad[0]}] = {D[bad[0]]!r}")
+                    raise ValueError(f"dt must be finite and > 0 and in [{DT_MIN:g}, {DT_MAX:g}] s; "
+                                     f"dt[{bad[0]}] = {D[bad[0]]!r}")
         cdef const double[:, ::1] g = G
         cdef const double[:, ::1] a = A
         cdef const double[:, ::1] m = M if M is not None else np.empty((0, 3))
@@ -334,6 +443,61 @@ cdef class Estimator:
     def params(self):
         """This estimator's parameters (name -> value)."""
         return {k: getattr(self, k) for k in self.PARAMS}
+
+    # --- state, pickling, copies ---------------------------------------------------------
+    def state(self):
+        """Everything that determines future outputs (attitude, bias, covariance, integrator
+        terms, flags, counters, prefilter histories), with the configuration, as a plain dict
+        of Python numbers, lists and strings (picklable, JSON-serialisable, exact).
+        est.load_state(s) or Estimator.from_state(s) resumes bit-identically."""
+        fields = {}
+        for name, view, check in _fields_of(self):
+            a = np.asarray(view)
+            fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
+        return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
+                "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
+                "fields": fields}
+
+    def load_state(self, state):
+        """Restore a state from est.state() of an estimator of the same kind. The dynamic
+        state is replaced; this estimator's configuration (fs, frame, parameters) is kept.
+        A ValueError (and nothing changed) for another estimator, another state version,
+        missing or extra fields, wrong shapes or types, or non-finite values."""
+        _check_header(state)
+        if state["estimator"] != self.name:
+            raise ValueError(f"state is of estimator {state['estimator']!r}, not {self.name!r}")
+        given = state["fields"]
+        fields = _fields_of(self)
+        names = [f[0] for f in fields]
+        missing = [k for k in names if k not in given]
+        extra = sorted(set(given) - set(names))
+        if missing or extra:
+            raise ValueError(f"state fields do not match this {self.name!r} estimator (a different "
+                             f"prefilter or window?): missing {missing}, unexpected {extra}")
+        # check everything before writing anything
+        values = [_checked_field(name, given[name], view, check) for name, view, check in fields]
+        for (name, view, check), v in zip(fields, values):
+            np.asarray(view)[:] = v
+
+    @classmethod
+    def from_state(cls, state):
+        """A new estimator with the configuration and state in `state` (from est.state())."""
+        _check_header(state)
+        if cls.name is not None and state["estimator"] != cls.name:
+            raise ValueError(f"state is of estimator {state['estimator']!r}, not {cls.name!r}")
+        if cls.name is None:
+            import fusion
+            est = fusion.make(state["estimator"], state["fs"], frame=state["frame"],
+                              on_invalid=state["on_invalid"], **state["params"])
+        else:
+            est = cls(state["fs"], frame=state["frame"], on_invalid=state["on_invalid"],
+                      **state["params"])
+        est.load_state(state)
+        return est
+
+    def __reduce__(self):
+        # pickle, copy.copy and copy.deepcopy all go through the state: one mechanism
+        return (_restore, (type(self), self.state()))
 
     def __repr__(self):
         extra = "".join(f", {k}={v!r}" for k, v in self.params.items())

@@ -6,7 +6,7 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_positive
+from fusion._core import check_param, check_fs
 from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3)
@@ -24,13 +24,17 @@ cdef class EKF(Estimator):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
-        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_positive("bias_noise", p["bias_noise"], allow_zero=True)
-        self.acc_noise = check_positive("acc_noise", p["acc_noise"])
-        self.mag_noise = check_positive("mag_noise", p["mag_noise"])
-        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"], allow_zero=True)
+        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
+        self.acc_noise = check_param("acc_noise", p["acc_noise"])
+        self.mag_noise = check_param("mag_noise", p["mag_noise"])
+        self.q_init_std = check_param("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         self.reset()
+
+    cdef list _state_fields(self):
+        return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
+                                                ("P", <double[:49]>self.P, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -245,7 +249,7 @@ cdef class IIREKF(EKF):
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         own = {k: params.pop(k) for k in ("cutoff_hz", "filter_mag") if k in params}
-        fs = check_positive("fs", fs)
+        fs = check_fs(fs)
         cutoff = own.get("cutoff_hz", min(self.PARAMS["cutoff_hz"], 0.45 * fs))
         self.pre_acc = Butterworth(fs, cutoff)
         filter_mag = own.get("filter_mag", False)

@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive
+from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3)
 
@@ -31,9 +31,12 @@ cdef class Madgwick(Estimator):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
-        self.beta = check_positive("beta", p["beta"])
-        self.zeta = check_positive("zeta", p["zeta"], allow_zero=True)
+        self.beta = check_param("beta", p["beta"])
+        self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
         self.reset()
+
+    cdef list _state_fields(self):
+        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0

@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive
+from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, unit3)
 
@@ -43,9 +43,12 @@ cdef class Mahony(Estimator):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
-        self.kp = check_positive("kp", p["kp"], allow_zero=True)
-        self.ki = check_positive("ki", p["ki"], allow_zero=True)
+        self.kp = check_param("kp", p["kp"], allow_zero=True)
+        self.ki = check_param("ki", p["ki"], allow_zero=True)
         self.reset()
+
+    cdef list _state_fields(self):
+        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0

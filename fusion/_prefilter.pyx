@@ -6,7 +6,7 @@ from libc.math cimport tan, sqrt, M_PI
 from libc.stdlib cimport calloc, free
 
 from fusion._core cimport Prefilter
-from fusion._core import check_positive, _as_samples
+from fusion._core import check_positive, _as_samples, FLAG
 
 
 def _run(Prefilter f, x):
@@ -51,6 +51,10 @@ cdef class Butterworth(Prefilter):
     cdef void clear(self) noexcept nogil:
         self.primed = False
 
+    cdef list _state_fields(self):
+        return [("z1", <double[:3]>self.z1, None), ("z2", <double[:3]>self.z2, None),
+                ("primed", <int[:1]><int*>&self.primed, FLAG)]
+
     cdef void apply(self, double* v) noexcept nogil:
         cdef int k
         cdef double x, y
@@ -92,6 +96,12 @@ cdef class SlidingMean(Prefilter):
 
     def __dealloc__(self):
         free(self.buf)
+
+    cdef list _state_fields(self):
+        # count and head index the buffer: their ranges keep a loaded state memory-safe
+        return [("buf", <double[:3 * self.window]>self.buf, None), ("total", <double[:3]>self.total, None),
+                ("count", <int[:1]>&self.count, (0, self.window)),
+                ("head", <int[:1]>&self.head, (0, self.window - 1))]
 
     cdef void clear(self) noexcept nogil:
         self.count = 0

@@ -5,7 +5,7 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive
+from fusion._core import check_positive, check_param
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3)
 
@@ -63,13 +63,17 @@ cdef class UKF(Estimator):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         # every variance > 0: the sigma points need a positive-definite covariance
-        self.gyro_noise = check_positive("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_positive("bias_noise", p["bias_noise"])
-        self.acc_noise = check_positive("acc_noise", p["acc_noise"])
-        self.mag_noise = check_positive("mag_noise", p["mag_noise"])
-        self.q_init_std = check_positive("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_positive("bias_init_std", p["bias_init_std"])
+        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
+        self.bias_noise = check_param("bias_noise", p["bias_noise"])
+        self.acc_noise = check_param("acc_noise", p["acc_noise"])
+        self.mag_noise = check_param("mag_noise", p["mag_noise"])
+        self.q_init_std = check_param("q_init_std", p["q_init_std"])
+        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"])
         self.reset()
+
+    cdef list _state_fields(self):
+        return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
+                                                ("P", <double[:36]>self.P, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i

@@ -1,0 +1,163 @@
+"""State round trip (docs/estimators.md, "State, pickling, copies"): est.state() /
+est.load_state(), Estimator.from_state(), pickle and copy.deepcopy resume bit-identically."""
+import copy
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+import fusion
+from fusion.scenarios import make_scenario
+
+NAMES = fusion.available()
+# non-default settings that add state: a learned magnetic reference (aekf), a filtered
+# magnetometer (iir-ekf), a sliding-mean window that is mid-lap at the cut (cf-ekf)
+EXTRA = {"iir-ekf": dict(filter_mag=True), "cf-ekf": dict(window=7), "madgwick": dict(zeta=0.01),
+         "aekf": dict(measurement="quest")}
+
+
+@pytest.fixture(scope="module")
+def recording():
+    sc = make_scenario("mixed", fs=100.0, duration=20.0, seed=3)
+    gyr, acc, mag = sc.gyr.copy(), sc.acc.copy(), sc.mag.copy()
+    # a few invalid rows so that the skip counters carry state as well
+    gyr[[30, 1500]] = np.nan
+    acc[[40, 1200]] = 0.0
+    mag[[50, 1700]] = np.inf
+    return gyr, acc, mag
+
+
+def _restored(est, how):
+    if how == "state":
+        other = fusion.make(est.name, est.fs, frame=est.frame, on_invalid=est.on_invalid, **est.params)
+        other.load_state(est.state())
+        return other
+    if how == "json":           # the state is plain data: it survives a text file
+        return fusion.Estimator.from_state(json.loads(json.dumps(est.state())))
+    if how == "pickle":
+        return pickle.loads(pickle.dumps(est))
+    return copy.deepcopy(est)
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("nine_axis", [True, False])
+@pytest.mark.parametrize("cut", [60, 1000])     # aekf: 60 is inside the 1 s learning period
+def test_resume_is_bit_identical(recording, name, nine_axis, cut):
+    gyr, acc, mag = recording
+    mag = mag if nine_axis else None
+    for params in ({}, EXTRA.get(name)):
+        if params is None:
+            continue
+        est = fusion.make(name, 100.0, frame="NED", on_invalid="skip", **params)
+        whole = fusion.make(name, 100.0, frame="NED", on_invalid="skip", **params).run(gyr, acc, mag)
+        first = est.run(gyr[:cut], acc[:cut], None if mag is None else mag[:cut])
+        copies = {how: _restored(est, how) for how in ("state", "json", "pickle", "deepcopy")}
+        rest = slice(cut, None)
+        tail = est.run(gyr[rest], acc[rest], None if mag is None else mag[rest])
+        assert np.array_equal(np.vstack([first, tail]), whole)
+        for how, other in copies.items():
+            out = other.run(gyr[rest], acc[rest], None if mag is None else mag[rest])
+            assert np.array_equal(out, tail), how
+            assert other.state() == est.state(), how
+            assert other.skipped == est.skipped and repr(other) == repr(est)
+            for attr in ("bias", "covariance"):
+                a, b = getattr(est, attr), getattr(other, attr)
+                assert (a is None and b is None) or np.array_equal(a, b)
+
+
+def test_copies_are_independent():
+    est = fusion.make("ekf", 100.0)
+    est.update([0.1, 0, 0], [0, 0, 9.81])
+    twin = copy.deepcopy(est)
+    before = twin.state()
+    est.update([0.5, 0.2, 0], [0, 1, 9.81])
+    assert twin.state() == before and est.state() != before
+
+
+def test_state_is_plain_data():
+    s = fusion.make("cf-ekf", 100.0).state()
+    assert s["version"] == 1 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 2
+
+    def plain(x):
+        if isinstance(x, dict):
+            return all(isinstance(k, str) and plain(v) for k, v in x.items())
+        if isinstance(x, list):
+            return all(plain(v) for v in x)
+        return x is None or type(x) in (int, float, str, bool)
+    assert plain(s)
+
+
+def test_aekf_counters_and_reference_are_restored(recording):
+    gyr, acc, mag = recording
+    est = fusion.make("aekf", 100.0, on_invalid="skip")
+    est.run(gyr[:500], acc[:500], mag[:500])
+    other = copy.deepcopy(est)
+    for attr in ("rejected", "tested", "quest_updates", "mag_reference", "last_decision"):
+        assert getattr(other, attr) == getattr(est, attr)
+
+
+# --- validation ---------------------------------------------------------------------
+
+def _state(name="ekf", **params):
+    est = fusion.make(name, 100.0, **params)
+    est.update([0.1, 0.2, 0.3], [0.5, 0.1, 9.8])
+    return est.state()
+
+
+def _broken(change):
+    s = copy.deepcopy(_state())
+    change(s)
+    return s
+
+
+@pytest.mark.parametrize("state, match", [
+    (None, "must be a dict"),
+    ([1, 2], "must be a dict"),
+    ({"version": 1}, "lacks key"),
+    (_broken(lambda s: s.update(version=2)), "version 2 is not supported"),
+    (_broken(lambda s: s.update(version="1")), "version '1'"),
+    (_broken(lambda s: s.update(estimator="ukf")), "estimator 'ukf', not 'ekf'"),
+    (_broken(lambda s: s["fields"].pop("P")), r"missing \['P'\]"),
+    (_broken(lambda s: s["fields"].update(extra=1.0)), r"unexpected \['extra'\]"),
+    (_broken(lambda s: s["fields"].update(P=[0.0] * 36)), r"'P' must have shape \(49,\)"),
+    (_broken(lambda s: s["fields"].update(b=[0.0, 0.0, float("nan")])), "'b' must be finite"),
+    (_broken(lambda s: s["fields"].update(b="abc")), "'b' must hold real numbers"),
+    (_broken(lambda s: s["fields"].update(q=[1.0, 1.0, 0.0, 0.0])), "'q' must be a unit quaternion"),
+    (_broken(lambda s: s["fields"].update(is_init=2)), r"'is_init' must be in \[0, 1\]"),
+    (_broken(lambda s: s["fields"].update(is_init=1.0)), "'is_init' must hold integers"),
+    (_broken(lambda s: s["fields"].update(n_skip_acc=-1)), "'n_skip_acc' must be in"),
+    (_broken(lambda s: s.update(fields=[])), "must be dicts"),
+])
+def test_load_state_rejects_bad_input_and_changes_nothing(state, match):
+    est = fusion.make("ekf", 100.0)
+    est.update([0.0, 0.0, 0.1], [0.0, 0.3, 9.8])
+    before = est.state()
+    with pytest.raises(ValueError, match=match):
+        est.load_state(state)
+    assert est.state() == before
+
+
+def test_mismatched_prefilters_and_memory_unsafe_indices_are_refused():
+    est = fusion.make("iir-ekf", 100.0)
+    with pytest.raises(ValueError, match=r"missing \[\].*unexpected \['pre_mag.primed'"):
+        est.load_state(_state("iir-ekf", filter_mag=True))
+    cf = fusion.make("cf-ekf", 100.0, window=4)
+    with pytest.raises(ValueError, match=r"'pre_gyr.buf' must have shape \(12,\)"):
+        cf.load_state(_state("cf-ekf", window=5))
+    s = _state("cf-ekf", window=4)
+    s["fields"]["pre_acc.head"] = 4     # would index past the ring buffer
+    with pytest.raises(ValueError, match=r"'pre_acc.head' must be in \[0, 3\]"):
+        cf.load_state(s)
+    s = _state("cf-ekf", window=4)
+    s["fields"]["pre_acc.count"] = 5
+    with pytest.raises(ValueError, match=r"'pre_acc.count' must be in \[0, 4\]"):
+        cf.load_state(s)
+
+
+def test_from_state_checks_the_class():
+    s = _state("ekf")
+    with pytest.raises(ValueError, match="estimator 'ekf', not 'ukf'"):
+        fusion.UKF.from_state(s)
+    assert type(fusion.EKF.from_state(s)) is fusion.EKF
+    assert type(fusion.Estimator.from_state(s)) is fusion.EKF
