@@ -16,8 +16,9 @@ $(STAMP): $(SOURCES)
 	$(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)
 
+# the main job: control under every estimator with the shipped policies (quick mode)
 demo: $(STAMP)
-	$(PY) scripts/compare_estimators.py
+	$(PY) scripts/compare_control.py --quick
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+import sys
 
 import numpy as np
 import gymnasium as gym
@@ -225,6 +227,10 @@ class SphereRobotEnv(gym.Env):
         import pybullet as p
         self._p = p
         if self.render_mode == "human":
+            # without a display PyBullet's GUI ends the whole process from C; fail in Python
+            if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+                raise RuntimeError("render_mode='human' opens PyBullet's window and needs a display "
+                                   "(DISPLAY is not set); use render_mode='rgb_array' for headless frames")
             self._client = p.connect(p.GUI)
         else:
             self._client = p.connect(p.DIRECT)

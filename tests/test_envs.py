@@ -335,3 +335,12 @@ def test_bad_arguments_raise_value_error(kw, words):
         SphereRobotEnv(**kw)
     for w in words:
         assert w in str(e.value)
+
+
+def test_human_render_without_display_fails_clearly(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    env = SphereRobotEnv(render_mode="human")
+    with pytest.raises(RuntimeError, match="needs a display"):
+        env.reset(seed=0)
