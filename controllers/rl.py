@@ -117,16 +117,17 @@ def _latest_checkpoint(ckpt_dir):
 
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, log=print):
+          command=None, init_from=None, overwrite=False, log=print):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
 
     Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
     ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
     the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
     continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
-    policy stem of the same algorithm and task whose weights and normalisation statistics
-    start the training (fine-tuning, e.g. a policy trained on the true attitude adapted
-    to an estimator); ``timesteps`` then counts the new steps only.
+    policy stem of the same algorithm (and observation space) whose weights and
+    normalisation statistics start the training (fine-tuning: a policy trained on the true
+    attitude adapted to an estimator, or a track policy as the start of a waypoints one);
+    ``timesteps`` then counts the new steps only.
     """
     import torch
     torch.set_num_threads(1)
@@ -153,6 +154,13 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
 
     start_ckpt = None
+    if not resume and _latest_checkpoint(ckpt_dir) is not None:
+        if not overwrite:
+            raise FileExistsError(f"{ckpt_dir} holds checkpoints of an earlier run: --resume to continue it, or "
+                                  f"--overwrite to start over (the earlier run directory is then kept aside)")
+        aside = Path(f"{run_dir}.old-{time.strftime('%Y%m%d-%H%M%S')}")
+        os.replace(run_dir, aside)
+        log(f"the earlier run directory is now {aside}")
     if resume:
         start_ckpt = _latest_checkpoint(ckpt_dir)
         if start_ckpt is None:
@@ -163,9 +171,12 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         if not init_zip.is_file():
             raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
         init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
-        if init_meta.get("algo", algo) != algo or init_meta.get("task", task) != task:
-            raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy for task "
-                             f"{init_meta.get('task')!r}; this run trains {algo} for {task!r}")
+        if init_meta.get("algo", algo) != algo:
+            raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy; this run trains {algo}")
+        if init_meta.get("task", task) != task:
+            # allowed (same observation and action spaces): the last four observations mean
+            # "the angle to steer to" in both tasks, so a track policy is a head start
+            log(f"init_from: {init_zip} was trained for task {init_meta.get('task')!r}; fine-tuning it for {task!r}")
         init = (init_zip, init_vn)
     run_dir.mkdir(parents=True, exist_ok=True)
 

@@ -35,6 +35,8 @@ def main(argv=None):
     ap.add_argument("--n-envs", type=int, default=None, help="default: the YAML file's n_envs")
     ap.add_argument("--out", default=None, help="policy stem (default controllers/policies/<algo>-<task>-<estimator>)")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="start over although the work directory holds checkpoints (they are kept aside)")
     ap.add_argument("--init-from", default=None,
                     help="start from this policy's weights and statistics (same algo and task), e.g. "
                          "controllers/policies/ppo-waypoints-truth")
@@ -52,10 +54,10 @@ def main(argv=None):
     try:
         stem = rl.train(a.algo, a.task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=a.out,
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
-                        command=command, init_from=a.init_from)
+                        command=command, init_from=a.init_from, overwrite=a.overwrite)
     except KeyboardInterrupt:
         return 130
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"policy: {stem}.zip")

@@ -126,8 +126,13 @@ def test_init_from_fine_tunes(tmp_path, tiny_policy):
              eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
     meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
     assert meta["init_from"] == "ppo-track-truth.zip" and meta["estimator"] == "gyro"
-    with pytest.raises(ValueError, match="task"):
-        rl.train("ppo", "waypoints", "gyro", timesteps=10, out=tmp_path / "w", init_from=tiny_policy, progress=False)
+    with pytest.raises(ValueError, match="ppo policy"):
+        rl.train("sac", "track", "gyro", timesteps=10, out=tmp_path / "w", init_from=tiny_policy, progress=False)
+
+
+def test_fresh_start_does_not_clobber_checkpoints(tiny_policy):
+    with pytest.raises(FileExistsError, match="--resume"):
+        rl.train("ppo", "track", "truth", timesteps=10, out=tiny_policy, n_envs=1, progress=False)
 
 
 def test_resume_without_checkpoint(tmp_path):
