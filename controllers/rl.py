@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -206,15 +207,22 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
 
         class SaveBestStats(BaseCallback):
+            # beside the best model: its normalisation statistics and its score, so that a
+            # resumed run only replaces it with a better one
             def _on_step(self):
                 if normalize:
                     model.get_vec_normalize_env().save(str(run_dir / "best_vecnormalize.pkl"))
+                (run_dir / "best.json").write_text(json.dumps(
+                    {"mean_reward": float(self.parent.best_mean_reward), "timesteps": int(model.num_timesteps)}))
                 return True
 
         ckpt = CheckpointCallback(checkpoint_freq, str(ckpt_dir), name_prefix="ckpt", save_vecnormalize=normalize)
         ev = EvalCallback(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
                           eval_freq=eval_freq, best_model_save_path=str(run_dir), log_path=str(run_dir),
                           deterministic=True, verbose=0)
+        best_json = run_dir / "best.json"
+        if start_ckpt is not None and best_json.is_file() and (run_dir / "best_model.zip").is_file():
+            ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
 
         def save_checkpoint():
             ckpt_dir.mkdir(parents=True, exist_ok=True)
@@ -250,15 +258,16 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         eval_env.close()
 
     stem.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(best, str(stem) + ".zip")
+    shutil.copyfile(best, str(stem) + ".zip")
     if normalize:
-        os.replace(run_dir / "best_vecnormalize.pkl", str(stem) + ".vecnormalize.pkl")
+        shutil.copyfile(run_dir / "best_vecnormalize.pkl", str(stem) + ".vecnormalize.pkl")
     from envs.sphere import OBS_NAMES
     meta = {"command": command, "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": hyperparams(algo, task), "normalize": normalize,
             "init_from": None if init is None else str(Path(init[0]).name),
             "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "obs_size": len(OBS_NAMES),
+            "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,
             "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
     with open(str(stem) + ".json", "w") as f:
         json.dump(meta, f, indent=2)

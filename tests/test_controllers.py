@@ -116,6 +116,8 @@ def test_resume_continues_from_checkpoint(tiny_policy):
              eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
     meta = json.loads((stem.parent / (stem.name + ".json")).read_text())
     assert meta["timesteps"] == 900
+    # the resumed run starts from the earlier best score: the shipped model is the best of both
+    assert meta["best_eval"] is not None
     assert rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem == "ckpt_900_steps" or \
         int(rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem.split("_")[1]) >= 900
 
