@@ -225,8 +225,7 @@ cdef class AEKF(EKF):
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
-        if gyr != NULL:
-            self.predict(gyr, dt)
+        self.propagate(gyr, dt)
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:

@@ -4,6 +4,13 @@ cdef class EKF(Estimator):
     cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
     cdef double b[3]          # gyro bias, rad/s
     cdef double P[49]         # covariance of [q, b], row-major 7x7
+    # recovery (docs/robustness.md): gyro range (rad/s, 0 unknown), rate std over unmeasured
+    # time (rad/s), length of the current run of unmeasured time (s)
+    cdef double gyro_range_
+    cdef readonly double motion_rate
+    cdef double t_run
+    cdef void propagate(self, const double* gyr, double dt) noexcept nogil
+    cdef void inflate_attitude(self, double v) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void vector_update(self, const double* z, const double* h, const double* H,
                             double r) noexcept nogil

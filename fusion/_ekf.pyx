@@ -6,12 +6,21 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_param, check_fs
+from fusion._core import check_param, check_fs, check_positive
 from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
-                            jac_up_in_body, unit3)
+                            jac_up_in_body, unit3, unobserved_variance, saturated)
 
 cdef double G0 = 9.81
+MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyway
+
+
+def check_recovery_params(p):
+    """(gyro_range, motion_rate) of docs/robustness.md, "Recovery": gyro_range None (unknown:
+    stored as 0) or > 0 rad/s; motion_rate in [0, 100] rad/s (0: no inflation)."""
+    g = p["gyro_range"]
+    g = 0.0 if g is None else check_positive("gyro_range", g, upper=1e6)
+    return g, check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
 
 
 cdef class EKF(Estimator):
@@ -19,11 +28,12 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
+        self.gyro_range_, self.motion_rate = check_recovery_params(p)
         self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
         self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
         self.acc_noise = check_param("acc_noise", p["acc_noise"])
@@ -34,7 +44,8 @@ cdef class EKF(Estimator):
 
     cdef list _state_fields(self):
         return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
-                                                ("P", <double[:49]>self.P, None)]
+                                                ("P", <double[:49]>self.P, None),
+                                                ("t_unmeasured", <double[:1]>&self.t_run, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -47,6 +58,37 @@ cdef class EKF(Estimator):
         self.b[0] = 0.0
         self.b[1] = 0.0
         self.b[2] = 0.0
+        self.t_run = 0.0
+
+    cdef void propagate(self, const double* gyr, double dt) noexcept nogil:
+        """The time update of one step: predict with the gyro where there is one, then grow
+        the attitude covariance for the motion it did not measure (dropped sample, time gap,
+        saturation; docs/robustness.md, "Recovery")."""
+        cdef bint measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
+        cdef double v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured,
+                                            self.motion_rate)
+        if gyr != NULL:
+            self.predict(gyr, dt)
+        if v > 0.0:
+            self.inflate_attitude(v)
+
+    cdef void inflate_attitude(self, double v) noexcept nogil:
+        """Add v (rad²) to the variance of the attitude angle about every body axis:
+        Pqq += (v / 4) Ξ(q) Ξ(q)ᵀ, the way the gyro noise enters in predict."""
+        cdef double X[12]
+        cdef double* q = self.q
+        cdef double s
+        cdef int i, j
+        X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
+        X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
+        X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
+        X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+        for i in range(4):
+            for j in range(i, 4):
+                s = self.P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
+                                                    + X[i * 3 + 2] * X[j * 3 + 2])
+                self.P[i * 7 + j] = s
+                self.P[j * 7 + i] = s
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
         cdef double A[16]
@@ -213,8 +255,7 @@ cdef class EKF(Estimator):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        if gyr != NULL:
-            self.predict(gyr, dt)
+        self.propagate(gyr, dt)
         if acc != NULL:
             self.acc_update(acc, dt)
         if mag != NULL:
@@ -225,6 +266,11 @@ cdef class EKF(Estimator):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def gyro_range(self):
+        """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown)."""
+        return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
     def covariance(self):

@@ -1,6 +1,6 @@
 # Quaternion and small-matrix helpers shared by every kernel (inlined; no Python objects).
 # Conventions: docs/estimators.md. q = [w, x, y, z], R(q) rotates body -> navigation (ENU).
-from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite
+from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite, M_PI
 
 cdef inline bint vec3_valid(const double* v) noexcept nogil:
     """A usable accelerometer / magnetometer sample: finite, with a finite non-zero norm
@@ -205,3 +205,30 @@ cdef inline void quat_from_acc_mag(const double* acc, const double* mag, double*
     q[1] = ch * sr
     q[2] = sh * cr
     q[3] = -sh * sr
+
+cdef inline double unobserved_variance(double* t_run, double dt, double dt_nominal,
+                                       bint measured, double motion_rate) noexcept nogil:
+    """Attitude variance (rad², about every axis) to add for motion the gyro did not measure
+    (docs/robustness.md, "Recovery"): the whole step when the rate was not measured (sample
+    dropped, gyro saturated), the part of a step beyond the nominal period (a gap in time).
+    t_run (s) is the length of the current run of unmeasured time; over a run the rate is
+    taken as an unknown constant of standard deviation motion_rate, so the added variances
+    sum to (motion_rate t_run)², capped at π² (no attitude is further off than π)."""
+    cdef double t = dt if not measured else dt - dt_nominal
+    cdef double v0, v1
+    if t <= 0.0:
+        t_run[0] = 0.0
+        return 0.0
+    v0 = motion_rate * t_run[0]
+    t_run[0] += t
+    v1 = motion_rate * t_run[0]
+    v0 = v0 * v0 if v0 < M_PI else M_PI * M_PI
+    v1 = v1 * v1 if v1 < M_PI else M_PI * M_PI
+    return v1 - v0
+
+
+cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
+    """A gyro sample at or beyond the range (gyro_range 0: range unknown, never)."""
+    return gyro_range > 0.0 and (gyr[0] >= gyro_range or gyr[0] <= -gyro_range
+                                 or gyr[1] >= gyro_range or gyr[1] <= -gyro_range
+                                 or gyr[2] >= gyro_range or gyr[2] <= -gyro_range)

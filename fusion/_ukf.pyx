@@ -6,8 +6,10 @@ from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
 from fusion._core import check_positive, check_param
+from fusion._ekf import check_recovery_params
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
-                            rot_to_nav, rot_to_body, up_in_body, unit3)
+                            rot_to_nav, rot_to_body, up_in_body, unit3, unobserved_variance,
+                            saturated)
 
 cdef double G0 = 9.81
 # scaled unscented transform, n = 6, alpha = 1, beta = 2, kappa = 0: lambda = 0
@@ -57,11 +59,12 @@ cdef class UKF(Estimator):
     north-folded magnetometer measurements as the `ekf`."""
     name = "ukf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
+        self.gyro_range_, self.motion_rate = check_recovery_params(p)
         # every variance > 0: the sigma points need a positive-definite covariance
         self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
         self.bias_noise = check_param("bias_noise", p["bias_noise"])
@@ -73,7 +76,8 @@ cdef class UKF(Estimator):
 
     cdef list _state_fields(self):
         return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
-                                                ("P", <double[:36]>self.P, None)]
+                                                ("P", <double[:36]>self.P, None),
+                                                ("t_unmeasured", <double[:1]>&self.t_run, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -87,6 +91,7 @@ cdef class UKF(Estimator):
         self.b[0] = 0.0
         self.b[1] = 0.0
         self.b[2] = 0.0
+        self.t_run = 0.0
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -280,8 +285,17 @@ cdef class UKF(Estimator):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
+        # the ekf's time update (EKF.propagate): unmeasured motion grows the attitude error
+        # variance, here directly in rad² (the error p is the angle to first order)
+        cdef bint measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
+        cdef double v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured,
+                                            self.motion_rate)
         if gyr != NULL:
             self.predict(gyr, dt)
+        if v > 0.0:
+            self.P[0] += v
+            self.P[7] += v
+            self.P[14] += v
         if acc != NULL:
             self.acc_update(acc, dt)
         if mag != NULL:
@@ -292,6 +306,11 @@ cdef class UKF(Estimator):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def gyro_range(self):
+        """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown)."""
+        return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
     def covariance(self):

@@ -207,7 +207,7 @@ class RefEstimator:
         self.on_invalid = on_invalid
         self.params = dict(self.PARAMS, **params)
         for k, v in self.params.items():
-            setattr(self, k, float(v))
+            setattr(self, k, None if v is None else float(v))
         self.reset()
 
     # state handling
@@ -358,13 +358,39 @@ def mag_model(q, z):
     return R.T @ v
 
 
+def unmeasured_variance(t_run, gyr, dt, fs, gyro_range, motion_rate):
+    """docs/robustness.md, "Recovery": (new t_run, attitude variance in rad² to add) for a step
+    whose gyro sample is gyr (None: dropped). Unmeasured time: the whole step without a
+    trustworthy rate (dropped, or |w_i| >= gyro_range), else the part beyond 1 / fs; over a
+    run of it the rate is an unknown constant of std motion_rate: total (motion_rate t_run)²,
+    capped at pi²."""
+    measured = gyr is not None and (gyro_range is None or np.max(np.abs(gyr)) < gyro_range)
+    t = dt - 1.0 / fs if measured else dt
+    if t <= 0:
+        return 0.0, 0.0
+    total = lambda tr: min((motion_rate * tr) ** 2, math.pi ** 2)
+    return t_run + t, total(t_run + t) - total(t_run)
+
+
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
 
     def _reset_state(self):
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
+        self.t_run = 0.0
+
+    def _propagate(self, gyr, dt):
+        """Predict, then the attitude angle variance grows by v about every body axis for the
+        motion the gyro did not measure: Pqq += (v / 4) Xi Xiᵀ."""
+        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs, self.gyro_range,
+                                            self.motion_rate)
+        if gyr is not None:
+            self._predict(gyr, dt)
+        if v > 0:
+            Xi = xi_matrix(self.q)
+            self.P[:4, :4] += (v / 4) * (Xi @ Xi.T)
 
     @property
     def bias(self):
@@ -407,8 +433,7 @@ class RefEKF(RefEstimator):
         self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
 
     def _step(self, gyr, acc, mag, dt):
-        if gyr is not None:                                              # 1.
-            self._predict(gyr, dt)
+        self._propagate(gyr, dt)                                         # 1.
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm)

@@ -66,12 +66,13 @@ class RefAEKF(ref.RefEKF):
         self.measurement = p["measurement"]
         self.mag_norm = None if p["mag_norm"] is None else float(p["mag_norm"])
         self.mag_dip = None if p["mag_dip"] is None else float(p["mag_dip"])
+        self.gyro_range = None if p["gyro_range"] is None else float(p["gyro_range"])
         self.fs = float(fs)
         self.frame = frame
         self.on_invalid = on_invalid
         self.params = p
         for k, v in p.items():
-            if k not in ("measurement", "mag_norm", "mag_dip"):
+            if k not in ("measurement", "mag_norm", "mag_dip", "gyro_range"):
                 setattr(self, k, float(v))
         learn = self.mag_norm is None or self.mag_dip is None
         self.n_learn = max(1, round(self.learn_time * self.fs)) if learn else 0
@@ -114,9 +115,8 @@ class RefAEKF(ref.RefEKF):
         self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
 
     def _step(self, gyr, acc, mag, dt):
-        # 1. predict (the ekf's)
-        if gyr is not None:
-            self._predict(gyr, dt)
+        # 1. predict (the ekf's, with its recovery)
+        self._propagate(gyr, dt)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = mag_rej = mag_tested = False

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, RefEKF, RefEstimator, RefMahony, complex_step_jacobian, gyro_valid,
+from reference import (G, I3, I4, RefEKF, RefEstimator, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -171,6 +171,7 @@ class RefUKF(RefEstimator):
     def _reset_state(self):
         self.b = np.zeros(3)
         self.P = np.diag([(2 * self.q_init_std) ** 2] * 3 + [self.bias_init_std ** 2] * 3)
+        self.t_run = 0.0
 
     @property
     def bias(self):
@@ -217,8 +218,12 @@ class RefUKF(RefEstimator):
         self.P = (P + P.T) / 2
 
     def _step(self, gyr, acc, mag, dt):
+        # the ekf's recovery; the error p is the attitude angle (rad) to first order
+        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs, self.gyro_range,
+                                            self.motion_rate)
         if gyr is not None:
             self._predict(gyr, dt)
+        self.P[:3, :3] += v * I3
         if acc is not None:
             self._correct(normalise(acc), acc_model_rows, (self.acc_noise / G) ** 2 / dt * I3)
         if mag is not None:

@@ -11,14 +11,20 @@ from fusion.scenarios import make_scenario
 FS = 100.0
 START, LENGTH = 30.0, 1.0           # the glitch: from 30 s, 1 s long
 TOL_DEG = 2.0
-# documented bound on the recovery time (s), every glitch, 6- and 9-axis (measured at most
-# 19.4 s: docs/robustness.md)
+# documented bound on the recovery time (s), every case not in SLOW (measured at most
+# 21.1 s: docs/robustness.md)
 RECOVERY_S = 25.0
 NAMES = [n for n in fusion.available() if n != "gyro"]     # gyro never corrects: no recovery
-# Known failure (docs/robustness.md): at their default tuning the EKF family keeps a tilt
-# error above 2 deg for the rest of the 56 s after the glitch (the error leaks into the bias
-# estimate and the covariance, grown by gyro_noise^2 dt only, stays overconfident).
-SLOW = {"ekf", "iir-ekf", "ukf", "aekf"}
+# Known failures (docs/robustness.md): the EKF family keeps a tilt error above 2 deg for the
+# rest of the run after these glitches at its default tuning. A saturated gyro is not detected
+# without gyro_range; with a magnetometer the linearised ekf update diverges from the large
+# heading error a glitch leaves (the ukf does not); aekf rejects the accelerometer while the
+# attitude is off. Dropouts and gaps are recovered by the covariance growth of
+# docs/robustness.md, "Recovery".
+SLOW = {("ekf", "saturated gyro", 9), ("ekf", "saturated gyro", 6), ("ekf", "dropout", 9),
+        ("ekf", "time gap", 9), ("ukf", "saturated gyro", 9), ("ukf", "saturated gyro", 6),
+        ("aekf", "saturated gyro", 9), ("aekf", "saturated gyro", 6), ("aekf", "dropout", 9)}
+SLOW |= {("iir-ekf", k, m) for n, k, m in SLOW if n == "ekf"}
 
 
 def inclination_deg(q, q_true):
@@ -62,15 +68,17 @@ def recovery_time(name, kind, nine_axis):
     return (np.inf if bad.size and bad[-1] == len(err) - after - 1 else t), before
 
 
-@pytest.mark.parametrize("kind", ["saturated gyro", "dropout", "time gap"])
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(
-    strict=True, reason="EKF family recovers too slowly (docs/robustness.md)")) if n in SLOW else n
-    for n in NAMES])
-def test_recovers_within_the_documented_time(name, kind):
-    for nine_axis in (True, False):
-        t, before = recovery_time(name, kind, nine_axis)
-        assert before < TOL_DEG          # converged before the glitch
-        assert t <= RECOVERY_S, (name, kind, nine_axis, t)
+CASES = [pytest.param(n, k, m, marks=pytest.mark.xfail(
+    strict=True, reason="does not recover at default tuning (docs/robustness.md)"))
+    if (n, k, m) in SLOW else (n, k, m)
+    for n in NAMES for k in ("saturated gyro", "dropout", "time gap") for m in (9, 6)]
+
+
+@pytest.mark.parametrize("name, kind, axes", CASES)
+def test_recovers_within_the_documented_time(name, kind, axes):
+    t, before = recovery_time(name, kind, axes == 9)
+    assert before < TOL_DEG          # converged before the glitch
+    assert t <= RECOVERY_S, (name, kind, axes, t)
 
 
 def test_the_glitches_do_disturb():

@@ -366,3 +366,21 @@ def test_reference_mag_model_is_the_measured_direction_when_heading_is_right():
     assert np.allclose(ref.mag_model(q, z), z, atol=1e-15)
     assert np.allclose(ref.acc_model(q), ref.rotmat(q).T @ [0, 0, 1], atol=1e-15)
     assert math.isclose(np.linalg.norm(ref.mag_model(q, z)), 1.0, rel_tol=1e-15)
+
+
+@pytest.mark.parametrize("motion_rate", [1.0, 30.0])       # 30: the pi² cap is reached
+def test_recovery_inflation(data, motion_rate):
+    """docs/robustness.md, "Recovery": saturated samples (gyro_range), a run of dropped
+    samples and a time gap grow the attitude covariance the same way in kernel and reference."""
+    _, gyr, acc, mag = data
+    gyr, acc, mag = gyr[:N_SHORT].copy(), acc[:N_SHORT].copy(), mag[:N_SHORT]
+    gyr[300:350] = np.clip(gyr[300:350], -0.5, 0.5)
+    gyr[800:850] = np.nan
+    acc[800:850] = np.nan
+    dt = np.full(N_SHORT, 1 / FS)
+    dt[1200] = 0.7
+    params = dict(gyro_range=0.5, motion_rate=motion_rate)
+    est = fusion.make("ekf", FS, on_invalid="skip", **params)
+    r = ref.make("ekf", FS, on_invalid="skip", **params)
+    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
+    compare_state(est, r)
