@@ -60,11 +60,15 @@ cdef inline bint sample_fast(Estimator e, const double* g, const double* a,
     (skips, counting, the first attitude) the sample goes through _process."""
     return e.is_init and vec3_finite(g) and vec3_valid(a) and (m == NULL or vec3_valid(m))
 
+cdef inline void quat_out(const double* q, bint ned, double* out) noexcept nogil:
+    """The attitude q (ENU) in the public frame: c ⊗ q for NED."""
+    cdef double c[4]
+    if ned:
+        c[0] = 0.0; c[1] = SQRT_HALF; c[2] = SQRT_HALF; c[3] = 0.0
+        quat_mul(c, q, out)
+    else:
+        out[0] = q[0]; out[1] = q[1]; out[2] = q[2]; out[3] = q[3]
+
 cdef inline void output_q(Estimator e, double* out) noexcept nogil:
     """Estimator._output_q, inlined."""
-    cdef double c[4]
-    if e.ned:
-        c[0] = 0.0; c[1] = SQRT_HALF; c[2] = SQRT_HALF; c[3] = 0.0
-        quat_mul(c, e.q, out)
-    else:
-        out[0] = e.q[0]; out[1] = e.q[1]; out[2] = e.q[2]; out[3] = e.q[3]
+    quat_out(e.q, e.ned, out)

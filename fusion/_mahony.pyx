@@ -3,7 +3,9 @@
 import numpy as np
 from libc.math cimport sqrt
 
-from fusion._core cimport Estimator, run_fast, sample_fast, output_q
+from libc.string cimport memcpy
+
+from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
 from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3)
@@ -85,19 +87,32 @@ cdef class Mahony(Estimator):
 
     cdef void _run_batch(self, const double* g, const double* a, const double* m,
                          const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+        # the state lives in locals during the loop: the compiler keeps them in registers,
+        # which it cannot for self.q (any store through o or eint might alias it)
+        cdef double q[4]
+        cdef double eint[3]
+        cdef double kp = self.kp, ki = self.ki
+        cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
         if not run_fast(self):
             Estimator._run_batch(self, g, a, m, d, dt, o, n)
             return
+        memcpy(q, self.q, 4 * sizeof(double))
+        memcpy(eint, self.eint, 3 * sizeof(double))
         for i in range(n):
             mi = m + 3 * i if m != NULL else NULL
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                mahony_step(self.q, self.eint, self.kp, self.ki, g + 3 * i, a + 3 * i, mi,
-                            d[i] if d != NULL else dt)
+                mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             else:
+                memcpy(self.q, q, 4 * sizeof(double))
+                memcpy(self.eint, eint, 3 * sizeof(double))
                 self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-            output_q(self, o + 4 * i)
+                memcpy(q, self.q, 4 * sizeof(double))
+                memcpy(eint, self.eint, 3 * sizeof(double))
+            quat_out(q, ned, o + 4 * i)
+        memcpy(self.q, q, 4 * sizeof(double))
+        memcpy(self.eint, eint, 3 * sizeof(double))
 
     @property
     def bias(self):
