@@ -1,3 +1,12 @@
+from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
+
+# sqrt(1/2) to the last bit (the NED frame change)
+cdef extern from *:
+    """
+    #define FUSION_SQRT_HALF 0.70710678118654752440084436210484903928483593768847
+    """
+    double SQRT_HALF "FUSION_SQRT_HALF"
+
 cdef class Prefilter:
     """A per-sample filter on one 3-vector sensor stream (Butterworth, sliding mean, ...)."""
     cdef void apply(self, double* v) noexcept nogil    # in place
@@ -27,8 +36,39 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
+    # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
+    # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
+    # may override it with a loop that inlines its step (see run_fast).
+    cdef void _run_batch(self, const double* g, const double* a, const double* m,
+                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil
     # Every C field that determines future outputs, as (name, typed memoryview onto the field,
     # check) with check None, (lo, hi) for integers (hi None: unbounded) or "unit" for a
     # quaternion. state() / load_state() / pickling are built on it in the base class; a
     # kernel with state of its own extends its parent's list.
     cdef list _state_fields(self)
+
+
+# --- for a kernel's own _run_batch: its step inlined, no virtual calls per sample ----------
+
+cdef inline bint run_fast(Estimator e) noexcept nogil:
+    """The samples go to the step as they are: no prefilter to apply."""
+    return e.pre_gyr is None and e.pre_acc is None and e.pre_mag is None
+
+cdef inline bint sample_fast(Estimator e, const double* g, const double* a,
+                             const double* m) noexcept nogil:
+    """Initialised and every vector valid: _process would only call _step. Otherwise
+    (skips, counting, the first attitude) the sample goes through _process."""
+    return e.is_init and vec3_finite(g) and vec3_valid(a) and (m == NULL or vec3_valid(m))
+
+cdef inline void quat_out(const double* q, bint ned, double* out) noexcept nogil:
+    """The attitude q (ENU) in the public frame: c ⊗ q for NED."""
+    cdef double c[4]
+    if ned:
+        c[0] = 0.0; c[1] = SQRT_HALF; c[2] = SQRT_HALF; c[3] = 0.0
+        quat_mul(c, q, out)
+    else:
+        out[0] = q[0]; out[1] = q[1]; out[2] = q[2]; out[3] = q[3]
+
+cdef inline void output_q(Estimator e, double* out) noexcept nogil:
+    """Estimator._output_q, inlined."""
+    quat_out(e.q, e.ned, out)

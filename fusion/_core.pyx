@@ -12,10 +12,8 @@ from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul
 
 cnp.import_array()
 
-# ENU -> NED: x_ned = y_enu, y_ned = x_enu, z_ned = -z_enu (180 deg about (1, 1, 0)/sqrt 2).
-cdef double SQRT_HALF = sqrt(0.5)
-cdef double C_NED[4]
-C_NED[:] = [0.0, SQRT_HALF, SQRT_HALF, 0.0]
+# ENU -> NED: x_ned = y_enu, y_ned = x_enu, z_ned = -z_enu (180 deg about (1, 1, 0)/sqrt 2);
+# c = [0, √½, √½, 0] (output_q in _core.pxd), its conjugate for q0 given in NED.
 cdef double C_NED_CONJ[4]
 C_NED_CONJ[:] = [0.0, -SQRT_HALF, -SQRT_HALF, 0.0]
 
@@ -268,10 +266,15 @@ cdef class Estimator:
                 ("n_skip_mag", <long long[:1]>&self.n_skip_mag, COUNT)]
 
     cdef void _output_q(self, double* out) noexcept nogil:
-        if self.ned:
-            quat_mul(C_NED, self.q, out)
-        else:
-            memcpy(out, self.q, 4 * sizeof(double))
+        output_q(self, out)
+
+    cdef void _run_batch(self, const double* g, const double* a, const double* m,
+                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+        cdef Py_ssize_t i
+        for i in range(n):
+            self._process(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
+                          d[i] if d != NULL else dt)
+            output_q(self, o + 4 * i)
 
     # --- public interface ---------------------------------------------------------------
     def reset(self, q0=None):
@@ -381,10 +384,8 @@ cdef class Estimator:
                     raise ValueError(f"{nm} must be {rule}; {nm}[{b}] = {arr[b]!r} "
                                      f"(on_invalid='skip' skips such samples)")
         with nogil:
-            for i in range(n):
-                self._process(&g[i, 0], &a[i, 0], &m[i, 0] if has_mag else NULL,
-                              d[i] if has_dt else dt_const)
-                self._output_q(&o[i, 0])
+            self._run_batch(&g[0, 0], &a[0, 0], &m[0, 0] if has_mag else NULL,
+                            &d[0] if has_dt else NULL, dt_const, &o[0, 0], n)
         return out
 
     @property
