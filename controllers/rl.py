@@ -262,7 +262,16 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     if normalize:
         shutil.copyfile(run_dir / "best_vecnormalize.pkl", str(stem) + ".vecnormalize.pkl")
     from envs.sphere import OBS_NAMES
-    meta = {"command": command, "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
+    # a resumed run keeps the commands of the runs it continues
+    history = []
+    old_json = Path(str(stem) + ".json")
+    if start_ckpt is not None and old_json.is_file():
+        try:
+            old = json.loads(old_json.read_text())
+            history = list(old.get("history") or [old.get("command")])
+        except (OSError, ValueError):
+            history = []
+    meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": hyperparams(algo, task), "normalize": normalize,
             "init_from": None if init is None else str(Path(init[0]).name),
