@@ -92,7 +92,8 @@ def run_job(job):
         row["episode_seed"] = job["seed"] + i
         row.update({k: v for k, v in ep.items() if k in EPISODE_METRICS[job["task"]] or k == "steps"})
         if record_path:
-            row.update(path=ep["path"], start=ep["start"], waypoints=ep["waypoints"])
+            row.update(path=ep["path"], start=ep["start"], waypoints=ep["waypoints"],
+                       waypoint_radius=env.waypoint_radius)
         rows.append(row)
     return rows
 
@@ -263,7 +264,8 @@ def _plot_paths(path_rows, path):
     if first.get("waypoints") is not None:
         wp = np.vstack([first["start"][None, :], first["waypoints"]])
         ax.plot(wp[:, 0], wp[:, 1], "k--", lw=1.5, label="target path")
-        ax.plot(wp[1:, 0], wp[1:, 1], "ko", ms=8, mfc="none")
+        for x, y in wp[1:]:          # reached when the true position enters the circle
+            ax.add_patch(plt.Circle((x, y), first["waypoint_radius"], fill=False, color="k", lw=0.8))
     for r in path_rows:
         p = r["path"]
         ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"{r['estimator']} ({r['controller']})")
