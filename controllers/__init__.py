@@ -17,6 +17,6 @@ def __getattr__(name):
         from controllers.rl import load_policy
         return load_policy
     if name == "evaluate":
-        from controllers.evaluate import evaluate
+        from controllers.evaluation import evaluate
         return evaluate
     raise AttributeError(f"module 'controllers' has no attribute {name!r}")

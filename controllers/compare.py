@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.evaluate import EPISODE_METRICS, MAIN_METRIC, aggregate, evaluate
+from controllers.evaluation import EPISODE_METRICS, MAIN_METRIC, aggregate, evaluate
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "plan", "run_job", "run_grid", "summarise", "write_outputs"]
 

@@ -8,7 +8,7 @@
 Writes controllers/policies/<algo>-<task>-<estimator>.{zip,vecnormalize.pkl,json} (or
 --out STEM); the work directory <stem>.run/ keeps checkpoints, Monitor logs and the
 evaluation log. Hyperparameters: controllers/hyperparams/<algo>.yml. After training the
-policy is evaluated with controllers.evaluate (--eval-episodes) and the result goes into
+policy is evaluated with controllers.evaluate() (--eval-episodes) and the result goes into
 the JSON.
 """
 import argparse
@@ -22,7 +22,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from controllers import rl                       # noqa: E402
-from controllers.evaluate import evaluate        # noqa: E402
+from controllers.evaluation import evaluate        # noqa: E402
 
 
 def main(argv=None):

@@ -10,7 +10,7 @@ pytest.importorskip("stable_baselines3")
 
 from controllers import PID, PIDGains
 from controllers import rl
-from controllers.evaluate import evaluate, aggregate
+from controllers.evaluation import evaluate, aggregate
 from envs.sphere import SphereRobotEnv
 
 
