@@ -217,7 +217,17 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
                 return True
 
         ckpt = CheckpointCallback(checkpoint_freq, str(ckpt_dir), name_prefix="ckpt", save_vecnormalize=normalize)
-        ev = EvalCallback(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
+        class TimedEval(EvalCallback):
+            # the evaluation episodes run inside learn(): time them apart from training
+            eval_time = 0.0
+
+            def _on_step(self):
+                t = time.perf_counter()
+                ok = super()._on_step()
+                TimedEval.eval_time += time.perf_counter() - t
+                return ok
+
+        ev = TimedEval(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
                           eval_freq=eval_freq, best_model_save_path=str(run_dir), log_path=str(run_dir),
                           deterministic=True, verbose=0)
         best_json = run_dir / "best.json"
@@ -246,7 +256,10 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         wall = time.perf_counter() - t0
         done = model.num_timesteps - steps0
         rate = done / wall if wall > 0 else float("nan")
-        log(f"trained {done} steps in {wall:.0f} s: {rate:.0f} environment steps/s ({n_envs} envs)")
+        train_wall = wall - TimedEval.eval_time
+        train_rate = done / train_wall if train_wall > 0 else float("nan")
+        log(f"trained {done} steps in {wall:.0f} s: {train_rate:.0f} environment steps/s of training "
+            f"({n_envs} envs; {rate:.0f}/s including {TimedEval.eval_time:.0f} s of evaluation episodes)")
         save_checkpoint()
         best = run_dir / "best_model.zip"
         if not best.exists():          # no evaluation ran (very short run): ship the last model
@@ -275,7 +288,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": hyperparams(algo, task), "normalize": normalize,
             "init_from": None if init is None else str(Path(init[0]).name),
-            "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "obs_size": len(OBS_NAMES),
+            "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
+            "eval_time_s": round(TimedEval.eval_time, 1), "obs_size": len(OBS_NAMES),
             "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,
             "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
     with open(str(stem) + ".json", "w") as f:
