@@ -75,7 +75,10 @@ def test_ctrl_c_stops_vec_env_workers(tmp_path):
     script = tmp_path / "run.py"
     pids = tmp_path / "pids"
     script.write_text(textwrap.dedent(f"""
-        import sys, numpy as np
+        import signal, sys, numpy as np
+        # as in a terminal: Ctrl-C raises KeyboardInterrupt (a test runner started in the
+        # background may pass SIGINT down as ignored)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         sys.path.insert(0, {str(ROOT)!r})
         from controllers.rl import make_vec_env
         if __name__ == "__main__":
