@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +115,6 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True):
         else:
             with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver")) as pool:
                 futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
-                from concurrent.futures import as_completed
                 for f in as_completed(futs):
                     results[futs[f]] = f.result()
                     bar.update()
