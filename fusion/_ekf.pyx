@@ -151,8 +151,7 @@ cdef class EKF(Estimator):
         cdef double S[9]
         cdef double Si[9]
         cdef double K[21]    # 7x3
-        cdef double KH[28]   # K H restricted to its 4 non-zero columns, 7x4
-        cdef double T[49]    # (I - K H) P
+        cdef double V[21]    # U - K S, 7x3
         cdef double y[3]
         cdef double* P = self.P
         cdef double s
@@ -161,14 +160,13 @@ cdef class EKF(Estimator):
             for k in range(3):
                 U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
                                 + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
+        # S = H U[:4] + r I, symmetric: the upper half, mirrored
         for k in range(3):
-            for j in range(3):
-                S[k * 3 + j] = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
-                                + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
-        # symmetrise S and add the noise, then invert by the adjugate
-        S[1] = S[3] = 0.5 * (S[1] + S[3])
-        S[2] = S[6] = 0.5 * (S[2] + S[6])
-        S[5] = S[7] = 0.5 * (S[5] + S[7])
+            for j in range(k, 3):
+                s = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
+                     + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
+                S[k * 3 + j] = s
+                S[j * 3 + k] = s
         S[0] += r
         S[4] += r
         S[8] += r
@@ -184,19 +182,20 @@ cdef class EKF(Estimator):
         for i in range(3):
             self.b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
         quat_normalise(self.q)
-        # Joseph form P = (I - KH) P (I - KH)^T + r K K^T, with H zero on the bias columns
+        # Joseph form (I - KH) P (I - KH)^T + r K K^T, expanded with H P = U^T and
+        # H P H^T + r I = S: P - K U^T - U K^T + K S K^T = P - K U^T - (U - K S) K^T. Valid
+        # for any K like the product form (an error in K enters at second order), at half
+        # its cost; symmetric, so the upper half, mirrored.
         for i in range(7):
-            for j in range(4):
-                KH[i * 4 + j] = K[i * 3] * H[j] + K[i * 3 + 1] * H[4 + j] + K[i * 3 + 2] * H[8 + j]
-        for i in range(7):
-            for j in range(7):
-                T[i * 7 + j] = P[i * 7 + j] - (KH[i * 4] * P[j] + KH[i * 4 + 1] * P[7 + j]
-                                               + KH[i * 4 + 2] * P[14 + j] + KH[i * 4 + 3] * P[21 + j])
+            for j in range(3):
+                V[i * 3 + j] = U[i * 3 + j] - (K[i * 3] * S[j] + K[i * 3 + 1] * S[3 + j]
+                                               + K[i * 3 + 2] * S[6 + j])
         for i in range(7):
             for j in range(i, 7):
-                s = T[i * 7 + j] - (T[i * 7] * KH[j * 4] + T[i * 7 + 1] * KH[j * 4 + 1]
-                                    + T[i * 7 + 2] * KH[j * 4 + 2] + T[i * 7 + 3] * KH[j * 4 + 3])
-                s += r * (K[i * 3] * K[j * 3] + K[i * 3 + 1] * K[j * 3 + 1] + K[i * 3 + 2] * K[j * 3 + 2])
+                s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
+                                     + K[i * 3 + 2] * U[j * 3 + 2])
+                                    + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
+                                       + V[i * 3 + 2] * K[j * 3 + 2]))
                 P[i * 7 + j] = s
                 P[j * 7 + i] = s
 
