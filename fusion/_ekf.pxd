@@ -9,11 +9,10 @@ cdef class EKF(Estimator):
     cdef double gyro_range_
     cdef readonly double motion_rate
     cdef double t_run
+    cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
+    # the parts of _step, for subclasses
     cdef void propagate(self, const double* gyr, double dt) noexcept nogil
-    cdef void inflate_attitude(self, double v) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
-    cdef void vector_update(self, const double* z, const double* h, const double* H,
-                            double r) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil
 

@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator
+from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_param, check_fs, check_positive
 from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
@@ -21,6 +21,215 @@ def check_recovery_params(p):
     g = p["gyro_range"]
     g = 0.0 if g is None else check_positive("gyro_range", g, upper=1e6)
     return g, check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
+
+
+cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
+                               const double* gyr, double dt) noexcept nogil:
+    """The time update of one step: predict with the gyro where there is one, then grow
+    the attitude covariance for the motion it did not measure (dropped sample, time gap,
+    saturation; docs/robustness.md, "Recovery")."""
+    cdef bint measured = gyr != NULL and not saturated(gyr, e.gyro_range_)
+    cdef double v = unobserved_variance(t_run, dt, e.dt_nominal, measured, e.motion_rate)
+    if gyr != NULL:
+        ekf_predict(e, q, b, P, gyr, dt)
+    if v > 0.0:
+        ekf_inflate_attitude(q, P, v)
+
+
+cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noexcept nogil:
+    """Add v (rad²) to the variance of the attitude angle about every body axis:
+    Pqq += (v / 4) Ξ(q) Ξ(q)ᵀ, the way the gyro noise enters in predict."""
+    cdef double X[12]
+    cdef double s
+    cdef int i, j
+    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
+    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
+    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
+    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    for i in range(4):
+        for j in range(i, 4):
+            s = P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
+                                           + X[i * 3 + 2] * X[j * 3 + 2])
+            P[i * 7 + j] = s
+            P[j * 7 + i] = s
+
+
+cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
+                             double dt) noexcept nogil:
+    cdef double A[16]
+    cdef double L[12]    # -(dt/2) Xi(q), 4x3
+    cdef double X[12]    # Xi(q), 4x3
+    cdef double M[16]    # A Pqq + L Pbq
+    cdef double N[12]    # A Pqb + L Pbb
+    cdef double qn[4]
+    cdef double s, gq
+    cdef int i, j, k
+    phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
+    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
+    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
+    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
+    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    for i in range(12):
+        L[i] = -0.5 * dt * X[i]
+    for i in range(4):
+        qn[i] = A[i * 4] * q[0] + A[i * 4 + 1] * q[1] + A[i * 4 + 2] * q[2] + A[i * 4 + 3] * q[3]
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += A[i * 4 + k] * P[k * 7 + j]
+            for k in range(3):
+                s += L[i * 3 + k] * P[(4 + k) * 7 + j]
+            M[i * 4 + j] = s
+        for j in range(3):
+            s = 0.0
+            for k in range(4):
+                s += A[i * 4 + k] * P[k * 7 + 4 + j]
+            for k in range(3):
+                s += L[i * 3 + k] * P[(4 + k) * 7 + 4 + j]
+            N[i * 3 + j] = s
+    gq = 0.25 * dt * e.gyro_noise * e.gyro_noise
+    for i in range(4):
+        for j in range(i, 4):
+            s = 0.0
+            for k in range(4):
+                s += M[i * 4 + k] * A[j * 4 + k]
+            for k in range(3):
+                s += N[i * 3 + k] * L[j * 3 + k]
+            s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
+            P[i * 7 + j] = s
+            P[j * 7 + i] = s
+        for j in range(3):
+            P[i * 7 + 4 + j] = N[i * 3 + j]
+            P[(4 + j) * 7 + i] = N[i * 3 + j]
+    s = e.bias_noise * e.bias_noise * dt
+    for i in range(4, 7):
+        P[i * 8] += s
+    memcpy(q, qn, 4 * sizeof(double))
+
+
+cdef inline void ekf_vector_update(double* q, double* b, double* P, const double* z,
+                                   const double* h, const double* H, double r) noexcept nogil:
+    """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
+    and noise variance r per axis."""
+    cdef double U[21]    # P H^T, 7x3
+    cdef double S[9]
+    cdef double Si[9]
+    cdef double K[21]    # 7x3
+    cdef double V[21]    # U - K S, 7x3
+    cdef double y[3]
+    cdef double s
+    cdef int i, j, k
+    for i in range(7):
+        for k in range(3):
+            U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
+                            + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
+    # S = H U[:4] + r I, symmetric: the upper half, mirrored
+    for k in range(3):
+        for j in range(k, 3):
+            s = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
+                 + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
+            S[k * 3 + j] = s
+            S[j * 3 + k] = s
+    S[0] += r
+    S[4] += r
+    S[8] += r
+    sym3_inverse(S, Si)
+    for i in range(7):
+        for j in range(3):
+            K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]
+    y[0] = z[0] - h[0]
+    y[1] = z[1] - h[1]
+    y[2] = z[2] - h[2]
+    for i in range(4):
+        q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
+    for i in range(3):
+        b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
+    quat_normalise(q)
+    # Joseph form (I - KH) P (I - KH)^T + r K K^T, expanded with H P = U^T and
+    # H P H^T + r I = S: P - K U^T - U K^T + K S K^T = P - K U^T - (U - K S) K^T. Valid
+    # for any K like the product form (an error in K enters at second order), at half
+    # its cost; symmetric, so the upper half, mirrored.
+    for i in range(7):
+        for j in range(3):
+            V[i * 3 + j] = U[i * 3 + j] - (K[i * 3] * S[j] + K[i * 3 + 1] * S[3 + j]
+                                           + K[i * 3 + 2] * S[6 + j])
+    for i in range(7):
+        for j in range(i, 7):
+            s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
+                                 + K[i * 3 + 2] * U[j * 3 + 2])
+                                + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
+                                   + V[i * 3 + 2] * K[j * 3 + 2]))
+            P[i * 7 + j] = s
+            P[j * 7 + i] = s
+
+
+cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const double* acc,
+                                double dt) noexcept nogil:
+    cdef double z[3]
+    cdef double h[3]
+    cdef double H[12]
+    cdef double sa = e.acc_noise / G0
+    unit3(acc, z)
+    up_in_body(q, h)
+    jac_up_in_body(q, H)
+    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt)
+
+
+cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
+                                double dt) noexcept nogil:
+    # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
+    # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
+    # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
+    # heading residuals tilt the estimate and drag the gyro bias with them.
+    cdef double z[3]
+    cdef double n[3]
+    cdef double v[3]
+    cdef double h[3]
+    cdef double H[12]
+    cdef double Jn[12]   # dn/dq
+    cdef double D[12]    # dv/dq = dv/dn Jn
+    cdef double rho, ux, uy
+    cdef int j
+    unit3(mag, z)
+    rot_to_nav(q, z, n)
+    rho = sqrt(n[0] * n[0] + n[1] * n[1])
+    if rho < 1e-9:     # field along the vertical: no heading information
+        return
+    v[0] = 0.0
+    v[1] = rho
+    v[2] = n[2]
+    rot_to_body(q, v, h)
+    jac_rot_to_body(q, v, H)
+    jac_rot_to_nav(q, z, Jn)
+    ux = n[0] / rho
+    uy = n[1] / rho
+    for j in range(4):
+        D[j] = 0.0
+        D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
+        D[8 + j] = Jn[8 + j]
+    # H += R^T(q) D, column by column (R^T applied to each column of D)
+    for j in range(4):
+        v[0] = D[j]
+        v[1] = D[4 + j]
+        v[2] = D[8 + j]
+        rot_to_body(q, v, n)
+        H[j] += n[0]
+        H[4 + j] += n[1]
+        H[8 + j] += n[2]
+    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt)
+
+
+cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
+                          const double* gyr, const double* acc, const double* mag,
+                          double dt) noexcept nogil:
+    """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
+    parameters: EKF._step and the batch loop both run this."""
+    ekf_propagate(e, q, b, P, t_run, gyr, dt)
+    if acc != NULL:
+        ekf_acc_update(e, q, b, P, acc, dt)
+    if mag != NULL:
+        ekf_mag_update(e, q, b, P, mag, dt)
+    quat_normalise(q)
 
 
 cdef class EKF(Estimator):
@@ -40,6 +249,7 @@ cdef class EKF(Estimator):
         self.mag_noise = check_param("mag_noise", p["mag_noise"])
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
+        self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.reset()
 
     cdef list _state_fields(self):
@@ -60,207 +270,60 @@ cdef class EKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
 
+    # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt) noexcept nogil:
-        """The time update of one step: predict with the gyro where there is one, then grow
-        the attitude covariance for the motion it did not measure (dropped sample, time gap,
-        saturation; docs/robustness.md, "Recovery")."""
-        cdef bint measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
-        cdef double v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured,
-                                            self.motion_rate)
-        if gyr != NULL:
-            self.predict(gyr, dt)
-        if v > 0.0:
-            self.inflate_attitude(v)
-
-    cdef void inflate_attitude(self, double v) noexcept nogil:
-        """Add v (rad²) to the variance of the attitude angle about every body axis:
-        Pqq += (v / 4) Ξ(q) Ξ(q)ᵀ, the way the gyro noise enters in predict."""
-        cdef double X[12]
-        cdef double* q = self.q
-        cdef double s
-        cdef int i, j
-        X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-        X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-        X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-        X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
-        for i in range(4):
-            for j in range(i, 4):
-                s = self.P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
-                                                    + X[i * 3 + 2] * X[j * 3 + 2])
-                self.P[i * 7 + j] = s
-                self.P[j * 7 + i] = s
+        ekf_propagate(self, self.q, self.b, self.P, &self.t_run, gyr, dt)
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
-        cdef double A[16]
-        cdef double L[12]    # -(dt/2) Xi(q), 4x3
-        cdef double X[12]    # Xi(q), 4x3
-        cdef double M[16]    # A Pqq + L Pbq
-        cdef double N[12]    # A Pqb + L Pbb
-        cdef double qn[4]
-        cdef double* P = self.P
-        cdef double* q = self.q
-        cdef double s, gq
-        cdef int i, j, k
-        phi_matrix(gyr[0] - self.b[0], gyr[1] - self.b[1], gyr[2] - self.b[2], dt, A)
-        X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-        X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-        X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-        X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
-        for i in range(12):
-            L[i] = -0.5 * dt * X[i]
-        for i in range(4):
-            qn[i] = A[i * 4] * q[0] + A[i * 4 + 1] * q[1] + A[i * 4 + 2] * q[2] + A[i * 4 + 3] * q[3]
-            for j in range(4):
-                s = 0.0
-                for k in range(4):
-                    s += A[i * 4 + k] * P[k * 7 + j]
-                for k in range(3):
-                    s += L[i * 3 + k] * P[(4 + k) * 7 + j]
-                M[i * 4 + j] = s
-            for j in range(3):
-                s = 0.0
-                for k in range(4):
-                    s += A[i * 4 + k] * P[k * 7 + 4 + j]
-                for k in range(3):
-                    s += L[i * 3 + k] * P[(4 + k) * 7 + 4 + j]
-                N[i * 3 + j] = s
-        gq = 0.25 * dt * self.gyro_noise * self.gyro_noise
-        for i in range(4):
-            for j in range(i, 4):
-                s = 0.0
-                for k in range(4):
-                    s += M[i * 4 + k] * A[j * 4 + k]
-                for k in range(3):
-                    s += N[i * 3 + k] * L[j * 3 + k]
-                s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
-                P[i * 7 + j] = s
-                P[j * 7 + i] = s
-            for j in range(3):
-                P[i * 7 + 4 + j] = N[i * 3 + j]
-                P[(4 + j) * 7 + i] = N[i * 3 + j]
-        s = self.bias_noise * self.bias_noise * dt
-        for i in range(4, 7):
-            P[i * 8] += s
-        memcpy(q, qn, 4 * sizeof(double))
-
-    cdef void vector_update(self, const double* z, const double* h, const double* H,
-                            double r) noexcept nogil:
-        """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
-        and noise variance r per axis."""
-        cdef double U[21]    # P H^T, 7x3
-        cdef double S[9]
-        cdef double Si[9]
-        cdef double K[21]    # 7x3
-        cdef double KH[28]   # K H restricted to its 4 non-zero columns, 7x4
-        cdef double T[49]    # (I - K H) P
-        cdef double y[3]
-        cdef double* P = self.P
-        cdef double s
-        cdef int i, j, k
-        for i in range(7):
-            for k in range(3):
-                U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
-                                + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
-        for k in range(3):
-            for j in range(3):
-                S[k * 3 + j] = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
-                                + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
-        # symmetrise S and add the noise, then invert by the adjugate
-        S[1] = S[3] = 0.5 * (S[1] + S[3])
-        S[2] = S[6] = 0.5 * (S[2] + S[6])
-        S[5] = S[7] = 0.5 * (S[5] + S[7])
-        S[0] += r
-        S[4] += r
-        S[8] += r
-        sym3_inverse(S, Si)
-        for i in range(7):
-            for j in range(3):
-                K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]
-        y[0] = z[0] - h[0]
-        y[1] = z[1] - h[1]
-        y[2] = z[2] - h[2]
-        for i in range(4):
-            self.q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
-        for i in range(3):
-            self.b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
-        quat_normalise(self.q)
-        # Joseph form P = (I - KH) P (I - KH)^T + r K K^T, with H zero on the bias columns
-        for i in range(7):
-            for j in range(4):
-                KH[i * 4 + j] = K[i * 3] * H[j] + K[i * 3 + 1] * H[4 + j] + K[i * 3 + 2] * H[8 + j]
-        for i in range(7):
-            for j in range(7):
-                T[i * 7 + j] = P[i * 7 + j] - (KH[i * 4] * P[j] + KH[i * 4 + 1] * P[7 + j]
-                                               + KH[i * 4 + 2] * P[14 + j] + KH[i * 4 + 3] * P[21 + j])
-        for i in range(7):
-            for j in range(i, 7):
-                s = T[i * 7 + j] - (T[i * 7] * KH[j * 4] + T[i * 7 + 1] * KH[j * 4 + 1]
-                                    + T[i * 7 + 2] * KH[j * 4 + 2] + T[i * 7 + 3] * KH[j * 4 + 3])
-                s += r * (K[i * 3] * K[j * 3] + K[i * 3 + 1] * K[j * 3 + 1] + K[i * 3 + 2] * K[j * 3 + 2])
-                P[i * 7 + j] = s
-                P[j * 7 + i] = s
+        ekf_predict(self, self.q, self.b, self.P, gyr, dt)
 
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
-        cdef double z[3]
-        cdef double h[3]
-        cdef double H[12]
-        cdef double sa = self.acc_noise / G0
-        unit3(acc, z)
-        up_in_body(self.q, h)
-        jac_up_in_body(self.q, H)
-        self.vector_update(z, h, H, sa * sa / dt)
+        ekf_acc_update(self, self.q, self.b, self.P, acc, dt)
 
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
-        # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
-        # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
-        # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
-        # heading residuals tilt the estimate and drag the gyro bias with them.
-        cdef double z[3]
-        cdef double n[3]
-        cdef double v[3]
-        cdef double h[3]
-        cdef double H[12]
-        cdef double Jn[12]   # dn/dq
-        cdef double D[12]    # dv/dq = dv/dn Jn
-        cdef double rho, ux, uy
-        cdef double* q = self.q
-        cdef int j
-        unit3(mag, z)
-        rot_to_nav(q, z, n)
-        rho = sqrt(n[0] * n[0] + n[1] * n[1])
-        if rho < 1e-9:     # field along the vertical: no heading information
-            return
-        v[0] = 0.0
-        v[1] = rho
-        v[2] = n[2]
-        rot_to_body(q, v, h)
-        jac_rot_to_body(q, v, H)
-        jac_rot_to_nav(q, z, Jn)
-        ux = n[0] / rho
-        uy = n[1] / rho
-        for j in range(4):
-            D[j] = 0.0
-            D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
-            D[8 + j] = Jn[8 + j]
-        # H += R^T(q) D, column by column (R^T applied to each column of D)
-        for j in range(4):
-            v[0] = D[j]
-            v[1] = D[4 + j]
-            v[2] = D[8 + j]
-            rot_to_body(q, v, n)
-            H[j] += n[0]
-            H[4 + j] += n[1]
-            H[8 + j] += n[2]
-        self.vector_update(z, h, H, self.mag_noise * self.mag_noise / dt)
+        ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        self.propagate(gyr, dt)
-        if acc != NULL:
-            self.acc_update(acc, dt)
-        if mag != NULL:
-            self.mag_update(mag, dt)
-        quat_normalise(self.q)
+        ekf_step(self, self.q, self.b, self.P, &self.t_run, gyr, acc, mag, dt)
+
+    cdef void _run_batch(self, const double* g, const double* a, const double* m,
+                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+        # the state lives in locals during the loop, as in Mahony._run_batch: stores through
+        # o cannot alias them, so the compiler keeps q and b in registers and P unreloaded
+        cdef double q[4]
+        cdef double b[3]
+        cdef double P[49]
+        cdef double t_run
+        cdef bint ned = self.ned
+        cdef Py_ssize_t i
+        cdef const double* mi
+        if not (self.own_step and run_fast(self)):
+            Estimator._run_batch(self, g, a, m, d, dt, o, n)
+            return
+        memcpy(q, self.q, 4 * sizeof(double))
+        memcpy(b, self.b, 3 * sizeof(double))
+        memcpy(P, self.P, 49 * sizeof(double))
+        t_run = self.t_run
+        for i in range(n):
+            mi = m + 3 * i if m != NULL else NULL
+            if sample_fast(self, g + 3 * i, a + 3 * i, mi):
+                ekf_step(self, q, b, P, &t_run, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
+            else:
+                memcpy(self.q, q, 4 * sizeof(double))
+                memcpy(self.b, b, 3 * sizeof(double))
+                memcpy(self.P, P, 49 * sizeof(double))
+                self.t_run = t_run
+                self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
+                memcpy(q, self.q, 4 * sizeof(double))
+                memcpy(b, self.b, 3 * sizeof(double))
+                memcpy(P, self.P, 49 * sizeof(double))
+                t_run = self.t_run
+            quat_out(q, ned, o + 4 * i)
+        memcpy(self.q, q, 4 * sizeof(double))
+        memcpy(self.b, b, 3 * sizeof(double))
+        memcpy(self.P, P, 49 * sizeof(double))
+        self.t_run = t_run
 
     @property
     def bias(self):
