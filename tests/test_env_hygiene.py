@@ -95,15 +95,21 @@ def test_ctrl_c_stops_vec_env_workers(tmp_path):
     # a new session = its own process group, as a terminal's foreground job: Ctrl-C goes to all
     proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True, text=True)
-    t0 = time.time()
-    while not pids.exists() and time.time() - t0 < 60:
-        time.sleep(0.2)
-    assert pids.exists(), proc.communicate(timeout=5)
-    time.sleep(1.0)
-    workers = [int(x) for x in pids.read_text().split()]
-    os.killpg(proc.pid, signal.SIGINT)
-    out, err = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "closed" in out, err[-2000:]
+    try:
+        t0 = time.time()
+        while not pids.exists() and time.time() - t0 < 60:
+            time.sleep(0.2)
+        assert pids.exists(), "the vector environment did not start"
+        time.sleep(1.0)
+        workers = [int(x) for x in pids.read_text().split()]
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0 and "closed" in out, err[-2000:]
+    finally:
+        # never leave the child and its workers running when the test fails
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
     time.sleep(0.5)
     for pid in workers:
         alive = os.path.exists(f"/proc/{pid}") and "zombie" not in open(f"/proc/{pid}/status").read().lower()
