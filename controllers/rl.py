@@ -85,14 +85,45 @@ def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir, worker=Fa
     return make
 
 
+def _interrupt_safe_subproc_vec_env(fns):
+    """A ``SubprocVecEnv`` whose ``close`` cannot hang after a Ctrl-C inside ``step_wait``.
+
+    SB3's ``close`` first reads one pending step result from every worker; when the
+    KeyboardInterrupt arrived after some of them were already read, it waits forever for a
+    result that never comes. Here the pending results are left unread: each worker finishes
+    its step, reads "close" and exits; a worker that does not is terminated."""
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    class InterruptSafeSubprocVecEnv(SubprocVecEnv):
+        def close(self):
+            if self.closed:
+                return
+            for remote in self.remotes:
+                try:
+                    remote.send(("close", None))
+                except OSError:        # the worker is already gone
+                    pass
+            for process in self.processes:
+                process.join(timeout=30)
+                if process.is_alive():
+                    process.terminate()
+                    process.join()
+            for remote in self.remotes:
+                remote.close()
+            self.waiting = False
+            self.closed = True
+
+    return InterruptSafeSubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
+
+
 def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True):
     """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv
     sub = subprocess and n_envs > 1
     fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir, worker=sub)
            for i in range(n_envs)]
     if sub:
-        return SubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
+        return _interrupt_safe_subproc_vec_env(fns)
     return DummyVecEnv(fns)
 
 

@@ -114,3 +114,26 @@ def test_ctrl_c_stops_vec_env_workers(tmp_path):
     for pid in workers:
         alive = os.path.exists(f"/proc/{pid}") and "zombie" not in open(f"/proc/{pid}/status").read().lower()
         assert not alive, f"worker {pid} still running after Ctrl-C"
+
+
+def test_vec_env_close_after_a_step_interrupted_halfway():
+    """Ctrl-C inside ``step_wait`` after the first worker's result was read (the race that
+    made SB3's own close wait forever): close returns and every worker exits."""
+    pytest.importorskip("stable_baselines3")
+    import numpy as np
+    from controllers.rl import make_vec_env
+    venv = make_vec_env("track", "ekf", n_envs=2, seed=0)
+    try:
+        venv.reset()
+        venv.step_async(np.zeros((2, 2), dtype=np.float32))
+        venv.remotes[0].recv()         # what step_wait had read when the interrupt came
+        import threading
+        closer = threading.Thread(target=venv.close, daemon=True)   # a hang fails, not stalls
+        closer.start()
+        closer.join(timeout=30)
+        assert not closer.is_alive(), "close() hangs after an interrupted step"
+        assert not any(p.is_alive() for p in venv.processes)
+    finally:
+        for p in venv.processes:
+            if p.is_alive():
+                p.kill()
