@@ -147,9 +147,73 @@ def _latest_checkpoint(ckpt_dir):
     return best
 
 
+#: ``init_from`` value that starts training from a clone of the PID controller
+TEACHER = "pid"
+
+
+def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action_std=0.15, lr=1e-3,
+                  seed=0, progress=True, log=print):
+    """Behaviour cloning: run ``teacher`` (a ``Controller``) for ``steps`` environment steps
+    in ``venv`` (a ``VecNormalize``; its statistics learn from these steps), then fit the
+    policy of ``model`` (SB3 PPO) to the teacher's actions by maximum likelihood and its value
+    function to the discounted (normalised) returns of the teacher's episodes. The policy's
+    action std is then raised to at least ``action_std`` so that PPO still explores.
+    Returns the number of steps collected."""
+    import torch
+    from tqdm.auto import tqdm
+    n = venv.num_envs
+    teacher.reset()
+    venv.reset()
+    raw = venv.get_original_obs()
+    obs, acts, rews, dones = [], [], [], []
+    for _ in tqdm(range(-(-steps // n)), desc=f"cloning {type(teacher).__name__}", unit="step", unit_scale=n,
+                  disable=not progress, leave=False):
+        a = np.asarray(teacher.act(raw), dtype=np.float32).reshape(n, -1)
+        obs.append(raw.copy())
+        acts.append(a)
+        _, r, done, _ = venv.step(a)
+        raw = venv.get_original_obs()
+        rews.append(r.copy())
+        dones.append(done.copy())
+        for i in np.flatnonzero(done):
+            teacher.reset(i)
+    rews, dones = np.array(rews), np.array(dones)
+    returns = np.zeros_like(rews)
+    g = np.zeros(n)
+    gamma = model.gamma
+    for t in range(len(rews) - 1, -1, -1):     # episodes cut by the end of collection bootstrap 0
+        g = rews[t] + gamma * g * (1.0 - dones[t])
+        returns[t] = g
+    x = torch.as_tensor(venv.normalize_obs(np.concatenate(obs)).astype(np.float32))
+    y = torch.as_tensor(np.concatenate(acts))
+    ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
+    policy = model.policy
+    opt = torch.optim.Adam(policy.parameters(), lr=lr)
+    rng = np.random.default_rng(seed)
+    policy.set_training_mode(True)
+    for epoch in range(epochs):
+        perm = torch.as_tensor(rng.permutation(len(x)))
+        total = 0.0
+        for k in range(0, len(x), batch_size):
+            idx = perm[k:k + batch_size]
+            values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
+            loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+    policy.set_training_mode(False)
+    with torch.no_grad():
+        policy.log_std.clamp_(min=float(np.log(action_std)))
+        mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
+    if log:
+        log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, final loss {total / len(x):.3f}")
+    return len(x)
+
+
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, overwrite=False, log=print):
+          command=None, init_from=None, overwrite=False, bc_steps=60_000, log=print):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
 
     Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
@@ -159,7 +223,9 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     policy stem of the same algorithm (and observation space) whose weights and
     normalisation statistics start the training (fine-tuning: a policy trained on the true
     attitude adapted to an estimator, or a track policy as the start of a waypoints one);
-    ``timesteps`` then counts the new steps only.
+    ``timesteps`` then counts the new steps only. ``init_from="pid"`` (PPO only) starts
+    from a behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher
+    steps); the clone is evaluated first and kept as the best model unless PPO beats it.
     """
     import torch
     torch.set_num_threads(1)
@@ -198,7 +264,12 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         if start_ckpt is None:
             raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
     init = None
-    if init_from is not None and start_ckpt is None:
+    clone = init_from == TEACHER and start_ckpt is None
+    if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
+        raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
+    if init_from == TEACHER and algo != "ppo":
+        raise ValueError(f"init_from={TEACHER!r} (behaviour cloning) is implemented for ppo, not {algo}")
+    if init_from is not None and init_from != TEACHER and start_ckpt is None:
         _, init_zip, init_json, init_vn = _resolve(init_from)
         if not init_zip.is_file():
             raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
@@ -236,6 +307,12 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hp)
         if normalize:
             eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+        bc_collected = 0
+        if clone:
+            from controllers.pid import PID
+            if not normalize:
+                raise ValueError(f"init_from={TEACHER!r} needs normalize: true in the hyperparameters")
+            bc_collected = clone_teacher(model, venv, PID(task), bc_steps, seed=seed, progress=progress, log=log)
 
         class SaveBestStats(BaseCallback):
             # beside the best model: its normalisation statistics and its score, so that a
@@ -272,6 +349,17 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             if normalize:
                 model.get_vec_normalize_env().save(str(ckpt_dir / f"ckpt_vecnormalize_{model.num_timesteps}_steps.pkl"))
             return path
+
+        if clone:
+            # the clone is the first candidate for the best model: PPO must beat it
+            from stable_baselines3.common.evaluation import evaluate_policy
+            eval_env.obs_rms = venv.obs_rms
+            mean_reward, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
+            model.save(str(run_dir / "best_model.zip"))
+            venv.save(str(run_dir / "best_vecnormalize.pkl"))
+            best_json.write_text(json.dumps({"mean_reward": float(mean_reward), "timesteps": 0}))
+            ev.best_mean_reward = float(mean_reward)
+            log(f"the clone's evaluation: mean reward {mean_reward:.2f}")
 
         remaining = timesteps - model.num_timesteps
         t0, steps0 = time.perf_counter(), model.num_timesteps
@@ -318,7 +406,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": hyperparams(algo, task), "normalize": normalize,
-            "init_from": None if init is None else str(Path(init[0]).name),
+            "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
+                          else None if init is None else str(Path(init[0]).name)),
             "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
             "eval_time_s": round(TimedEval.eval_time, 1), "obs_size": len(OBS_NAMES),
             "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,

@@ -38,8 +38,11 @@ def main(argv=None):
     ap.add_argument("--overwrite", action="store_true",
                     help="start over although the work directory holds checkpoints (they are kept aside)")
     ap.add_argument("--init-from", default=None,
-                    help="start from this policy's weights and statistics (same algo and task), e.g. "
-                         "controllers/policies/ppo-waypoints-truth")
+                    help="start from this policy's weights and statistics (same algo), e.g. "
+                         "controllers/policies/ppo-waypoints-truth; or 'pid': from a behaviour clone "
+                         "of the PID controller (ppo)")
+    ap.add_argument("--bc-steps", type=int, default=60_000,
+                    help="with --init-from pid: environment steps of the PID teacher to clone")
     ap.add_argument("--eval-episodes", type=int, default=10, help="final evaluation episodes (0: none)")
     ap.add_argument("--env-kwargs", default="{}", help="JSON dict of extra environment arguments")
     ap.add_argument("--no-progress", action="store_true")
@@ -54,7 +57,8 @@ def main(argv=None):
     try:
         stem = rl.train(a.algo, a.task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=a.out,
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
-                        command=command, init_from=a.init_from, overwrite=a.overwrite)
+                        command=command, init_from=a.init_from, overwrite=a.overwrite,
+                        bc_steps=a.bc_steps)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError, FileExistsError) as e:
