@@ -225,7 +225,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     attitude adapted to an estimator, or a track policy as the start of a waypoints one);
     ``timesteps`` then counts the new steps only. ``init_from="pid"`` (PPO only) starts
     from a behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher
-    steps); the clone is evaluated first and kept as the best model unless PPO beats it.
+    steps). The starting policy (clone or ``init_from``) is evaluated first and kept as the
+    best model unless training beats it.
     """
     import torch
     torch.set_num_threads(1)
@@ -350,8 +351,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
                 model.get_vec_normalize_env().save(str(ckpt_dir / f"ckpt_vecnormalize_{model.num_timesteps}_steps.pkl"))
             return path
 
-        if clone:
-            # the clone is the first candidate for the best model: PPO must beat it
+        if clone or init is not None:
+            # the starting policy is the first candidate for the best model: training must beat it
             from stable_baselines3.common.evaluation import evaluate_policy
             eval_env.obs_rms = venv.obs_rms
             mean_reward, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
@@ -359,7 +360,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             venv.save(str(run_dir / "best_vecnormalize.pkl"))
             best_json.write_text(json.dumps({"mean_reward": float(mean_reward), "timesteps": 0}))
             ev.best_mean_reward = float(mean_reward)
-            log(f"the clone's evaluation: mean reward {mean_reward:.2f}")
+            log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
 
         remaining = timesteps - model.num_timesteps
         t0, steps0 = time.perf_counter(), model.num_timesteps
