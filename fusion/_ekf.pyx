@@ -23,6 +23,17 @@ def check_recovery_params(p):
     return g, check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
 
 
+MAG_UPDATES = ("heading", "vector")
+
+
+def check_mag_update(value):
+    """True for "heading" (the magnetometer corrects the heading only), False for "vector"
+    (seed 003's eqs. 11-16 as written: the full 3-D update, which also tilts)."""
+    if not isinstance(value, str) or value not in MAG_UPDATES:
+        raise ValueError(f"mag_update must be one of {MAG_UPDATES}, got {value!r}")
+    return value == "heading"
+
+
 cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
                                const double* gyr, double dt) noexcept nogil:
     """The time update of one step: predict with the gyro where there is one, then grow
@@ -107,10 +118,36 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     memcpy(q, qn, 4 * sizeof(double))
 
 
+cdef inline void heading_only_gain(const double* q, double* K) noexcept nogil:
+    """Project every column of the gain K (7x3) so that the update can only turn the
+    attitude about the vertical (quaternion part onto u = e_z (x) q, the direction of such a
+    rotation) and change the bias along the body-frame vertical w = R^T e_z: the
+    magnetometer then corrects the heading alone, as in VQF and Fusion (docs/estimators.md)."""
+    cdef double u[4]
+    cdef double w[3]
+    cdef double uu, s
+    cdef int i, j
+    u[0] = -q[3]
+    u[1] = -q[2]
+    u[2] = q[1]
+    u[3] = q[0]
+    uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + u[3] * u[3]
+    up_in_body(q, w)
+    for j in range(3):
+        s = (u[0] * K[j] + u[1] * K[3 + j] + u[2] * K[6 + j] + u[3] * K[9 + j]) / uu
+        for i in range(4):
+            K[i * 3 + j] = s * u[i]
+        s = w[0] * K[12 + j] + w[1] * K[15 + j] + w[2] * K[18 + j]
+        for i in range(3):
+            K[(4 + i) * 3 + j] = s * w[i]
+
+
 cdef inline void ekf_vector_update(double* q, double* b, double* P, const double* z,
-                                   const double* h, const double* H, double r) noexcept nogil:
+                                   const double* h, const double* H, double r,
+                                   bint heading_only) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
-    and noise variance r per axis."""
+    and noise variance r per axis; ``heading_only``: the gain projected by
+    heading_only_gain (the Joseph form below holds for any gain)."""
     cdef double U[21]    # P H^T, 7x3
     cdef double S[9]
     cdef double Si[9]
@@ -137,6 +174,8 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     for i in range(7):
         for j in range(3):
             K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]
+    if heading_only:
+        heading_only_gain(q, K)
     y[0] = z[0] - h[0]
     y[1] = z[1] - h[1]
     y[2] = z[2] - h[2]
@@ -172,7 +211,7 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     unit3(acc, z)
     up_in_body(q, h)
     jac_up_in_body(q, H)
-    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt)
+    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, False)
 
 
 cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
@@ -216,7 +255,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
-    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt)
+    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_heading_only)
 
 
 cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
@@ -237,12 +276,14 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+              "mag_update": "heading"}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
+        self.mag_heading_only = check_mag_update(p["mag_update"])
         self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
         self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
         self.acc_noise = check_param("acc_noise", p["acc_noise"])
@@ -329,6 +370,11 @@ cdef class EKF(Estimator):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
+        return "heading" if self.mag_heading_only else "vector"
 
     @property
     def gyro_range(self):
