@@ -8,7 +8,7 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
 from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
-                            up_in_body, cross3, half_angle_terms)
+                            up_in_body, cross3, half_angle_terms, quat_norm_factor)
 
 
 cdef inline void mahony_error(const double* q, const double* acc, const double* mag,
@@ -109,7 +109,7 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     cdef double w[3]
     cdef double e[3]
     cdef double P[4]
-    cdef double c, s, k, rho, h2, h4, n2
+    cdef double c, s, k, rho, h2, h4, n2, n
     if gyr != NULL:
         half_angle_fast(gyr[0] + ki * eint[0], gyr[1] + ki * eint[1], gyr[2] + ki * eint[2],
                         dt, &c, &s)
@@ -119,11 +119,15 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         p[3] = (gyr[2] + ki * eint[2]) * s
     else:
         p[0] = 1.0; p[1] = 0.0; p[2] = 0.0; p[3] = 0.0
-    # q1 = q ⊗ p, the terms in quat_propagate's order
-    q1[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
-    q1[1] = p[1] * q[0] + p[0] * q[1] + p[3] * q[2] - p[2] * q[3]
-    q1[2] = p[2] * q[0] - p[3] * q[1] + p[0] * q[2] + p[1] * q[3]
-    q1[3] = p[3] * q[0] + p[2] * q[1] - p[1] * q[2] + p[0] * q[3]
+    # q1 = q ⊗ p (sums as trees: a shorter chain)
+    q1[0] = (p[0] * q[0] - p[1] * q[1]) - (p[2] * q[2] + p[3] * q[3])
+    q1[1] = (p[1] * q[0] + p[0] * q[1]) + (p[3] * q[2] - p[2] * q[3])
+    q1[2] = (p[2] * q[0] - p[3] * q[1]) + (p[0] * q[2] + p[1] * q[3])
+    q1[3] = (p[3] * q[0] + p[2] * q[1]) - (p[1] * q[2] - p[0] * q[3])
+    # the normalisation: the correction below is a rotation (norm 1 to rounding), so
+    # normalise(q1 ⊗ r) = normalise(q1) ⊗ r; its factor n is ready long before the
+    # correction is, and goes into c and s, instead of a normalisation after it
+    n = quat_norm_factor((q1[0] * q1[0] + q1[1] * q1[1]) + (q1[2] * q1[2] + q1[3] * q1[3]))
     rot_matrix(q1, R1)
     w[0] = 0.0
     w[1] = 0.0
@@ -165,13 +169,14 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         else:
             half_angle_any(kp * e[0], kp * e[1], kp * e[2], dt, &c, &s)
             s *= kp
+        c *= n
+        s *= n
         q[0] = c * q1[0] + s * P[0]
         q[1] = c * q1[1] + s * P[1]
         q[2] = c * q1[2] + s * P[2]
         q[3] = c * q1[3] + s * P[3]
     else:
-        q[0] = q1[0]; q[1] = q1[1]; q[2] = q1[2]; q[3] = q1[3]
-    quat_normalise(q)
+        q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
 cdef class Mahony(Estimator):
