@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
+from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_param, check_fs, check_positive
 from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
@@ -287,8 +287,9 @@ cdef class EKF(Estimator):
                     double dt) noexcept nogil:
         ekf_step(self, self.q, self.b, self.P, &self.t_run, gyr, acc, mag, dt)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         # the state lives in locals during the loop, as in Mahony._run_batch: stores through
         # o cannot alias them, so the compiler keeps q and b in registers and P unreloaded
         cdef double q[4]
@@ -299,8 +300,7 @@ cdef class EKF(Estimator):
         cdef Py_ssize_t i
         cdef const double* mi
         if not (self.own_step and run_fast(self)):
-            Estimator._run_batch(self, g, a, m, d, dt, o, n)
-            return
+            return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         memcpy(b, self.b, 3 * sizeof(double))
         memcpy(P, self.P, 49 * sizeof(double))
@@ -310,6 +310,8 @@ cdef class EKF(Estimator):
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 ekf_step(self, q, b, P, &t_run, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             else:
+                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                    return i
                 memcpy(self.q, q, 4 * sizeof(double))
                 memcpy(self.b, b, 3 * sizeof(double))
                 memcpy(self.P, P, 49 * sizeof(double))
@@ -324,6 +326,7 @@ cdef class EKF(Estimator):
         memcpy(self.b, b, 3 * sizeof(double))
         memcpy(self.P, P, 49 * sizeof(double))
         self.t_run = t_run
+        return n
 
     @property
     def bias(self):

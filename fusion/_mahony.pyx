@@ -5,7 +5,7 @@ from libc.math cimport sqrt
 
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
+from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor)
@@ -204,8 +204,9 @@ cdef class Mahony(Estimator):
                     double dt) noexcept nogil:
         mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         # the state lives in locals during the loop: the compiler keeps them in registers,
         # which it cannot for self.q (any store through o or eint might alias it)
         cdef double q[4]
@@ -215,8 +216,7 @@ cdef class Mahony(Estimator):
         cdef Py_ssize_t i
         cdef const double* mi
         if not run_fast(self):
-            Estimator._run_batch(self, g, a, m, d, dt, o, n)
-            return
+            return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         memcpy(eint, self.eint, 3 * sizeof(double))
         for i in range(n):
@@ -224,6 +224,8 @@ cdef class Mahony(Estimator):
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             else:
+                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                    return i
                 memcpy(self.q, q, 4 * sizeof(double))
                 memcpy(self.eint, eint, 3 * sizeof(double))
                 self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
@@ -232,6 +234,7 @@ cdef class Mahony(Estimator):
             quat_out(q, ned, o + 4 * i)
         memcpy(self.q, q, 4 * sizeof(double))
         memcpy(self.eint, eint, 3 * sizeof(double))
+        return n
 
     @property
     def bias(self):
