@@ -54,16 +54,26 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
             P[j * 7 + i] = s
 
 
+cdef inline void pred_entry(double* P, const double* F, const double* A, const double* L,
+                            const double* X, double gq, int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] (i, j < 4) of F P Fᵀ + Q = M Aᵀ + N Lᵀ + Q (ekf_predict)."""
+    cdef double s = (F[i * 7] * A[j * 4] + F[i * 7 + 1] * A[j * 4 + 1] + F[i * 7 + 2] * A[j * 4 + 2]
+                     + F[i * 7 + 3] * A[j * 4 + 3] + F[i * 7 + 4] * L[j * 3]
+                     + F[i * 7 + 5] * L[j * 3 + 1] + F[i * 7 + 6] * L[j * 3 + 2])
+    s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
+
+
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
                              double dt) noexcept nogil:
     cdef double A[16]
     cdef double L[12]    # -(dt/2) Xi(q), 4x3
     cdef double X[12]    # Xi(q), 4x3
-    cdef double M[16]    # A Pqq + L Pbq
-    cdef double N[12]    # A Pqb + L Pbb
+    cdef double F[28]    # [M N] = [A L] P[:4 rows of F P]: M = A Pqq + L Pbq, N = A Pqb + L Pbb
     cdef double qn[4]
-    cdef double s, gq
-    cdef int i, j, k
+    cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
+    cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
     X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
     X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
@@ -71,40 +81,40 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
     for i in range(12):
         L[i] = -0.5 * dt * X[i]
+    # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held
+    # in registers (the column loop unrolls: no index arithmetic, P read once a row)
     for i in range(4):
-        qn[i] = A[i * 4] * q[0] + A[i * 4 + 1] * q[1] + A[i * 4 + 2] * q[2] + A[i * 4 + 3] * q[3]
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += A[i * 4 + k] * P[k * 7 + j]
-            for k in range(3):
-                s += L[i * 3 + k] * P[(4 + k) * 7 + j]
-            M[i * 4 + j] = s
-        for j in range(3):
-            s = 0.0
-            for k in range(4):
-                s += A[i * 4 + k] * P[k * 7 + 4 + j]
-            for k in range(3):
-                s += L[i * 3 + k] * P[(4 + k) * 7 + 4 + j]
-            N[i * 3 + j] = s
+        a0 = A[i * 4]; a1 = A[i * 4 + 1]; a2 = A[i * 4 + 2]; a3 = A[i * 4 + 3]
+        l0 = L[i * 3]; l1 = L[i * 3 + 1]; l2 = L[i * 3 + 2]
+        qn[i] = a0 * q[0] + a1 * q[1] + a2 * q[2] + a3 * q[3]
+        for j in range(7):
+            F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
+                            + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
+    # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
     gq = 0.25 * dt * e.gyro_noise * e.gyro_noise
+    pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
+    pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
+    pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
+    pred_entry(P, F, A, L, X, gq, 3, 3)
     for i in range(4):
-        for j in range(i, 4):
-            s = 0.0
-            for k in range(4):
-                s += M[i * 4 + k] * A[j * 4 + k]
-            for k in range(3):
-                s += N[i * 3 + k] * L[j * 3 + k]
-            s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
-            P[i * 7 + j] = s
-            P[j * 7 + i] = s
         for j in range(3):
-            P[i * 7 + 4 + j] = N[i * 3 + j]
-            P[(4 + j) * 7 + i] = N[i * 3 + j]
+            P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
+            P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
     s = e.bias_noise * e.bias_noise * dt
     for i in range(4, 7):
         P[i * 8] += s
     memcpy(q, qn, 4 * sizeof(double))
+
+
+cdef inline void joseph_entry(double* P, const double* K, const double* U, const double* V,
+                              int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] of the Joseph update P - K Uᵀ - V Kᵀ (ekf_vector_update)."""
+    cdef double s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
+                                     + K[i * 3 + 2] * U[j * 3 + 2])
+                                    + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
+                                       + V[i * 3 + 2] * K[j * 3 + 2]))
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
 
 
 cdef inline void ekf_vector_update(double* q, double* b, double* P, const double* z,
@@ -153,14 +163,20 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
         for j in range(3):
             V[i * 3 + j] = U[i * 3 + j] - (K[i * 3] * S[j] + K[i * 3 + 1] * S[3 + j]
                                            + K[i * 3 + 2] * S[6 + j])
-    for i in range(7):
-        for j in range(i, 7):
-            s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
-                                 + K[i * 3 + 2] * U[j * 3 + 2])
-                                + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
-                                   + V[i * 3 + 2] * K[j * 3 + 2]))
-            P[i * 7 + j] = s
-            P[j * 7 + i] = s
+    # entry by entry with constant indices (the compiler keeps K, U, V in registers and
+    # drops the triangular loop's index arithmetic, which cost as much as the products)
+    joseph_entry(P, K, U, V, 0, 0); joseph_entry(P, K, U, V, 0, 1); joseph_entry(P, K, U, V, 0, 2)
+    joseph_entry(P, K, U, V, 0, 3); joseph_entry(P, K, U, V, 0, 4); joseph_entry(P, K, U, V, 0, 5)
+    joseph_entry(P, K, U, V, 0, 6)
+    joseph_entry(P, K, U, V, 1, 1); joseph_entry(P, K, U, V, 1, 2); joseph_entry(P, K, U, V, 1, 3)
+    joseph_entry(P, K, U, V, 1, 4); joseph_entry(P, K, U, V, 1, 5); joseph_entry(P, K, U, V, 1, 6)
+    joseph_entry(P, K, U, V, 2, 2); joseph_entry(P, K, U, V, 2, 3); joseph_entry(P, K, U, V, 2, 4)
+    joseph_entry(P, K, U, V, 2, 5); joseph_entry(P, K, U, V, 2, 6)
+    joseph_entry(P, K, U, V, 3, 3); joseph_entry(P, K, U, V, 3, 4); joseph_entry(P, K, U, V, 3, 5)
+    joseph_entry(P, K, U, V, 3, 6)
+    joseph_entry(P, K, U, V, 4, 4); joseph_entry(P, K, U, V, 4, 5); joseph_entry(P, K, U, V, 4, 6)
+    joseph_entry(P, K, U, V, 5, 5); joseph_entry(P, K, U, V, 5, 6)
+    joseph_entry(P, K, U, V, 6, 6)
 
 
 cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const double* acc,
