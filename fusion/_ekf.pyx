@@ -191,6 +191,31 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, sa * sa / dt)
 
 
+cdef inline void rot_to_body_yz(const double* q, double b, double c, double* out) noexcept nogil:
+    """rot_to_body(q, [0, b, c], out)."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    out[0] = 2.0 * (x*y + w*z) * b + 2.0 * (x*z - w*y) * c
+    out[1] = (w*w - x*x + y*y - z*z) * b + 2.0 * (y*z + w*x) * c
+    out[2] = 2.0 * (y*z - w*x) * b + (w*w - x*x - y*y + z*z) * c
+
+
+cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double* H) noexcept nogil:
+    """jac_rot_to_body(q, [0, b, c], H)."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    H[0] = 2.0 * (z*b - y*c)
+    H[1] = 2.0 * (y*b + z*c)
+    H[2] = 2.0 * (x*b - w*c)
+    H[3] = 2.0 * (w*b + x*c)
+    H[4] = 2.0 * (w*b + x*c)
+    H[5] = 2.0 * (w*c - x*b)
+    H[6] = 2.0 * (y*b + z*c)
+    H[7] = 2.0 * (y*c - z*b)
+    H[8] = 2.0 * (w*c - x*b)
+    H[9] = 2.0 * (-w*b - x*c)
+    H[10] = 2.0 * (z*b - y*c)
+    H[11] = 2.0 * (y*b + z*c)
+
+
 cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
     # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
@@ -199,7 +224,6 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     # heading residuals tilt the estimate and drag the gyro bias with them.
     cdef double z[3]
     cdef double n[3]
-    cdef double v[3]
     cdef double h[3]
     cdef double H[12]
     cdef double Jn[12]   # dn/dq
@@ -211,24 +235,20 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     rho = sqrt(n[0] * n[0] + n[1] * n[1])
     if rho < 1e-9:     # field along the vertical: no heading information
         return
-    v[0] = 0.0
-    v[1] = rho
-    v[2] = n[2]
-    rot_to_body(q, v, h)
-    jac_rot_to_body(q, v, H)
+    # v = [0, rho, n2]; rot_to_body, jac_rot_to_body and R^T D below without the terms of
+    # the zero component (products with 0.0 are not dropped by the compiler; the sums are
+    # the same)
+    rot_to_body_yz(q, rho, n[2], h)
+    jac_rot_to_body_yz(q, rho, n[2], H)
     jac_rot_to_nav(q, z, Jn)
     ux = n[0] / rho
     uy = n[1] / rho
     for j in range(4):
-        D[j] = 0.0
         D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
         D[8 + j] = Jn[8 + j]
-    # H += R^T(q) D, column by column (R^T applied to each column of D)
+    # H += R^T(q) D, column by column (R^T applied to each column of D; its first row is 0)
     for j in range(4):
-        v[0] = D[j]
-        v[1] = D[4 + j]
-        v[2] = D[8 + j]
-        rot_to_body(q, v, n)
+        rot_to_body_yz(q, D[4 + j], D[8 + j], n)
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
