@@ -102,32 +102,37 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     #   e = ka acc x R1ᵀ z + km mag x R1ᵀ v = R1ᵀ (ka (R1 acc) x z + km (R1 mag) x v),
     # which leaves less after the square root on the sample-to-sample dependency chain
     # (q -> error -> correction -> normalise -> q) that a sample's time is made of.
-    cdef double p[4]
+    cdef double wg[3]
+    cdef double Q[4]
     cdef double q1[4]
     cdef double R1[9]
     cdef double h[3]
     cdef double w[3]
     cdef double e[3]
     cdef double P[4]
-    cdef double c, s, k, rho, h2, h4, n2, n
+    cdef double c, s, k, rho, h2, h4, n1, n2, n
     if gyr != NULL:
-        half_angle_fast(gyr[0] + ki * eint[0], gyr[1] + ki * eint[1], gyr[2] + ki * eint[2],
-                        dt, &c, &s)
-        p[0] = c
-        p[1] = (gyr[0] + ki * eint[0]) * s
-        p[2] = (gyr[1] + ki * eint[1]) * s
-        p[3] = (gyr[2] + ki * eint[2]) * s
+        # q1 = q ⊗ [c, s wg] = c q + s (q ⊗ [0, wg]): the product with wg does not wait for
+        # c and s (the gyro's chain: eint -> wg -> |wg| -> c, s -> q1)
+        wg[0] = gyr[0] + ki * eint[0]
+        wg[1] = gyr[1] + ki * eint[1]
+        wg[2] = gyr[2] + ki * eint[2]
+        Q[0] = -(q[1] * wg[0] + q[2] * wg[1]) - q[3] * wg[2]
+        Q[1] = (q[0] * wg[0] - q[3] * wg[1]) + q[2] * wg[2]
+        Q[2] = (q[3] * wg[0] + q[0] * wg[1]) - q[1] * wg[2]
+        Q[3] = (q[1] * wg[1] - q[2] * wg[0]) + q[0] * wg[2]
+        half_angle_fast(wg[0], wg[1], wg[2], dt, &c, &s)
+        q1[0] = c * q[0] + s * Q[0]
+        q1[1] = c * q[1] + s * Q[1]
+        q1[2] = c * q[2] + s * Q[2]
+        q1[3] = c * q[3] + s * Q[3]
     else:
-        p[0] = 1.0; p[1] = 0.0; p[2] = 0.0; p[3] = 0.0
-    # q1 = q ⊗ p (sums as trees: a shorter chain)
-    q1[0] = (p[0] * q[0] - p[1] * q[1]) - (p[2] * q[2] + p[3] * q[3])
-    q1[1] = (p[1] * q[0] + p[0] * q[1]) + (p[3] * q[2] - p[2] * q[3])
-    q1[2] = (p[2] * q[0] - p[3] * q[1]) + (p[0] * q[2] + p[1] * q[3])
-    q1[3] = (p[3] * q[0] + p[2] * q[1]) - (p[1] * q[2] - p[0] * q[3])
+        q1[0] = q[0]; q1[1] = q[1]; q1[2] = q[2]; q1[3] = q[3]
     # the normalisation: the correction below is a rotation (norm 1 to rounding), so
     # normalise(q1 ⊗ r) = normalise(q1) ⊗ r; its factor n is ready long before the
     # correction is, and goes into c and s, instead of a normalisation after it
-    n = quat_norm_factor((q1[0] * q1[0] + q1[1] * q1[1]) + (q1[2] * q1[2] + q1[3] * q1[3]))
+    n1 = (q1[0] * q1[0] + q1[1] * q1[1]) + (q1[2] * q1[2] + q1[3] * q1[3])
+    n = quat_norm_factor(n1)
     rot_matrix(q1, R1)
     w[0] = 0.0
     w[1] = 0.0
@@ -152,12 +157,13 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         eint[1] += e[1] * dt
         eint[2] += e[2] * dt
     if kp > 0.0:
-        # q2 = q1 ⊗ [c, s kp e] = c q1 + s kp (q1 ⊗ [0, e]); |e| = |w| (R1 is a rotation), so
-        # c and s come from w while e is still being computed
-        P[0] = -(q1[1] * e[0] + q1[2] * e[1] + q1[3] * e[2])
-        P[1] = q1[0] * e[0] + q1[2] * e[2] - q1[3] * e[1]
-        P[2] = q1[0] * e[1] - q1[1] * e[2] + q1[3] * e[0]
-        P[3] = q1[0] * e[2] + q1[1] * e[1] - q1[2] * e[0]
+        # q2 = q1 ⊗ [c, s kp e] = c q1 + s kp P, P = q1 ⊗ [0, e] = q1 ⊗ [0, R1ᵀ w] =
+        # |q1|² [0, w] ⊗ q1 (R1 is R's homogeneous form, |q1|² times the rotation): P from w
+        # directly, not after e; |e| = |w| likewise, so c and s come from w too
+        P[0] = -(w[0] * q1[1] + w[1] * q1[2]) - w[2] * q1[3]
+        P[1] = (w[0] * q1[0] + w[1] * q1[3]) - w[2] * q1[2]
+        P[2] = (w[1] * q1[0] - w[0] * q1[3]) + w[2] * q1[1]
+        P[3] = (w[0] * q1[2] - w[1] * q1[1]) + w[2] * q1[0]
         n2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
         h2 = n2 * (0.25 * kp * kp * dt * dt)
         if h2 < 1e-6:
@@ -170,7 +176,7 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
             half_angle_any(kp * e[0], kp * e[1], kp * e[2], dt, &c, &s)
             s *= kp
         c *= n
-        s *= n
+        s *= n * n1
         q[0] = c * q1[0] + s * P[0]
         q[1] = c * q1[1] + s * P[1]
         q[2] = c * q1[2] + s * P[2]
