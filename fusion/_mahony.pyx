@@ -107,10 +107,11 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     cdef double q1[4]
     cdef double R1[9]
     cdef double h[3]
-    cdef double w[3]
+    cdef double W[2]     # w = [W0, W1, 0] + rho [G0, 0, G1]
+    cdef double G[2]
     cdef double e[3]
     cdef double P[4]
-    cdef double c, s, k, rho, h2, h4, n1, n2, n
+    cdef double c, s, k, rho, rho2, h2, h4, n1, n2, n
     if gyr != NULL:
         # q1 = q ⊗ [c, s wg] = c q + s (q ⊗ [0, wg]): the product with wg does not wait for
         # c and s (the gyro's chain: eint -> wg -> |wg| -> c, s -> q1)
@@ -134,37 +135,50 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     n1 = (q1[0] * q1[0] + q1[1] * q1[1]) + (q1[2] * q1[2] + q1[3] * q1[3])
     n = quat_norm_factor(n1)
     rot_matrix(q1, R1)
-    w[0] = 0.0
-    w[1] = 0.0
-    w[2] = 0.0
+    # the error in the navigation frame, w = W + rho G (rho the square root below, of the
+    # folded field), and everything made of it linearly (e = R1ᵀ w, the correction's P) in
+    # the same split: after the square root, one product and one sum each
+    W[0] = 0.0
+    W[1] = 0.0
+    G[0] = 0.0
+    G[1] = 0.0
+    rho = 0.0
+    rho2 = 0.0
     if acc != NULL:
         # (R1 acc) x z / |acc| = [a1, -a0, 0] / |acc|
         k = 1.0 / sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-        w[0] = (R1[3] * acc[0] + R1[4] * acc[1] + R1[5] * acc[2]) * k
-        w[1] = -(R1[0] * acc[0] + R1[1] * acc[1] + R1[2] * acc[2]) * k
+        W[0] = (R1[3] * acc[0] + R1[4] * acc[1] + R1[5] * acc[2]) * k
+        W[1] = -(R1[0] * acc[0] + R1[1] * acc[1] + R1[2] * acc[2]) * k
     if mag != NULL:
         # h = R1 mag, turned about z onto north: v = [0, rho, h2]; h x v = [h2 (h1 - rho),
         # -h0 h2, h0 rho], over |mag|^2 (the folded field is linear in mag)
         k = 1.0 / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         mat_vec(R1, mag, h)
-        rho = sqrt(h[0] * h[0] + h[1] * h[1])
-        w[0] += (h[2] * (h[1] - rho)) * k
-        w[1] -= (h[0] * h[2]) * k
-        w[2] += (h[0] * rho) * k
-    mat_t_vec(R1, w, e)
+        W[0] += (h[2] * k) * h[1]
+        W[1] -= (h[0] * k) * h[2]
+        G[0] = -(h[2] * k)      # G = [G0, 0, G1]
+        G[1] = h[0] * k
+        rho2 = h[0] * h[0] + h[1] * h[1]
+        rho = sqrt(rho2)
+    # e = R1ᵀ w
+    e[0] = (R1[0] * W[0] + R1[3] * W[1]) + rho * (R1[0] * G[0] + R1[6] * G[1])
+    e[1] = (R1[1] * W[0] + R1[4] * W[1]) + rho * (R1[1] * G[0] + R1[7] * G[1])
+    e[2] = (R1[2] * W[0] + R1[5] * W[1]) + rho * (R1[2] * G[0] + R1[8] * G[1])
     if ki > 0.0:
         eint[0] += e[0] * dt
         eint[1] += e[1] * dt
         eint[2] += e[2] * dt
     if kp > 0.0:
         # q2 = q1 ⊗ [c, s kp e] = c q1 + s kp P, P = q1 ⊗ [0, e] = q1 ⊗ [0, R1ᵀ w] =
-        # |q1|² [0, w] ⊗ q1 (R1 is R's homogeneous form, |q1|² times the rotation): P from w
-        # directly, not after e; |e| = |w| likewise, so c and s come from w too
-        P[0] = -(w[0] * q1[1] + w[1] * q1[2]) - w[2] * q1[3]
-        P[1] = (w[0] * q1[0] + w[1] * q1[3]) - w[2] * q1[2]
-        P[2] = (w[1] * q1[0] - w[0] * q1[3]) + w[2] * q1[1]
-        P[3] = (w[0] * q1[2] - w[1] * q1[1]) + w[2] * q1[0]
-        n2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+        # |q1|² [0, w] ⊗ q1 (R1 is R's homogeneous form, |q1|² times the rotation): P from
+        # [0, W] ⊗ q1 + rho [0, G] ⊗ q1; |e| = |w| likewise: c and s come from
+        # |w|² = |W|² + rho² |G|² + 2 rho W·G
+        P[0] = (-(W[0] * q1[1] + W[1] * q1[2])) + rho * (-(G[0] * q1[1] + G[1] * q1[3]))
+        P[1] = (W[0] * q1[0] + W[1] * q1[3]) + rho * (G[0] * q1[0] - G[1] * q1[2])
+        P[2] = (W[1] * q1[0] - W[0] * q1[3]) + rho * (G[1] * q1[1] - G[0] * q1[3])
+        P[3] = (W[0] * q1[2] - W[1] * q1[1]) + rho * (G[0] * q1[2] + G[1] * q1[0])
+        n2 = ((W[0] * W[0] + W[1] * W[1]) + rho2 * (G[0] * G[0] + G[1] * G[1])
+              + rho * (2.0 * W[0] * G[0]))
         h2 = n2 * (0.25 * kp * kp * dt * dt)
         if h2 < 1e-6:
             # half_angle_terms' series cut after h2^2: the next terms (h2^3/720, h2^3/5040)
