@@ -117,28 +117,36 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     memcpy(q, qn, 4 * sizeof(double))
 
 
-cdef inline void heading_only_gain(const double* q, double* K) noexcept nogil:
-    """Project every column of the gain K (7x3) so that the update can only turn the
-    attitude about the vertical (quaternion part onto u = e_z (x) q, the direction of such a
-    rotation) and change the bias along the body-frame vertical w = R^T e_z: the
-    magnetometer then corrects the heading alone, as in VQF and Fusion (docs/estimators.md)."""
+cdef inline void heading_only_gain(const double* q, const double* U, const double* Sa,
+                                   double det, double* K) noexcept nogil:
+    """The gain K = U S^-1 (7x3; Sa = adj(S), det = 1 / det(S)) with every column projected
+    so that the update can only turn the attitude about the vertical (quaternion rows onto
+    u = e_z (x) q, the direction of such a turn) and change the bias along the body-frame
+    vertical w = R^T e_z: the magnetometer then corrects the heading alone, as in VQF and
+    Fusion (docs/estimators.md). Projecting U's rows first gives rank-one blocks,
+    K_q = u (uᵀ U_q S^-1) / |u|², K_b = w (wᵀ U_b S^-1): no dearer than the plain gain."""
     cdef double u[4]
     cdef double w[3]
-    cdef double uu, s
+    cdef double a[3]
+    cdef double c[3]
+    cdef double ka, kc, iuu
     cdef int i, j
     u[0] = -q[3]
     u[1] = -q[2]
     u[2] = q[1]
     u[3] = q[0]
-    uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + u[3] * u[3]
+    iuu = det      # / |u|² = |q|² = 1: q was normalised by the update or prediction before
     up_in_body(q, w)
     for j in range(3):
-        s = (u[0] * K[j] + u[1] * K[3 + j] + u[2] * K[6 + j] + u[3] * K[9 + j]) / uu
+        a[j] = u[0] * U[j] + u[1] * U[3 + j] + u[2] * U[6 + j] + u[3] * U[9 + j]
+        c[j] = w[0] * U[12 + j] + w[1] * U[15 + j] + w[2] * U[18 + j]
+    for j in range(3):
+        ka = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
+        kc = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
         for i in range(4):
-            K[i * 3 + j] = s * u[i]
-        s = w[0] * K[12 + j] + w[1] * K[15 + j] + w[2] * K[18 + j]
+            K[i * 3 + j] = u[i] * ka
         for i in range(3):
-            K[(4 + i) * 3 + j] = s * w[i]
+            K[(4 + i) * 3 + j] = w[i] * kc
 
 
 cdef inline void joseph_entry(double* P, const double* K, const double* U, const double* V,
@@ -192,11 +200,12 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     Si[6] = Si[2]
     Si[7] = Si[5]
     Si[8] = S[0] * S[4] - S[1] * S[3]
-    for i in range(7):
-        for j in range(3):
-            K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
     if heading_only:
-        heading_only_gain(q, K)
+        heading_only_gain(q, U, Si, det, K)
+    else:
+        for i in range(7):
+            for j in range(3):
+                K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
     y[0] = z[0] - h[0]
     y[1] = z[1] - h[1]
     y[2] = z[2] - h[2]
@@ -324,7 +333,7 @@ cdef class EKF(Estimator):
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading"}
+              "mag_update": "vector"}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)

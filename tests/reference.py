@@ -375,7 +375,7 @@ def unmeasured_variance(t_run, gyr, dt, fs, gyro_range, motion_rate):
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading"}
+              "mag_update": "vector"}
 
     def _reset_state(self):
         self.b = np.zeros(3)
