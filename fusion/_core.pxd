@@ -38,9 +38,12 @@ cdef class Estimator:
     cdef void _output_q(self, double* out) noexcept nogil
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
-    # may override it with a loop that inlines its step (see run_fast).
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil
+    # may override it with a loop that inlines its step (see run_fast). With stop_invalid it
+    # stops at the first sample that is not sample_valid and returns its index (the state is
+    # then undefined: run() restores it); otherwise it returns n.
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil
     # Every C field that determines future outputs, as (name, typed memoryview onto the field,
     # check) with check None, (lo, hi) for integers (hi None: unbounded) or "unit" for a
     # quaternion. state() / load_state() / pickling are built on it in the base class; a
@@ -53,6 +56,10 @@ cdef class Estimator:
 cdef inline bint run_fast(Estimator e) noexcept nogil:
     """The samples go to the step as they are: no prefilter to apply."""
     return e.pre_gyr is None and e.pre_acc is None and e.pre_mag is None
+
+cdef inline bint sample_valid(const double* g, const double* a, const double* m) noexcept nogil:
+    """Every vector of the raw sample valid (what on_invalid='raise' requires)."""
+    return vec3_finite(g) and vec3_valid(a) and (m == NULL or vec3_valid(m))
 
 cdef inline bint sample_fast(Estimator e, const double* g, const double* a,
                              const double* m) noexcept nogil:

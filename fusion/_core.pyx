@@ -90,6 +90,34 @@ def _as_samples(x, name, int n=-1):
     return np.ascontiguousarray(arr, dtype=np.float64)
 
 
+# run() with on_invalid='raise' checks the samples inside its loop (no pass over the input
+# before it) from this many samples on, which costs a copy of the state (a few microseconds)
+FUSED_CHECK_MIN = 2048
+
+
+def _check_samples(G, A, M, Py_ssize_t n):
+    """ValueError naming the first invalid sample of the first sensor (gyr, acc, mag) that
+    has one; nothing if every sample is valid."""
+    cdef const double[:, ::1] g = G
+    cdef const double[:, ::1] a = A
+    cdef const double[:, ::1] m = M if M is not None else np.empty((0, 3))
+    cdef bint has_mag = M is not None
+    cdef Py_ssize_t i, bad_g = -1, bad_a = -1, bad_m = -1
+    with nogil:
+        for i in range(n):
+            if bad_g < 0 and not vec3_finite(&g[i, 0]):
+                bad_g = i
+            if bad_a < 0 and not vec3_valid(&a[i, 0]):
+                bad_a = i
+            if has_mag and bad_m < 0 and not vec3_valid(&m[i, 0]):
+                bad_m = i
+    for arr, nm, b, rule in ((G, "gyr", bad_g, "finite"), (A, "acc", bad_a, "finite and non-zero"),
+                             (M, "mag", bad_m, "finite and non-zero")):
+        if b >= 0:
+            raise ValueError(f"{nm} must be {rule}; {nm}[{b}] = {arr[b]!r} "
+                             f"(on_invalid='skip' skips such samples)")
+
+
 cdef int _read_vec3(object v, str name, double* out) except -1:
     """One 3-vector from a float64 array (fast path), or anything array-like of 3 numbers."""
     cdef cnp.ndarray arr
@@ -268,13 +296,18 @@ cdef class Estimator:
     cdef void _output_q(self, double* out) noexcept nogil:
         output_q(self, out)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         cdef Py_ssize_t i
+        cdef const double* mi
         for i in range(n):
-            self._process(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
-                          d[i] if d != NULL else dt)
+            mi = m + 3 * i if m != NULL else NULL
+            if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                return i
+            self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             output_q(self, o + 4 * i)
+        return n
 
     # --- public interface ---------------------------------------------------------------
     def reset(self, q0=None):
@@ -364,28 +397,27 @@ cdef class Estimator:
         cdef const double[::1] d = D if D is not None else np.empty(0)
         cdef bint has_mag = M is not None
         cdef bint has_dt = D is not None
-        cdef Py_ssize_t i, bad_g = -1, bad_a = -1, bad_m = -1
+        cdef Py_ssize_t done
+        cdef bint fused = not self.skip_invalid and n > FUSED_CHECK_MIN
         out = np.empty((n, 4))
         cdef double[:, ::1] o = out
         if n == 0:
             return out
-        if not self.skip_invalid:
-            with nogil:
-                for i in range(n):
-                    if bad_g < 0 and not vec3_finite(&g[i, 0]):
-                        bad_g = i
-                    if bad_a < 0 and not vec3_valid(&a[i, 0]):
-                        bad_a = i
-                    if has_mag and bad_m < 0 and not vec3_valid(&m[i, 0]):
-                        bad_m = i
-            for arr, nm, b, rule in ((G, "gyr", bad_g, "finite"), (A, "acc", bad_a, "finite and non-zero"),
-                                     (M, "mag", bad_m, "finite and non-zero")):
-                if b >= 0:
-                    raise ValueError(f"{nm} must be {rule}; {nm}[{b}] = {arr[b]!r} "
-                                     f"(on_invalid='skip' skips such samples)")
+        if not self.skip_invalid and not fused:
+            _check_samples(G, A, M, n)     # raises naming the first invalid sample
+        if fused:
+            # on_invalid='raise' over a long batch: the loop checks each sample as it goes
+            # (no separate pass over the input first) and stops at the first invalid one;
+            # then the state is put back as it was and the same error raised
+            saved = [np.array(view, copy=True) for _, view, _ in _fields_of(self)]
         with nogil:
-            self._run_batch(&g[0, 0], &a[0, 0], &m[0, 0] if has_mag else NULL,
-                            &d[0] if has_dt else NULL, dt_const, &o[0, 0], n)
+            done = self._run_batch(&g[0, 0], &a[0, 0], &m[0, 0] if has_mag else NULL,
+                                   &d[0] if has_dt else NULL, dt_const, &o[0, 0], n, fused)
+        if done < n:
+            for (_, view, _), v in zip(_fields_of(self), saved):
+                np.asarray(view)[:] = v
+            _check_samples(G, A, M, n)
+            raise AssertionError(f"sample {done} stopped the batch but passes the checks")
         return out
 
     @property

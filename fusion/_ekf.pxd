@@ -9,6 +9,7 @@ cdef class EKF(Estimator):
     cdef double gyro_range_
     cdef readonly double motion_rate
     cdef double t_run
+    cdef bint mag_heading_only   # mag_update="heading": the magnetometer turns the heading only
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses
     cdef void propagate(self, const double* gyr, double dt) noexcept nogil

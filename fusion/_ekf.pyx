@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
+from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_param, check_fs, check_positive
 from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
@@ -21,6 +21,17 @@ def check_recovery_params(p):
     g = p["gyro_range"]
     g = 0.0 if g is None else check_positive("gyro_range", g, upper=1e6)
     return g, check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
+
+
+MAG_UPDATES = ("heading", "vector")
+
+
+def check_mag_update(value):
+    """True for "heading" (the magnetometer corrects the heading only), False for "vector"
+    (seed 003's eqs. 11-16 as written: the full 3-D update, which also tilts)."""
+    if not isinstance(value, str) or value not in MAG_UPDATES:
+        raise ValueError(f"mag_update must be one of {MAG_UPDATES}, got {value!r}")
+    return value == "heading"
 
 
 cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
@@ -54,16 +65,26 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
             P[j * 7 + i] = s
 
 
+cdef inline void pred_entry(double* P, const double* F, const double* A, const double* L,
+                            const double* X, double gq, int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] (i, j < 4) of F P Fᵀ + Q = M Aᵀ + N Lᵀ + Q (ekf_predict)."""
+    cdef double s = (F[i * 7] * A[j * 4] + F[i * 7 + 1] * A[j * 4 + 1] + F[i * 7 + 2] * A[j * 4 + 2]
+                     + F[i * 7 + 3] * A[j * 4 + 3] + F[i * 7 + 4] * L[j * 3]
+                     + F[i * 7 + 5] * L[j * 3 + 1] + F[i * 7 + 6] * L[j * 3 + 2])
+    s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
+
+
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
                              double dt) noexcept nogil:
     cdef double A[16]
     cdef double L[12]    # -(dt/2) Xi(q), 4x3
     cdef double X[12]    # Xi(q), 4x3
-    cdef double M[16]    # A Pqq + L Pbq
-    cdef double N[12]    # A Pqb + L Pbb
+    cdef double F[28]    # [M N] = [A L] P[:4 rows of F P]: M = A Pqq + L Pbq, N = A Pqb + L Pbb
     cdef double qn[4]
-    cdef double s, gq
-    cdef int i, j, k
+    cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
+    cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
     X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
     X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
@@ -71,53 +92,87 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
     for i in range(12):
         L[i] = -0.5 * dt * X[i]
+    # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held
+    # in registers (the column loop unrolls: no index arithmetic, P read once a row)
     for i in range(4):
-        qn[i] = A[i * 4] * q[0] + A[i * 4 + 1] * q[1] + A[i * 4 + 2] * q[2] + A[i * 4 + 3] * q[3]
-        for j in range(4):
-            s = 0.0
-            for k in range(4):
-                s += A[i * 4 + k] * P[k * 7 + j]
-            for k in range(3):
-                s += L[i * 3 + k] * P[(4 + k) * 7 + j]
-            M[i * 4 + j] = s
-        for j in range(3):
-            s = 0.0
-            for k in range(4):
-                s += A[i * 4 + k] * P[k * 7 + 4 + j]
-            for k in range(3):
-                s += L[i * 3 + k] * P[(4 + k) * 7 + 4 + j]
-            N[i * 3 + j] = s
+        a0 = A[i * 4]; a1 = A[i * 4 + 1]; a2 = A[i * 4 + 2]; a3 = A[i * 4 + 3]
+        l0 = L[i * 3]; l1 = L[i * 3 + 1]; l2 = L[i * 3 + 2]
+        qn[i] = a0 * q[0] + a1 * q[1] + a2 * q[2] + a3 * q[3]
+        for j in range(7):
+            F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
+                            + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
+    # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
     gq = 0.25 * dt * e.gyro_noise * e.gyro_noise
+    pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
+    pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
+    pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
+    pred_entry(P, F, A, L, X, gq, 3, 3)
     for i in range(4):
-        for j in range(i, 4):
-            s = 0.0
-            for k in range(4):
-                s += M[i * 4 + k] * A[j * 4 + k]
-            for k in range(3):
-                s += N[i * 3 + k] * L[j * 3 + k]
-            s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
-            P[i * 7 + j] = s
-            P[j * 7 + i] = s
         for j in range(3):
-            P[i * 7 + 4 + j] = N[i * 3 + j]
-            P[(4 + j) * 7 + i] = N[i * 3 + j]
+            P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
+            P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
     s = e.bias_noise * e.bias_noise * dt
     for i in range(4, 7):
         P[i * 8] += s
     memcpy(q, qn, 4 * sizeof(double))
 
 
+cdef inline void heading_only_gain(const double* q, const double* U, const double* Sa,
+                                   double det, double* K) noexcept nogil:
+    """The gain K = U S^-1 (7x3; Sa = adj(S), det = 1 / det(S)) with every column projected
+    so that the update can only turn the attitude about the vertical (quaternion rows onto
+    u = e_z (x) q, the direction of such a turn) and change the bias along the body-frame
+    vertical w = R^T e_z: the magnetometer then corrects the heading alone, as in VQF and
+    Fusion (docs/estimators.md). Projecting U's rows first gives rank-one blocks,
+    K_q = u (uᵀ U_q S^-1) / |u|², K_b = w (wᵀ U_b S^-1): no dearer than the plain gain."""
+    cdef double u[4]
+    cdef double w[3]
+    cdef double a[3]
+    cdef double c[3]
+    cdef double ka, kc, iuu
+    cdef int i, j
+    u[0] = -q[3]
+    u[1] = -q[2]
+    u[2] = q[1]
+    u[3] = q[0]
+    iuu = det      # / |u|² = |q|² = 1: q was normalised by the update or prediction before
+    up_in_body(q, w)
+    for j in range(3):
+        a[j] = u[0] * U[j] + u[1] * U[3 + j] + u[2] * U[6 + j] + u[3] * U[9 + j]
+        c[j] = w[0] * U[12 + j] + w[1] * U[15 + j] + w[2] * U[18 + j]
+    for j in range(3):
+        ka = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
+        kc = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
+        for i in range(4):
+            K[i * 3 + j] = u[i] * ka
+        for i in range(3):
+            K[(4 + i) * 3 + j] = w[i] * kc
+
+
+cdef inline void joseph_entry(double* P, const double* K, const double* U, const double* V,
+                              int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] of the Joseph update P - K Uᵀ - V Kᵀ (ekf_vector_update)."""
+    cdef double s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
+                                     + K[i * 3 + 2] * U[j * 3 + 2])
+                                    + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
+                                       + V[i * 3 + 2] * K[j * 3 + 2]))
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
+
+
 cdef inline void ekf_vector_update(double* q, double* b, double* P, const double* z,
-                                   const double* h, const double* H, double r) noexcept nogil:
+                                   const double* h, const double* H, double r,
+                                   bint heading_only) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
-    and noise variance r per axis."""
+    and noise variance r per axis; ``heading_only``: the gain projected by
+    heading_only_gain (the Joseph form below holds for any gain)."""
     cdef double U[21]    # P H^T, 7x3
     cdef double S[9]
-    cdef double Si[9]
+    cdef double Si[9]    # adj(S)
     cdef double K[21]    # 7x3
     cdef double V[21]    # U - K S, 7x3
     cdef double y[3]
-    cdef double s
+    cdef double s, det
     cdef int i, j, k
     for i in range(7):
         for k in range(3):
@@ -133,10 +188,24 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     S[0] += r
     S[4] += r
     S[8] += r
-    sym3_inverse(S, Si)
-    for i in range(7):
-        for j in range(3):
-            K[i * 3 + j] = U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]
+    # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for the
+    # division (~13 cycles on the chain from P to the next update)
+    Si[0] = S[4] * S[8] - S[5] * S[7]
+    Si[1] = S[2] * S[7] - S[1] * S[8]
+    Si[2] = S[1] * S[5] - S[2] * S[4]
+    det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
+    Si[3] = Si[1]
+    Si[4] = S[0] * S[8] - S[2] * S[6]
+    Si[5] = S[2] * S[3] - S[0] * S[5]
+    Si[6] = Si[2]
+    Si[7] = Si[5]
+    Si[8] = S[0] * S[4] - S[1] * S[3]
+    if heading_only:
+        heading_only_gain(q, U, Si, det, K)
+    else:
+        for i in range(7):
+            for j in range(3):
+                K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
     y[0] = z[0] - h[0]
     y[1] = z[1] - h[1]
     y[2] = z[2] - h[2]
@@ -153,14 +222,20 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
         for j in range(3):
             V[i * 3 + j] = U[i * 3 + j] - (K[i * 3] * S[j] + K[i * 3 + 1] * S[3 + j]
                                            + K[i * 3 + 2] * S[6 + j])
-    for i in range(7):
-        for j in range(i, 7):
-            s = P[i * 7 + j] - ((K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
-                                 + K[i * 3 + 2] * U[j * 3 + 2])
-                                + (V[i * 3] * K[j * 3] + V[i * 3 + 1] * K[j * 3 + 1]
-                                   + V[i * 3 + 2] * K[j * 3 + 2]))
-            P[i * 7 + j] = s
-            P[j * 7 + i] = s
+    # entry by entry with constant indices (the compiler keeps K, U, V in registers and
+    # drops the triangular loop's index arithmetic, which cost as much as the products)
+    joseph_entry(P, K, U, V, 0, 0); joseph_entry(P, K, U, V, 0, 1); joseph_entry(P, K, U, V, 0, 2)
+    joseph_entry(P, K, U, V, 0, 3); joseph_entry(P, K, U, V, 0, 4); joseph_entry(P, K, U, V, 0, 5)
+    joseph_entry(P, K, U, V, 0, 6)
+    joseph_entry(P, K, U, V, 1, 1); joseph_entry(P, K, U, V, 1, 2); joseph_entry(P, K, U, V, 1, 3)
+    joseph_entry(P, K, U, V, 1, 4); joseph_entry(P, K, U, V, 1, 5); joseph_entry(P, K, U, V, 1, 6)
+    joseph_entry(P, K, U, V, 2, 2); joseph_entry(P, K, U, V, 2, 3); joseph_entry(P, K, U, V, 2, 4)
+    joseph_entry(P, K, U, V, 2, 5); joseph_entry(P, K, U, V, 2, 6)
+    joseph_entry(P, K, U, V, 3, 3); joseph_entry(P, K, U, V, 3, 4); joseph_entry(P, K, U, V, 3, 5)
+    joseph_entry(P, K, U, V, 3, 6)
+    joseph_entry(P, K, U, V, 4, 4); joseph_entry(P, K, U, V, 4, 5); joseph_entry(P, K, U, V, 4, 6)
+    joseph_entry(P, K, U, V, 5, 5); joseph_entry(P, K, U, V, 5, 6)
+    joseph_entry(P, K, U, V, 6, 6)
 
 
 cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const double* acc,
@@ -172,7 +247,32 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     unit3(acc, z)
     up_in_body(q, h)
     jac_up_in_body(q, H)
-    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt)
+    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, False)
+
+
+cdef inline void rot_to_body_yz(const double* q, double b, double c, double* out) noexcept nogil:
+    """rot_to_body(q, [0, b, c], out)."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    out[0] = 2.0 * (x*y + w*z) * b + 2.0 * (x*z - w*y) * c
+    out[1] = (w*w - x*x + y*y - z*z) * b + 2.0 * (y*z + w*x) * c
+    out[2] = 2.0 * (y*z - w*x) * b + (w*w - x*x - y*y + z*z) * c
+
+
+cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double* H) noexcept nogil:
+    """jac_rot_to_body(q, [0, b, c], H)."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    H[0] = 2.0 * (z*b - y*c)
+    H[1] = 2.0 * (y*b + z*c)
+    H[2] = 2.0 * (x*b - w*c)
+    H[3] = 2.0 * (w*b + x*c)
+    H[4] = 2.0 * (w*b + x*c)
+    H[5] = 2.0 * (w*c - x*b)
+    H[6] = 2.0 * (y*b + z*c)
+    H[7] = 2.0 * (y*c - z*b)
+    H[8] = 2.0 * (w*c - x*b)
+    H[9] = 2.0 * (-w*b - x*c)
+    H[10] = 2.0 * (z*b - y*c)
+    H[11] = 2.0 * (y*b + z*c)
 
 
 cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
@@ -183,7 +283,6 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     # heading residuals tilt the estimate and drag the gyro bias with them.
     cdef double z[3]
     cdef double n[3]
-    cdef double v[3]
     cdef double h[3]
     cdef double H[12]
     cdef double Jn[12]   # dn/dq
@@ -195,28 +294,24 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     rho = sqrt(n[0] * n[0] + n[1] * n[1])
     if rho < 1e-9:     # field along the vertical: no heading information
         return
-    v[0] = 0.0
-    v[1] = rho
-    v[2] = n[2]
-    rot_to_body(q, v, h)
-    jac_rot_to_body(q, v, H)
+    # v = [0, rho, n2]; rot_to_body, jac_rot_to_body and R^T D below without the terms of
+    # the zero component (products with 0.0 are not dropped by the compiler; the sums are
+    # the same)
+    rot_to_body_yz(q, rho, n[2], h)
+    jac_rot_to_body_yz(q, rho, n[2], H)
     jac_rot_to_nav(q, z, Jn)
     ux = n[0] / rho
     uy = n[1] / rho
     for j in range(4):
-        D[j] = 0.0
         D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
         D[8 + j] = Jn[8 + j]
-    # H += R^T(q) D, column by column (R^T applied to each column of D)
+    # H += R^T(q) D, column by column (R^T applied to each column of D; its first row is 0)
     for j in range(4):
-        v[0] = D[j]
-        v[1] = D[4 + j]
-        v[2] = D[8 + j]
-        rot_to_body(q, v, n)
+        rot_to_body_yz(q, D[4 + j], D[8 + j], n)
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
-    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt)
+    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_heading_only)
 
 
 cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
@@ -237,12 +332,14 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+              "mag_update": "vector"}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
+        self.mag_heading_only = check_mag_update(p["mag_update"])
         self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
         self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
         self.acc_noise = check_param("acc_noise", p["acc_noise"])
@@ -287,8 +384,9 @@ cdef class EKF(Estimator):
                     double dt) noexcept nogil:
         ekf_step(self, self.q, self.b, self.P, &self.t_run, gyr, acc, mag, dt)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         # the state lives in locals during the loop, as in Mahony._run_batch: stores through
         # o cannot alias them, so the compiler keeps q and b in registers and P unreloaded
         cdef double q[4]
@@ -299,8 +397,7 @@ cdef class EKF(Estimator):
         cdef Py_ssize_t i
         cdef const double* mi
         if not (self.own_step and run_fast(self)):
-            Estimator._run_batch(self, g, a, m, d, dt, o, n)
-            return
+            return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         memcpy(b, self.b, 3 * sizeof(double))
         memcpy(P, self.P, 49 * sizeof(double))
@@ -310,6 +407,8 @@ cdef class EKF(Estimator):
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 ekf_step(self, q, b, P, &t_run, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             else:
+                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                    return i
                 memcpy(self.q, q, 4 * sizeof(double))
                 memcpy(self.b, b, 3 * sizeof(double))
                 memcpy(self.P, P, 49 * sizeof(double))
@@ -324,11 +423,17 @@ cdef class EKF(Estimator):
         memcpy(self.b, b, 3 * sizeof(double))
         memcpy(self.P, P, 49 * sizeof(double))
         self.t_run = t_run
+        return n
 
     @property
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.b[0], self.b[1], self.b[2]])
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
+        return "heading" if self.mag_heading_only else "vector"
 
     @property
     def gyro_range(self):

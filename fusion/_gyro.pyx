@@ -2,7 +2,7 @@
 """`gyro`: integration of the gyro alone, the floor every filter must beat."""
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
+from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._qmath cimport quat_propagate, quat_normalise
 
 
@@ -27,24 +27,27 @@ cdef class Gyro(Estimator):
                     double dt) noexcept nogil:
         gyro_step(self.q, gyr, dt)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         # the attitude lives in a local during the loop, in registers (as in Mahony's)
         cdef double q[4]
         cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
         if not run_fast(self):
-            Estimator._run_batch(self, g, a, m, d, dt, o, n)
-            return
+            return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         for i in range(n):
             mi = m + 3 * i if m != NULL else NULL
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 gyro_step(q, g + 3 * i, d[i] if d != NULL else dt)
             else:
+                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                    return i
                 memcpy(self.q, q, 4 * sizeof(double))
                 self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
                 memcpy(q, self.q, 4 * sizeof(double))
             quat_out(q, ned, o + 4 * i)
         memcpy(self.q, q, 4 * sizeof(double))
+        return n

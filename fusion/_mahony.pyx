@@ -5,10 +5,10 @@ from libc.math cimport sqrt
 
 from libc.string cimport memcpy
 
-from fusion._core cimport Estimator, run_fast, sample_fast, quat_out
+from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import check_positive, check_param
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
-                            up_in_body, cross3)
+                            up_in_body, cross3, half_angle_terms, quat_norm_factor)
 
 
 cdef inline void mahony_error(const double* q, const double* acc, const double* mag,
@@ -40,24 +40,163 @@ cdef inline void mahony_error(const double* q, const double* acc, const double* 
         e[0] += c[0] * k; e[1] += c[1] * k; e[2] += c[2] * k
 
 
+cdef inline void rot_matrix(const double* q, double* R) noexcept nogil:
+    """R (3x3, row-major) = R(q) in the homogeneous form of rot_to_nav (|q|² times the
+    rotation, so R(p ⊗ r) = R(p) R(r) for any p, r)."""
+    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
+    cdef double ww = w * w, xx = x * x, yy = y * y, zz = z * z
+    R[0] = (ww + xx) - (yy + zz)
+    R[1] = 2.0 * (x * y - w * z)
+    R[2] = 2.0 * (x * z + w * y)
+    R[3] = 2.0 * (x * y + w * z)
+    R[4] = (ww - xx) + (yy - zz)
+    R[5] = 2.0 * (y * z - w * x)
+    R[6] = 2.0 * (x * z - w * y)
+    R[7] = 2.0 * (y * z + w * x)
+    R[8] = (ww - xx) - (yy - zz)
+
+
+cdef inline void mat_vec(const double* R, const double* v, double* out) noexcept nogil:
+    out[0] = R[0] * v[0] + R[1] * v[1] + R[2] * v[2]
+    out[1] = R[3] * v[0] + R[4] * v[1] + R[5] * v[2]
+    out[2] = R[6] * v[0] + R[7] * v[1] + R[8] * v[2]
+
+
+cdef inline void mat_t_vec(const double* R, const double* v, double* out) noexcept nogil:
+    out[0] = R[0] * v[0] + R[3] * v[1] + R[6] * v[2]
+    out[1] = R[1] * v[0] + R[4] * v[1] + R[7] * v[2]
+    out[2] = R[2] * v[0] + R[5] * v[1] + R[8] * v[2]
+
+
+cdef void half_angle_any(double wx, double wy, double wz, double dt, double* c,
+                         double* s) noexcept nogil:
+    """half_angle_terms out of line, for the large angles (sin, cos) mahony_step rarely
+    sees: kept out of the step so that the compiler inlines the step into the batch loop."""
+    half_angle_terms(wx, wy, wz, dt, c, s)
+
+
+cdef inline void half_angle_fast(double wx, double wy, double wz, double dt, double* c,
+                                 double* s) noexcept nogil:
+    """half_angle_terms: its series inline, the rest out of line (the same numbers)."""
+    cdef double n2 = wx * wx + wy * wy + wz * wz
+    cdef double h2 = n2 * (0.25 * dt * dt)
+    cdef double h4
+    if h2 < 0.0025:
+        h4 = h2 * h2
+        c[0] = (1.0 - 0.5 * h2) + h4 * ((1.0 / 24.0 - h2 * (1.0 / 720.0)) + h4 * (1.0 / 40320.0))
+        s[0] = (0.5 * dt) * ((1.0 - h2 * (1.0 / 6.0))
+                             + h4 * ((1.0 / 120.0 - h2 * (1.0 / 5040.0)) + h4 * (1.0 / 362880.0)))
+    else:
+        half_angle_any(wx, wy, wz, dt, c, s)
+
+
 cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
                              const double* gyr, const double* acc, const double* mag,
                              double dt) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL), q and eint in place: Mahony._step and the
     batch loop both run this."""
-    # Propagate with the integral-corrected gyro, then correct with this sample's
-    # vectors: the measurements belong to the attitude after the step, as in the EKF.
+    # Propagate with the integral-corrected gyro, q1 = q ⊗ p, then correct with this
+    # sample's vectors: the measurements belong to the attitude after the step, as in the
+    # EKF. The error (mahony_error at q1) is evaluated in the navigation frame, with one
+    # rotation matrix R1 = R(q1) for both vectors:
+    #   e = ka acc x R1ᵀ z + km mag x R1ᵀ v = R1ᵀ (ka (R1 acc) x z + km (R1 mag) x v),
+    # which leaves less after the square root on the sample-to-sample dependency chain
+    # (q -> error -> correction -> normalise -> q) that a sample's time is made of.
+    cdef double wg[3]
+    cdef double Q[4]
+    cdef double q1[4]
+    cdef double R1[9]
+    cdef double h[3]
+    cdef double W[2]     # w = [W0, W1, 0] + rho [G0, 0, G1]
+    cdef double G[2]
     cdef double e[3]
+    cdef double P[4]
+    cdef double c, s, k, rho, rho2, h2, h4, n1, n2, n
     if gyr != NULL:
-        quat_propagate(q, gyr[0] + ki * eint[0], gyr[1] + ki * eint[1], gyr[2] + ki * eint[2], dt)
-    mahony_error(q, acc, mag, e)
+        # q1 = q ⊗ [c, s wg] = c q + s (q ⊗ [0, wg]): the product with wg does not wait for
+        # c and s (the gyro's chain: eint -> wg -> |wg| -> c, s -> q1)
+        wg[0] = gyr[0] + ki * eint[0]
+        wg[1] = gyr[1] + ki * eint[1]
+        wg[2] = gyr[2] + ki * eint[2]
+        Q[0] = -(q[1] * wg[0] + q[2] * wg[1]) - q[3] * wg[2]
+        Q[1] = (q[0] * wg[0] - q[3] * wg[1]) + q[2] * wg[2]
+        Q[2] = (q[3] * wg[0] + q[0] * wg[1]) - q[1] * wg[2]
+        Q[3] = (q[1] * wg[1] - q[2] * wg[0]) + q[0] * wg[2]
+        half_angle_fast(wg[0], wg[1], wg[2], dt, &c, &s)
+        q1[0] = c * q[0] + s * Q[0]
+        q1[1] = c * q[1] + s * Q[1]
+        q1[2] = c * q[2] + s * Q[2]
+        q1[3] = c * q[3] + s * Q[3]
+    else:
+        q1[0] = q[0]; q1[1] = q[1]; q1[2] = q[2]; q1[3] = q[3]
+    # the normalisation: the correction below is a rotation (norm 1 to rounding), so
+    # normalise(q1 ⊗ r) = normalise(q1) ⊗ r; its factor n is ready long before the
+    # correction is, and goes into c and s, instead of a normalisation after it
+    n1 = (q1[0] * q1[0] + q1[1] * q1[1]) + (q1[2] * q1[2] + q1[3] * q1[3])
+    n = quat_norm_factor(n1)
+    rot_matrix(q1, R1)
+    # the error in the navigation frame, w = W + rho G (rho the square root below, of the
+    # folded field), and everything made of it linearly (e = R1ᵀ w, the correction's P) in
+    # the same split: after the square root, one product and one sum each
+    W[0] = 0.0
+    W[1] = 0.0
+    G[0] = 0.0
+    G[1] = 0.0
+    rho = 0.0
+    rho2 = 0.0
+    if acc != NULL:
+        # (R1 acc) x z / |acc| = [a1, -a0, 0] / |acc|
+        k = 1.0 / sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+        W[0] = (R1[3] * acc[0] + R1[4] * acc[1] + R1[5] * acc[2]) * k
+        W[1] = -(R1[0] * acc[0] + R1[1] * acc[1] + R1[2] * acc[2]) * k
+    if mag != NULL:
+        # h = R1 mag, turned about z onto north: v = [0, rho, h2]; h x v = [h2 (h1 - rho),
+        # -h0 h2, h0 rho], over |mag|^2 (the folded field is linear in mag)
+        k = 1.0 / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        mat_vec(R1, mag, h)
+        W[0] += (h[2] * k) * h[1]
+        W[1] -= (h[0] * k) * h[2]
+        G[0] = -(h[2] * k)      # G = [G0, 0, G1]
+        G[1] = h[0] * k
+        rho2 = h[0] * h[0] + h[1] * h[1]
+        rho = sqrt(rho2)
+    # e = R1ᵀ w
+    e[0] = (R1[0] * W[0] + R1[3] * W[1]) + rho * (R1[0] * G[0] + R1[6] * G[1])
+    e[1] = (R1[1] * W[0] + R1[4] * W[1]) + rho * (R1[1] * G[0] + R1[7] * G[1])
+    e[2] = (R1[2] * W[0] + R1[5] * W[1]) + rho * (R1[2] * G[0] + R1[8] * G[1])
     if ki > 0.0:
         eint[0] += e[0] * dt
         eint[1] += e[1] * dt
         eint[2] += e[2] * dt
     if kp > 0.0:
-        quat_propagate(q, kp * e[0], kp * e[1], kp * e[2], dt)
-    quat_normalise(q)
+        # q2 = q1 ⊗ [c, s kp e] = c q1 + s kp P, P = q1 ⊗ [0, e] = q1 ⊗ [0, R1ᵀ w] =
+        # |q1|² [0, w] ⊗ q1 (R1 is R's homogeneous form, |q1|² times the rotation): P from
+        # [0, W] ⊗ q1 + rho [0, G] ⊗ q1; |e| = |w| likewise: c and s come from
+        # |w|² = |W|² + rho² |G|² + 2 rho W·G
+        P[0] = (-(W[0] * q1[1] + W[1] * q1[2])) + rho * (-(G[0] * q1[1] + G[1] * q1[3]))
+        P[1] = (W[0] * q1[0] + W[1] * q1[3]) + rho * (G[0] * q1[0] - G[1] * q1[2])
+        P[2] = (W[1] * q1[0] - W[0] * q1[3]) + rho * (G[1] * q1[1] - G[0] * q1[3])
+        P[3] = (W[0] * q1[2] - W[1] * q1[1]) + rho * (G[0] * q1[2] + G[1] * q1[0])
+        n2 = ((W[0] * W[0] + W[1] * W[1]) + rho2 * (G[0] * G[0] + G[1] * G[1])
+              + rho * (2.0 * W[0] * G[0]))
+        h2 = n2 * (0.25 * kp * kp * dt * dt)
+        if h2 < 1e-6:
+            # half_angle_terms' series cut after h2^2: the next terms (h2^3/720, h2^3/5040)
+            # are below 1.4e-21
+            h4 = h2 * h2
+            c = (1.0 - 0.5 * h2) + h4 * (1.0 / 24.0)
+            s = (0.5 * dt * kp) * ((1.0 - h2 * (1.0 / 6.0)) + h4 * (1.0 / 120.0))
+        else:
+            half_angle_any(kp * e[0], kp * e[1], kp * e[2], dt, &c, &s)
+            s *= kp
+        c *= n
+        s *= n * n1
+        q[0] = c * q1[0] + s * P[0]
+        q[1] = c * q1[1] + s * P[1]
+        q[2] = c * q1[2] + s * P[2]
+        q[3] = c * q1[3] + s * P[3]
+    else:
+        q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
 cdef class Mahony(Estimator):
@@ -85,8 +224,9 @@ cdef class Mahony(Estimator):
                     double dt) noexcept nogil:
         mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
 
-    cdef void _run_batch(self, const double* g, const double* a, const double* m,
-                         const double* d, double dt, double* o, Py_ssize_t n) noexcept nogil:
+    cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
+                               const double* d, double dt, double* o, Py_ssize_t n,
+                               bint stop_invalid) noexcept nogil:
         # the state lives in locals during the loop: the compiler keeps them in registers,
         # which it cannot for self.q (any store through o or eint might alias it)
         cdef double q[4]
@@ -96,8 +236,7 @@ cdef class Mahony(Estimator):
         cdef Py_ssize_t i
         cdef const double* mi
         if not run_fast(self):
-            Estimator._run_batch(self, g, a, m, d, dt, o, n)
-            return
+            return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         memcpy(eint, self.eint, 3 * sizeof(double))
         for i in range(n):
@@ -105,6 +244,8 @@ cdef class Mahony(Estimator):
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
             else:
+                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
+                    return i
                 memcpy(self.q, q, 4 * sizeof(double))
                 memcpy(self.eint, eint, 3 * sizeof(double))
                 self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
@@ -113,6 +254,7 @@ cdef class Mahony(Estimator):
             quat_out(q, ned, o + 4 * i)
         memcpy(self.q, q, 4 * sizeof(double))
         memcpy(self.eint, eint, 3 * sizeof(double))
+        return n
 
     @property
     def bias(self):

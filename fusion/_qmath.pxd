@@ -43,17 +43,18 @@ cdef inline void sym3_inverse(const double* S, double* Si) noexcept nogil:
     for i in range(9):
         Si[i] *= det
 
-cdef inline void quat_normalise(double* q) noexcept nogil:
-    cdef double n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+cdef inline double quat_norm_factor(double n2) noexcept nogil:
+    """1 / sqrt(n2), n2 the squared norm of a quaternion (quat_normalise's factor)."""
     cdef double d = n2 - 1.0
-    cdef double n
     if -1e-6 < d < 1e-6:
         # near unit, the usual case after a norm-preserving step: 1/sqrt(1 + d) by its
         # series, truncation 5/16 d^3 < 1e-18, without the sqrt and division (~40 cycles)
         # on the sample-to-sample dependency chain. NaN fails the test and takes the else.
-        n = 1.0 - d * (0.5 - 0.375 * d)
-    else:
-        n = 1.0 / sqrt(n2)
+        return 1.0 - d * (0.5 - 0.375 * d)
+    return 1.0 / sqrt(n2)
+
+cdef inline void quat_normalise(double* q) noexcept nogil:
+    cdef double n = quat_norm_factor(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     q[0] *= n
     q[1] *= n
     q[2] *= n

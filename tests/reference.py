@@ -207,7 +207,7 @@ class RefEstimator:
         self.on_invalid = on_invalid
         self.params = dict(self.PARAMS, **params)
         for k, v in self.params.items():
-            setattr(self, k, None if v is None else float(v))
+            setattr(self, k, v if v is None or isinstance(v, str) else float(v))
         self.reset()
 
     # state handling
@@ -374,7 +374,8 @@ def unmeasured_variance(t_run, gyr, dt, fs, gyro_range, motion_rate):
 
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+              "mag_update": "vector"}
 
     def _reset_state(self):
         self.b = np.zeros(3)
@@ -420,12 +421,20 @@ class RefEKF(RefEstimator):
         self.q = normalise(A1 @ q_old)
         self.P = F @ self.P @ F.T + Q
 
-    def _correct(self, z, hfun, Rm):
+    def _correct(self, z, hfun, Rm, heading_only=False):
+        """heading_only: the gain projected so that the update turns the attitude about the
+        vertical only (quaternion part onto the direction e_z (x) q of such a turn) and moves
+        the bias along the body-frame vertical only; Joseph form holds for any gain."""
         h, J = complex_step_jacobian(hfun, self.q)
         H = np.zeros((3, 7))
         H[:, :4] = J
         S = H @ self.P @ H.T + Rm
         K = self.P @ H.T @ np.linalg.inv(S)
+        if heading_only:
+            u = qmul(np.array([0.0, 0.0, 0.0, 1.0]), self.q)
+            K[:4] = np.outer(u, u) @ K[:4] / (u @ u)
+            w = acc_model(self.q)
+            K[4:] = np.outer(w, w) @ K[4:]
         x = np.concatenate([self.q, self.b]) + K @ (z - h)
         self.q = normalise(x[:4])
         self.b = x[4:]
@@ -442,7 +451,7 @@ class RefEKF(RefEstimator):
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
                 Rm = self.mag_noise ** 2 / dt * I3
-                self._correct(z, lambda q: mag_model(q, z), Rm)
+                self._correct(z, lambda q: mag_model(q, z), Rm, self.mag_update == "heading")
         self.P = (self.P + self.P.T) / 2                                 # 5.
 
 

@@ -67,12 +67,13 @@ class RefAEKF(ref.RefEKF):
         self.mag_norm = None if p["mag_norm"] is None else float(p["mag_norm"])
         self.mag_dip = None if p["mag_dip"] is None else float(p["mag_dip"])
         self.gyro_range = None if p["gyro_range"] is None else float(p["gyro_range"])
+        self.mag_update = p["mag_update"]
         self.fs = float(fs)
         self.frame = frame
         self.on_invalid = on_invalid
         self.params = p
         for k, v in p.items():
-            if k not in ("measurement", "mag_norm", "mag_dip", "gyro_range"):
+            if k not in ("measurement", "mag_norm", "mag_dip", "gyro_range", "mag_update"):
                 setattr(self, k, float(v))
         learn = self.mag_norm is None or self.mag_dip is None
         self.n_learn = max(1, round(self.learn_time * self.fs)) if learn else 0
@@ -186,5 +187,6 @@ class RefAEKF(ref.RefEKF):
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
                 f = self.reject_factor if mag_rej else 1.0
-                self._correct(z, lambda q: ref.mag_model(q, z), self.mag_noise ** 2 / dt * f * I3)
+                self._correct(z, lambda q: ref.mag_model(q, z), self.mag_noise ** 2 / dt * f * I3,
+                              self.mag_update == "heading")
         self.P = (self.P + self.P.T) / 2

@@ -151,7 +151,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = dict(RefEKF.PARAMS)
+    PARAMS = {k: v for k, v in RefEKF.PARAMS.items() if k != "mag_update"}
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 

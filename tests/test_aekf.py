@@ -140,11 +140,12 @@ VARIANTS = [
      "acc_noise": 0.3, "gyro_noise": 0.003, "bias_noise": 1e-3, "mag_noise": 0.1},
     {"mag_norm": 25.0, "mag_dip": 36.87, "learn_time": 3.0},
     {"mag_dip": 30.0},          # a wrong dip: the magnetometer is mostly rejected
+    {"mag_update": "heading"},
 ]
 
 
 @pytest.mark.parametrize("measurement", MODES)
-@pytest.mark.parametrize("params", VARIANTS, ids=["tolerances", "given-reference", "wrong-dip"])
+@pytest.mark.parametrize("params", VARIANTS, ids=["tolerances", "given-reference", "wrong-dip", "heading-only"])
 def test_parameter_variants_equal_reference(data, params, measurement):
     _, gyr, acc, mag, *_ = data
     n = 3000

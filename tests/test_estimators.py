@@ -277,6 +277,34 @@ def test_invalid_samples_raise_with_their_index_before_any_work(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_invalid_sample_late_in_a_long_batch_raises_and_changes_nothing(name):
+    # long batches check their samples inside the loop (fusion._core.FUSED_CHECK_MIN): the
+    # same error as the check before the loop, and the state as it was before the call
+    rng = np.random.default_rng(8)
+    n = 3 * fusion._core.FUSED_CHECK_MIN
+    gyr = rng.normal(0, 0.3, (n, 3))
+    acc = np.array([0, 0, G]) + rng.normal(0, 0.3, (n, 3))
+    mag = MAG_N + rng.normal(0, 0.01, (n, 3))
+    est = fusion.make(name, 100.0)
+    est.run(gyr[:50], acc[:50], mag[:50])
+    before = est.state()
+    for arr, label, bad, at in ((gyr, "gyr", np.nan, n - 1), (acc, "acc", 0.0, n // 2),
+                                (mag, "mag", np.inf, n - 5)):
+        broken = arr.copy()
+        broken[at] = bad
+        broken[at + 1:] = bad if label != "acc" else broken[at + 1:]
+        kwargs = dict(gyr=gyr, acc=acc, mag=mag)
+        kwargs[label] = broken
+        with pytest.raises(ValueError, match=rf"{label}\[{at}\]"):
+            est.run(**kwargs)
+        assert est.state() == before
+    fresh = fusion.make(name, 100.0)
+    with pytest.raises(ValueError, match=r"acc\[0\]"):
+        fresh.run(gyr, np.zeros((n, 3)), mag)
+    assert not fresh.initialised
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_skip_mode_counts_and_never_leaves_nan(name):
     rng = np.random.default_rng(4)
     n = 400

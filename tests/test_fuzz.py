@@ -34,7 +34,7 @@ def param_values(name, default):
     edge = [lo, hi, lo * 0.999, hi * 1.001, 0.0, -lo, math.nan, math.inf]
     good = st.floats(math.log10(lo), math.log10(hi)).map(lambda e: 10.0 ** e)
     wrong = st.sampled_from(["1", None, True, 1 + 1j, [1.0]])
-    extra = st.sampled_from([None, "quest", "vectors", "QUEST", 30.0, -95.0, 3, 0]) \
+    extra = st.sampled_from([None, "quest", "vectors", "QUEST", "heading", "vector", 30.0, -95.0, 3, 0]) \
         if not isinstance(default, float) else st.nothing()
     return st.one_of(st.sampled_from(edge), good, wrong, extra)
 
