@@ -7,7 +7,7 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_param, check_fs, check_positive
-from fusion._qmath cimport (sym3_inverse, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
+from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated)
 
@@ -190,16 +190,7 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     S[8] += r
     # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for the
     # division (~13 cycles on the chain from P to the next update)
-    Si[0] = S[4] * S[8] - S[5] * S[7]
-    Si[1] = S[2] * S[7] - S[1] * S[8]
-    Si[2] = S[1] * S[5] - S[2] * S[4]
-    det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
-    Si[3] = Si[1]
-    Si[4] = S[0] * S[8] - S[2] * S[6]
-    Si[5] = S[2] * S[3] - S[0] * S[5]
-    Si[6] = Si[2]
-    Si[7] = Si[5]
-    Si[8] = S[0] * S[4] - S[1] * S[3]
+    det = sym3_adjugate(S, Si)
     if heading_only:
         heading_only_gain(q, U, Si, det, K)
     else:

@@ -26,20 +26,26 @@ cdef inline void cross3(const double* a, const double* b, double* out) noexcept 
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
+cdef inline double sym3_adjugate(const double* S, double* Sa) noexcept nogil:
+    """Sa = adj(S) for a symmetric 3x3 S (row-major); returns 1 / det(S), so that
+    S^-1 = Sa / det(S). Callers may use Sa before the division is done."""
+    cdef double det
+    Sa[0] = S[4] * S[8] - S[5] * S[7]
+    Sa[1] = S[2] * S[7] - S[1] * S[8]
+    Sa[2] = S[1] * S[5] - S[2] * S[4]
+    det = 1.0 / (S[0] * Sa[0] + S[3] * Sa[1] + S[6] * Sa[2])
+    Sa[3] = Sa[1]
+    Sa[4] = S[0] * S[8] - S[2] * S[6]
+    Sa[5] = S[2] * S[3] - S[0] * S[5]
+    Sa[6] = Sa[2]
+    Sa[7] = Sa[5]
+    Sa[8] = S[0] * S[4] - S[1] * S[3]
+    return det
+
 cdef inline void sym3_inverse(const double* S, double* Si) noexcept nogil:
     """Si = S^-1 for a symmetric 3x3 S (row-major), by the adjugate."""
-    cdef double det
+    cdef double det = sym3_adjugate(S, Si)
     cdef int i
-    Si[0] = S[4] * S[8] - S[5] * S[7]
-    Si[1] = S[2] * S[7] - S[1] * S[8]
-    Si[2] = S[1] * S[5] - S[2] * S[4]
-    det = 1.0 / (S[0] * Si[0] + S[3] * Si[1] + S[6] * Si[2])
-    Si[3] = Si[1]
-    Si[4] = S[0] * S[8] - S[2] * S[6]
-    Si[5] = S[2] * S[3] - S[0] * S[5]
-    Si[6] = Si[2]
-    Si[7] = Si[5]
-    Si[8] = S[0] * S[4] - S[1] * S[3]
     for i in range(9):
         Si[i] *= det
 
