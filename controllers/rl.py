@@ -313,7 +313,9 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             from controllers.pid import PID
             if not normalize:
                 raise ValueError(f"init_from={TEACHER!r} needs normalize: true in the hyperparameters")
-            bc_collected = clone_teacher(model, venv, PID(task), bc_steps, seed=seed, progress=progress, log=log)
+            # the teacher runs at the training environments' control rate (env_kwargs may set it)
+            teacher = PID.for_env(eval_env.venv.envs[0])
+            bc_collected = clone_teacher(model, venv, teacher, bc_steps, seed=seed, progress=progress, log=log)
 
         class SaveBestStats(BaseCallback):
             # beside the best model: its normalisation statistics and its score, so that a
