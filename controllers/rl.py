@@ -213,7 +213,8 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
 
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, overwrite=False, bc_steps=60_000, log=print):
+          command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
+          log=print):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
 
     Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
@@ -226,7 +227,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     ``timesteps`` then counts the new steps only. ``init_from="pid"`` (PPO only) starts
     from a behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher
     steps). The starting policy (clone or ``init_from``) is evaluated first and kept as the
-    best model unless training beats it.
+    best model unless training beats it. ``hyperparams_override``: a dict replacing entries
+    of the YAML file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
     """
     import torch
     torch.set_num_threads(1)
@@ -238,6 +240,13 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     _check_choice("task", task, tuple(TASK_IDS))
     _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
     hp = hyperparams(algo, task)
+    override = dict(hyperparams_override or {})
+    unknown = sorted(set(override) - set(hp))
+    if unknown:
+        raise ValueError(f"unknown hyperparameter(s) {', '.join(unknown)} for {algo} on {task}; "
+                         f"accepted (controllers/hyperparams/{algo}.yml): {', '.join(sorted(hp))}")
+    hp.update(override)
+    used_hp = dict(hp)
     default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
     timesteps = int(default_steps if timesteps is None else timesteps)
     if timesteps < 1:
@@ -408,7 +417,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             history = []
     meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
-            "hyperparams": hyperparams(algo, task), "normalize": normalize,
+            "hyperparams": used_hp, "normalize": normalize,
             "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
                           else None if init is None else str(Path(init[0]).name)),
             "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),

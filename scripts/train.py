@@ -25,6 +25,18 @@ from controllers import rl                       # noqa: E402
 from controllers.evaluation import evaluate        # noqa: E402
 
 
+def _value(text):
+    """A number if it reads as one (PyYAML would keep "1e-4" a string), else YAML (lists,
+    dicts, true/false)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    import yaml
+    return yaml.safe_load(text)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", required=True, help=f"one of {', '.join(rl.ALGOS)}")
@@ -43,6 +55,8 @@ def main(argv=None):
                          "of the PID controller (ppo)")
     ap.add_argument("--bc-steps", type=int, default=60_000,
                     help="with --init-from pid: environment steps of the PID teacher to clone")
+    ap.add_argument("--hyperparams", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="override entries of the YAML file, e.g. learning_rate=1e-4 n_epochs=5")
     ap.add_argument("--eval-episodes", type=int, default=10, help="final evaluation episodes (0: none)")
     ap.add_argument("--env-kwargs", default="{}", help="JSON dict of extra environment arguments")
     ap.add_argument("--no-progress", action="store_true")
@@ -53,12 +67,18 @@ def main(argv=None):
             raise ValueError
     except ValueError:
         ap.error(f"--env-kwargs must be a JSON object, got {a.env_kwargs!r}")
+    override = {}
+    for item in a.hyperparams:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            ap.error(f"--hyperparams takes NAME=VALUE items, got {item!r}")
+        override[name] = _value(value)
     command = "python scripts/train.py " + " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))
     try:
         stem = rl.train(a.algo, a.task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=a.out,
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
                         command=command, init_from=a.init_from, overwrite=a.overwrite,
-                        bc_steps=a.bc_steps)
+                        bc_steps=a.bc_steps, hyperparams_override=override)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError, FileExistsError) as e:

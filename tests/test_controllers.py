@@ -194,3 +194,16 @@ def test_init_from_pid_bad_input(tmp_path):
     with pytest.raises(ValueError, match="bc_steps"):
         rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "p", init_from="pid", bc_steps=0,
                  progress=False)
+
+
+def test_hyperparams_override(tmp_path):
+    stem = tmp_path / "ppo-track-truth"
+    rl.train("ppo", "track", "truth", timesteps=64, seed=0, out=stem, n_envs=1, progress=False,
+             hyperparams_override={"learning_rate": 1e-4, "n_steps": 64, "batch_size": 32},
+             eval_freq=10**6, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    meta = json.loads((tmp_path / "ppo-track-truth.json").read_text())
+    assert meta["hyperparams"]["learning_rate"] == 1e-4 and meta["hyperparams"]["n_steps"] == 64
+    assert rl.load_policy(stem).model.learning_rate == 1e-4
+    with pytest.raises(ValueError, match="unknown hyperparameter.*learning_rat"):
+        rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "x", progress=False,
+                 hyperparams_override={"learning_rat": 1e-4})
