@@ -22,4 +22,3 @@ cdef class AEKF(EKF):
     cdef unsigned char* log
     cdef Py_ssize_t log_n, log_cap
 
-    cdef void quat_update(self, const double* z, double r, const double* v, double rv) noexcept nogil

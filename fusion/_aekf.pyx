@@ -11,7 +11,7 @@ from libc.stdlib cimport realloc, free
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT
-from fusion._qmath cimport quat_normalise, up_in_body, unit3
+from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update
 from fusion._wahba cimport quest2
 
 cnp.import_array()
@@ -145,77 +145,6 @@ cdef class AEKF(EKF):
         self.last_code = 0
         self.log_n = 0
 
-    cdef void quat_update(self, const double* z, double r, const double* v, double rv) noexcept nogil:
-        """Kalman update with the quaternion itself as the measurement: H = [I4 0], noise
-        covariance Rm = r I4 + rv v vᵀ, Joseph form."""
-        cdef double S[16]
-        cdef double L[16]    # Cholesky factor of S, lower
-        cdef double Li[16]   # its inverse, lower
-        cdef double Si[16]
-        cdef double K[28]    # P Hᵀ S⁻¹, 7x4
-        cdef double T[49]    # (I - K H) P
-        cdef double y[4]
-        cdef double Kv[7]
-        cdef double* P = self.P
-        cdef double s
-        cdef int i, j, k
-        for i in range(4):
-            for j in range(4):
-                S[i * 4 + j] = 0.5 * (P[i * 7 + j] + P[j * 7 + i]) + rv * v[i] * v[j]
-            S[i * 5] += r
-        for j in range(4):
-            s = S[j * 5]
-            for k in range(j):
-                s -= L[j * 4 + k] * L[j * 4 + k]
-            L[j * 5] = sqrt(s)
-            for i in range(j + 1, 4):
-                s = S[i * 4 + j]
-                for k in range(j):
-                    s -= L[i * 4 + k] * L[j * 4 + k]
-                L[i * 4 + j] = s / L[j * 5]
-        for j in range(4):
-            Li[j * 5] = 1.0 / L[j * 5]
-            for i in range(j + 1, 4):
-                s = 0.0
-                for k in range(j, i):
-                    s -= L[i * 4 + k] * Li[k * 4 + j]
-                Li[i * 4 + j] = s / L[i * 5]
-        for i in range(4):      # S⁻¹ = L⁻ᵀ L⁻¹
-            for j in range(i, 4):
-                s = 0.0
-                for k in range(j, 4):
-                    s += Li[k * 4 + i] * Li[k * 4 + j]
-                Si[i * 4 + j] = s
-                Si[j * 4 + i] = s
-        for i in range(7):
-            for j in range(4):
-                K[i * 4 + j] = (P[i * 7] * Si[j] + P[i * 7 + 1] * Si[4 + j]
-                                + P[i * 7 + 2] * Si[8 + j] + P[i * 7 + 3] * Si[12 + j])
-        for i in range(4):
-            y[i] = z[i] - self.q[i]
-        for i in range(4):
-            self.q[i] += K[i * 4] * y[0] + K[i * 4 + 1] * y[1] + K[i * 4 + 2] * y[2] + K[i * 4 + 3] * y[3]
-        for i in range(3):
-            self.b[i] += (K[(4 + i) * 4] * y[0] + K[(4 + i) * 4 + 1] * y[1]
-                          + K[(4 + i) * 4 + 2] * y[2] + K[(4 + i) * 4 + 3] * y[3])
-        quat_normalise(self.q)
-        # Joseph form: T = P - K P[0:4, :], P = T - T[:, 0:4] Kᵀ + r K Kᵀ + rv (K v)(K v)ᵀ
-        for i in range(7):
-            Kv[i] = K[i * 4] * v[0] + K[i * 4 + 1] * v[1] + K[i * 4 + 2] * v[2] + K[i * 4 + 3] * v[3]
-        for i in range(7):
-            for j in range(7):
-                T[i * 7 + j] = P[i * 7 + j] - (K[i * 4] * P[j] + K[i * 4 + 1] * P[7 + j]
-                                               + K[i * 4 + 2] * P[14 + j] + K[i * 4 + 3] * P[21 + j])
-        for i in range(7):
-            for j in range(i, 7):
-                s = T[i * 7 + j] - (T[i * 7] * K[j * 4] + T[i * 7 + 1] * K[j * 4 + 1]
-                                    + T[i * 7 + 2] * K[j * 4 + 2] + T[i * 7 + 3] * K[j * 4 + 3])
-                s += r * (K[i * 4] * K[j * 4] + K[i * 4 + 1] * K[j * 4 + 1]
-                          + K[i * 4 + 2] * K[j * 4 + 2] + K[i * 4 + 3] * K[j * 4 + 3])
-                s += rv * Kv[i] * Kv[j]
-                P[i * 7 + j] = s
-                P[j * 7 + i] = s
-
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         cdef double u[3]
@@ -295,7 +224,7 @@ cdef class AEKF(EKF):
                 v[1] = self.q[0] * u[0] - self.q[3] * u[1] + self.q[2] * u[2]
                 v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
                 v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
-                self.quat_update(qm, 0.25 * sa, v, 0.25 * (sm - sa))
+                quat_measurement_update(self.q, self.b, self.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
                 self.n_quest += 1
                 self.last_code |= 4
                 quat_normalise(self.q)

@@ -5,4 +5,3 @@ cdef class CFEKF(EKF):
     cdef readonly double cf_noise
     cdef Mahony cf            # the complementary filter whose attitude is the measurement
     cdef bint cf_started
-    cdef void quat_update(self, const double* z, double r) noexcept nogil

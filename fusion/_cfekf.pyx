@@ -4,7 +4,6 @@ complementary filter (Mahony) whose quaternion is the measurement of the 7-state
 import numbers
 
 import numpy as np
-from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
@@ -12,7 +11,7 @@ from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
 from fusion._core import check_positive, check_param, FLAG
 from fusion._mahony import Mahony as _Mahony
-from fusion._qmath cimport quat_normalise
+from fusion._qmath cimport quat_normalise, quat_measurement_update
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
 
@@ -62,62 +61,6 @@ cdef class CFEKF(EKF):
         EKF._reset_state(self)
         self.cf_started = False
 
-    cdef void quat_update(self, const double* z, double r) noexcept nogil:
-        """Kalman update with the quaternion measurement z (already sign-aligned with q),
-        H = [I4 0], noise variance r per component; Joseph form."""
-        cdef double* P = self.P
-        cdef double L[16]     # Cholesky factor of S = Pqq + r I4
-        cdef double Ld[4]     # 1 / diag(L)
-        cdef double K[28]     # 7x4
-        cdef double T[49]     # (I - K H) P
-        cdef double y[4]
-        cdef double d, s
-        cdef int i, j, k
-        # S = L L^T; K = P H^T S^-1, row by row: solve S k_i = (P H^T)_i
-        for j in range(4):
-            d = P[j * 8] + r
-            for k in range(j):
-                d -= L[j * 4 + k] * L[j * 4 + k]
-            d = 1.0 / sqrt(d)
-            Ld[j] = d
-            for i in range(j + 1, 4):
-                s = P[i * 7 + j]
-                for k in range(j):
-                    s -= L[i * 4 + k] * L[j * 4 + k]
-                L[i * 4 + j] = s * d
-        for i in range(7):
-            for j in range(4):          # forward: L u = p_i
-                s = P[i * 7 + j]
-                for k in range(j):
-                    s -= L[j * 4 + k] * K[i * 4 + k]
-                K[i * 4 + j] = s * Ld[j]
-            for j in range(3, -1, -1):  # back: L^T k = u
-                s = K[i * 4 + j]
-                for k in range(j + 1, 4):
-                    s -= L[k * 4 + j] * K[i * 4 + k]
-                K[i * 4 + j] = s * Ld[j]
-        for j in range(4):
-            y[j] = z[j] - self.q[j]
-        for i in range(4):
-            self.q[i] += K[i * 4] * y[0] + K[i * 4 + 1] * y[1] + K[i * 4 + 2] * y[2] + K[i * 4 + 3] * y[3]
-        for i in range(3):
-            self.b[i] += (K[(4 + i) * 4] * y[0] + K[(4 + i) * 4 + 1] * y[1]
-                          + K[(4 + i) * 4 + 2] * y[2] + K[(4 + i) * 4 + 3] * y[3])
-        quat_normalise(self.q)
-        # Joseph form: T = P - K P[:4, :]; P = T - T[:, :4] K^T + r K K^T
-        for i in range(7):
-            for j in range(7):
-                T[i * 7 + j] = P[i * 7 + j] - (K[i * 4] * P[j] + K[i * 4 + 1] * P[7 + j]
-                                               + K[i * 4 + 2] * P[14 + j] + K[i * 4 + 3] * P[21 + j])
-        for i in range(7):
-            for j in range(i, 7):
-                s = T[i * 7 + j] - (T[i * 7] * K[j * 4] + T[i * 7 + 1] * K[j * 4 + 1]
-                                    + T[i * 7 + 2] * K[j * 4 + 2] + T[i * 7 + 3] * K[j * 4 + 3])
-                s += r * (K[i * 4] * K[j * 4] + K[i * 4 + 1] * K[j * 4 + 1]
-                          + K[i * 4 + 2] * K[j * 4 + 2] + K[i * 4 + 3] * K[j * 4 + 3])
-                P[i * 7 + j] = s
-                P[j * 7 + i] = s
-
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         cdef double z[4]
@@ -140,7 +83,8 @@ cdef class CFEKF(EKF):
             else:
                 for i in range(4):
                     z[i] = self.cf.q[i]
-            self.quat_update(z, self.cf_noise * self.cf_noise / dt)
+            quat_measurement_update(self.q, self.b, self.P, z, self.cf_noise * self.cf_noise / dt,
+                                    NULL, 0.0)
         quat_normalise(self.q)
 
     @property

@@ -252,3 +252,86 @@ cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
     return gyro_range > 0.0 and (gyr[0] >= gyro_range or gyr[0] <= -gyro_range
                                  or gyr[1] >= gyro_range or gyr[1] <= -gyro_range
                                  or gyr[2] >= gyro_range or gyr[2] <= -gyro_range)
+
+
+cdef inline void quat_measurement_update(double* q, double* b, double* P, const double* z,
+                                         double r, const double* v, double rv) noexcept nogil:
+    """Kalman update of the quaternion + gyro-bias state (q, b, P 7x7 row-major) with a
+    quaternion measurement z (sign-aligned with q): H = [I4 0], noise Rm = r I4 + rv v vᵀ
+    (v may be NULL). K = P Hᵀ S⁻¹, S⁻¹ = L⁻ᵀ L⁻¹ from the Cholesky factor L of S = Pqq + Rm;
+    Joseph form (I - K H) P (I - K H)ᵀ + K Rm Kᵀ. cf-ekf and aekf (measurement="quest")."""
+    cdef double S[16]     # Pqq + Rm
+    cdef double L[16]     # Cholesky factor of S, lower
+    cdef double Ld[4]     # 1 / diag(L)
+    cdef double Li[16]    # L⁻¹, lower
+    cdef double K[28]     # 7x4
+    cdef double T[49]     # (I - K H) P
+    cdef double y[4]
+    cdef double Kv[7]
+    cdef double d, s
+    cdef int i, j, k
+    for i in range(4):
+        for j in range(4):
+            S[i * 4 + j] = P[i * 7 + j]
+        S[i * 5] += r
+    if v != NULL:
+        for i in range(4):
+            for j in range(4):
+                S[i * 4 + j] += rv * v[i] * v[j]
+    for j in range(4):              # S = L Lᵀ
+        d = S[j * 5]
+        for k in range(j):
+            d -= L[j * 4 + k] * L[j * 4 + k]
+        d = 1.0 / sqrt(d)
+        Ld[j] = d
+        L[j * 5] = 1.0 / d
+        for i in range(j + 1, 4):
+            s = S[i * 4 + j]
+            for k in range(j):
+                s -= L[i * 4 + k] * L[j * 4 + k]
+            L[i * 4 + j] = s * d
+    for j in range(4):              # L⁻¹, lower
+        Li[j * 5] = Ld[j]
+        for i in range(j + 1, 4):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i * 4 + k] * Li[k * 4 + j]
+            Li[i * 4 + j] = s * Ld[i]
+    for i in range(4):              # S⁻¹ = L⁻ᵀ L⁻¹
+        for j in range(i, 4):
+            s = 0.0
+            for k in range(j, 4):
+                s += Li[k * 4 + i] * Li[k * 4 + j]
+            S[i * 4 + j] = s
+            S[j * 4 + i] = s
+    for i in range(7):              # K = P Hᵀ S⁻¹
+        for j in range(4):
+            K[i * 4 + j] = (P[i * 7] * S[j] + P[i * 7 + 1] * S[4 + j]
+                            + P[i * 7 + 2] * S[8 + j] + P[i * 7 + 3] * S[12 + j])
+    for j in range(4):
+        y[j] = z[j] - q[j]
+    for i in range(4):
+        q[i] += K[i * 4] * y[0] + K[i * 4 + 1] * y[1] + K[i * 4 + 2] * y[2] + K[i * 4 + 3] * y[3]
+    for i in range(3):
+        b[i] += (K[(4 + i) * 4] * y[0] + K[(4 + i) * 4 + 1] * y[1]
+                 + K[(4 + i) * 4 + 2] * y[2] + K[(4 + i) * 4 + 3] * y[3])
+    quat_normalise(q)
+    # Joseph form: T = P - K P[:4, :]; P = T - T[:, :4] Kᵀ + r K Kᵀ + rv (K v)(K v)ᵀ
+    for i in range(7):
+        Kv[i] = 0.0
+    if v != NULL:
+        for i in range(7):
+            Kv[i] = K[i * 4] * v[0] + K[i * 4 + 1] * v[1] + K[i * 4 + 2] * v[2] + K[i * 4 + 3] * v[3]
+    for i in range(7):
+        for j in range(7):
+            T[i * 7 + j] = P[i * 7 + j] - (K[i * 4] * P[j] + K[i * 4 + 1] * P[7 + j]
+                                           + K[i * 4 + 2] * P[14 + j] + K[i * 4 + 3] * P[21 + j])
+    for i in range(7):
+        for j in range(i, 7):
+            s = T[i * 7 + j] - (T[i * 7] * K[j * 4] + T[i * 7 + 1] * K[j * 4 + 1]
+                                + T[i * 7 + 2] * K[j * 4 + 2] + T[i * 7 + 3] * K[j * 4 + 3])
+            s += r * (K[i * 4] * K[j * 4] + K[i * 4 + 1] * K[j * 4 + 1]
+                      + K[i * 4 + 2] * K[j * 4 + 2] + K[i * 4 + 3] * K[j * 4 + 3])
+            s += rv * Kv[i] * Kv[j]
+            P[i * 7 + j] = s
+            P[j * 7 + i] = s
