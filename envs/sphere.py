@@ -35,6 +35,9 @@ OBS_NAMES = ("q_w", "q_x", "q_y", "q_z", "rate_x", "rate_y", "rate_z", "encoder_
 _TASK_NAMES = {"track": ("speed_cmd", "speed_error", "sin_heading_error", "cos_heading_error"),
                "waypoints": ("target_forward", "target_left", "sin_bearing", "cos_bearing")}
 _DEFAULT_EPISODE_S = {"track": 30.0, "waypoints": 60.0}
+BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
+RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
+START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
 
 
 def ESTIMATORS():
@@ -249,8 +252,8 @@ class SphereRobotEnv(gym.Env):
         statics = [floor]
         for (x, y, yaw) in bumps:
             h = self.bump_height
-            col = p.createCollisionShape(p.GEOM_CAPSULE, radius=h, height=0.6, physicsClientId=c)
-            vis = p.createVisualShape(p.GEOM_CAPSULE, radius=h, length=0.6, rgbaColor=[0.5, 0.35, 0.2, 1],
+            col = p.createCollisionShape(p.GEOM_CAPSULE, radius=h, height=BUMP_LENGTH, physicsClientId=c)
+            vis = p.createVisualShape(p.GEOM_CAPSULE, radius=h, length=BUMP_LENGTH, rgbaColor=[0.5, 0.35, 0.2, 1],
                                       physicsClientId=c) if visual else -1
             # capsule axis z turned horizontal (about x by 90 deg), then yawed
             qa = (math.sin(math.pi / 4), 0.0, 0.0, math.cos(math.pi / 4))
@@ -260,7 +263,7 @@ class SphereRobotEnv(gym.Env):
         for (x, y, yaw) in ramps:
             h = self.ramp_height
             run = h / math.tan(math.radians(self.ramp_deg))
-            top, w = 0.5, 0.8
+            top, w = RAMP_TOP, RAMP_WIDTH
             xs = (-(top / 2 + run), -top / 2, top / 2, top / 2 + run)
             verts = []
             for yy in (-w / 2, w / 2):
@@ -306,18 +309,27 @@ class SphereRobotEnv(gym.Env):
         start_yaw = float(rng.uniform(-math.pi, math.pi))
         half = 0.5 * self.arena_size
 
-        def away(n, keep):
+        def away(n, extent):
+            # extent: the obstacle's radius about its centre. One moved too close is pushed
+            # straight away from the start until START_CLEARANCE of floor lies between
+            # the start and the obstacle (no extra random draw, so the rest of the
+            # layout stays the same).
             out = []
+            keep = START_CLEARANCE + extent
             for _ in range(n):
                 xy = rng.uniform(-half + 1.0, half - 1.0, size=2)
                 yaw = float(rng.uniform(-math.pi, math.pi))
-                if math.hypot(xy[0] - start_xy[0], xy[1] - start_xy[1]) < keep:   # keep the start clear
-                    xy = xy + np.sign(xy + 1e-12) * keep
+                d = xy - start_xy
+                dist = math.hypot(d[0], d[1])
+                if dist < keep:
+                    u = d / dist if dist > 1e-9 else np.array([1.0, 0.0])
+                    xy = start_xy + u * keep
                 out.append((float(xy[0]), float(xy[1]), yaw))
             return out
 
-        bumps = away(self.bumps, 0.6)
-        ramps = away(self.ramps, 1.2)
+        ramp_run = self.ramp_height / math.tan(math.radians(self.ramp_deg))
+        bumps = away(self.bumps, 0.5 * BUMP_LENGTH + self.bump_height)
+        ramps = away(self.ramps, math.hypot(0.5 * RAMP_TOP + ramp_run, 0.5 * RAMP_WIDTH))
         zones = []
         r_imu = self.robot.shell_radius + self.imu_offset[2]
         spec = self._mag_zone_spec

@@ -191,6 +191,28 @@ def run_episode(seed, n=120, **kw):
     return out, infos
 
 
+def test_bumps_and_ramps_leave_the_start_clear():
+    # a small arena draws many obstacles near the start; the robot must not begin its
+    # episode against one (it cannot climb a bump from standstill)
+    import pybullet as p
+    from envs.sphere import START_CLEARANCE
+    env = SphereRobotEnv(task="waypoints", estimator="truth", arena_size=4.0, bumps=12, ramps=3)
+    try:
+        gap = START_CLEARANCE - env.robot.shell_radius
+        for seed in range(25):
+            env.reset(seed=seed)
+            c, robot = env._client, env._body
+            floor = p.getBodyUniqueId(0, physicsClientId=c)
+            for i in range(p.getNumBodies(physicsClientId=c)):
+                b = p.getBodyUniqueId(i, physicsClientId=c)
+                if b in (robot, floor):
+                    continue
+                near = p.getClosestPoints(robot, b, gap - 1e-3, physicsClientId=c)
+                assert not near, f"seed {seed}: body {b} within {near[0][8]:.3f} m of the robot at the start"
+    finally:
+        env.close()
+
+
 def test_same_seed_gives_bit_identical_episodes():
     a, ia = run_episode(11, estimator="ekf", imu="mpu9250", bumps=10, mag_zones="random")
     b, ib = run_episode(11, estimator="ekf", imu="mpu9250", bumps=10, mag_zones="random")
