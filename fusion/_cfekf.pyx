@@ -10,6 +10,7 @@ from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
 from fusion._core import check_positive, check_param, FLAG
+from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
 from fusion._qmath cimport quat_normalise, quat_measurement_update
 
@@ -25,10 +26,11 @@ cdef class CFEKF(EKF):
     """Seed 004: gyro, accelerometer and magnetometer through a sliding mean; Mahony's
     complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
     4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
-    whose prediction integrates the averaged gyro."""
+    whose prediction integrates the averaged gyro. gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005}
+              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -49,7 +51,11 @@ cdef class CFEKF(EKF):
         self.pre_gyr = SlidingMean(int(w))
         self.pre_acc = SlidingMean(int(w))
         self.pre_mag = SlidingMean(int(w))
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki)
+        # a saturated gyro (seen on the window's mean) restarts the complementary filter's
+        # gain ramp, and the EKF's attitude covariance grows as the ekf's does, so that it
+        # takes the filter's recovered attitude as the ekf takes the accelerometer's
+        self.gyro_range_, self.motion_rate = check_recovery_params(p)
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"])
         self.reset()
 
     cdef list _state_fields(self):
@@ -73,8 +79,7 @@ cdef class CFEKF(EKF):
             self.cf.eint[2] = 0.0
             self.cf_started = True
         self.cf._step(gyr, acc, mag, dt)
-        if gyr != NULL:
-            self.predict(gyr, dt)
+        self.propagate(gyr, dt)
         if acc != NULL or mag != NULL:
             if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]
                     + self.cf.q[3] * self.q[3]) < 0.0:

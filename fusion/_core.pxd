@@ -22,6 +22,7 @@ cdef class Estimator:
     cdef readonly double fs     # nominal sample rate, Hz
     cdef double dt_nominal      # 1 / fs
     cdef bint ned               # convert at the public boundary
+    cdef double gyro_range_     # rad/s at which a gyro sample is saturated; 0: unknown
     cdef bint skip_invalid      # on_invalid == "skip"
     cdef bint is_init             # start attitude set
     cdef bint has_q0            # reset() was given a start attitude

@@ -63,6 +63,11 @@ def check_positive(name, value, upper=None, allow_zero=False, lower=None):
     return v
 
 
+def check_gyro_range(value):
+    """gyro_range (docs/robustness.md, "Recovery"): None (unknown, stored as 0) or > 0 rad/s."""
+    return 0.0 if value is None else check_positive("gyro_range", value, upper=1e6)
+
+
 def check_param(name, value, allow_zero=False):
     """check_positive with the range of PARAM_RANGES[name]."""
     lo, hi = PARAM_RANGES[name]
@@ -448,6 +453,12 @@ cdef class Estimator:
     def covariance(self):
         """State covariance, or None if the estimator keeps none."""
         return None
+
+    @property
+    def gyro_range(self):
+        """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown, or an
+        estimator without saturation handling)."""
+        return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
     def frame(self):

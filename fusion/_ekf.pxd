@@ -4,9 +4,8 @@ cdef class EKF(Estimator):
     cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
     cdef double b[3]          # gyro bias, rad/s
     cdef double P[49]         # covariance of [q, b], row-major 7x7
-    # recovery (docs/robustness.md): gyro range (rad/s, 0 unknown), rate std over unmeasured
-    # time (rad/s), length of the current run of unmeasured time (s)
-    cdef double gyro_range_
+    # recovery (docs/robustness.md; the gyro range is the base class's): rate std over
+    # unmeasured time (rad/s), length of the current run of unmeasured time (s)
     cdef readonly double motion_rate
     cdef double t_run
     cdef bint mag_heading_only   # mag_update="heading": the magnetometer turns the heading only

@@ -6,7 +6,7 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_param, check_fs, check_positive
+from fusion._core import check_param, check_fs, check_positive, check_gyro_range
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated)
@@ -18,9 +18,7 @@ MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyw
 def check_recovery_params(p):
     """(gyro_range, motion_rate) of docs/robustness.md, "Recovery": gyro_range None (unknown:
     stored as 0) or > 0 rad/s; motion_rate in [0, 100] rad/s (0: no inflation)."""
-    g = p["gyro_range"]
-    g = 0.0 if g is None else check_positive("gyro_range", g, upper=1e6)
-    return g, check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
+    return check_gyro_range(p["gyro_range"]), check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
 
 
 MAG_UPDATES = ("heading", "vector")
@@ -425,11 +423,6 @@ cdef class EKF(Estimator):
     def mag_update(self):
         """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
         return "heading" if self.mag_heading_only else "vector"
-
-    @property
-    def gyro_range(self):
-        """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown)."""
-        return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
     def covariance(self):

@@ -4,9 +4,10 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param
+from fusion._core import check_positive, check_param, check_gyro_range
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
-                            jac_rot_to_body, up_in_body, jac_up_in_body, unit3)
+                            jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
+                            saturated)
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -24,24 +25,28 @@ cdef inline void add_gradient(const double* H, const double* v, const double* s,
 cdef class Madgwick(Estimator):
     """Madgwick's gradient-descent filter: a fixed-rate step (beta, rad/s) along the
     normalised gradient of the gravity and north-folded field residuals; optional gyro-bias
-    learning with gain zeta (rad/s^2)."""
+    learning with gain zeta (rad/s^2). With gyro_range (rad/s) a saturated sample raises
+    beta and holds the bias learning for 3 s (recovery_gain)."""
     name = "madgwick"
-    PARAMS = {"beta": 0.041, "zeta": 0.0}
+    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         self.beta = check_param("beta", p["beta"])
         self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
+        self.gyro_range_ = check_gyro_range(p["gyro_range"])
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, None)]
+        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, None),
+                                                 ("t_recover", <double[:1]>&self.t_recover, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0
         self.bw[1] = 0.0
         self.bw[2] = 0.0
+        self.t_recover = 0.0
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -52,6 +57,8 @@ cdef class Madgwick(Estimator):
         cdef double H[12]
         cdef double g[4]
         cdef double n2, k
+        cdef double f = recovery_gain(&self.t_recover,
+                                      gyr != NULL and saturated(gyr, self.gyro_range_), dt)
         if gyr != NULL:
             quat_propagate(q, gyr[0] - self.bw[0], gyr[1] - self.bw[1], gyr[2] - self.bw[2], dt)
         g[0] = 0.0
@@ -78,12 +85,12 @@ cdef class Madgwick(Estimator):
             g[1] *= k
             g[2] *= k
             g[3] *= k
-            if self.zeta > 0.0:     # w_eps = 2 vec(q* ⊗ g) = 2 Xi(q)^T g
+            if self.zeta > 0.0 and f == 1.0:     # (held while recovering) w_eps = 2 vec(q* ⊗ g) = 2 Xi(q)^T g
                 k = 2.0 * self.zeta * dt
                 self.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
                 self.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
                 self.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
-            k = self.beta * dt
+            k = f * self.beta * dt
             q[0] -= k * g[0]
             q[1] -= k * g[1]
             q[2] -= k * g[2]

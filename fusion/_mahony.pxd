@@ -6,3 +6,4 @@ cdef void mahony_error(const double* q, const double* acc, const double* mag,
 cdef class Mahony(Estimator):
     cdef readonly double kp, ki
     cdef double eint[3]       # integral of the correction error
+    cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)

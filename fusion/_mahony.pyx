@@ -6,9 +6,10 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import check_positive, check_param
+from fusion._core import check_positive, check_param, check_gyro_range
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
-                            up_in_body, cross3, half_angle_terms, quat_norm_factor)
+                            up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
+                            saturated)
 
 
 cdef inline void mahony_error(const double* q, const double* acc, const double* mag,
@@ -201,28 +202,41 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
 
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
-    proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro."""
+    proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
+    (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"
-    PARAMS = {"kp": 0.5, "ki": 0.005}
+    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         self.kp = check_param("kp", p["kp"], allow_zero=True)
         self.ki = check_param("ki", p["ki"], allow_zero=True)
+        self.gyro_range_ = check_gyro_range(p["gyro_range"])
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None)]
+        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None),
+                                                 ("t_recover", <double[:1]>&self.t_recover, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
         self.eint[1] = 0.0
         self.eint[2] = 0.0
+        self.t_recover = 0.0
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
+        cdef double f = recovery_gain(&self.t_recover,
+                                      gyr != NULL and saturated(gyr, self.gyro_range_), dt)
+        cdef double eint[3]
+        if f == 1.0:
+            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
+            return
+        # recovering: the large error is the attitude's, not the gyro's bias
+        memcpy(eint, self.eint, 3 * sizeof(double))
+        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt)
+        memcpy(self.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
@@ -235,7 +249,7 @@ cdef class Mahony(Estimator):
         cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
-        if not run_fast(self):
+        if not run_fast(self) or self.gyro_range_ > 0.0:     # recovery: step by step
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
         memcpy(eint, self.eint, 3 * sizeof(double))

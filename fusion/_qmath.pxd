@@ -247,6 +247,21 @@ cdef inline double unobserved_variance(double* t_run, double dt, double dt_nomin
     return v1 - v0
 
 
+cdef inline double recovery_gain(double* t_left, bint saturated_now, double dt) noexcept nogil:
+    """Factor on a complementary filter's correction gain this step, after a saturated gyro
+    (docs/robustness.md, "Recovery"): 20 at a saturated sample, falling linearly back to 1
+    over the 3 s after the last one (x-io Fusion's restart ramp: gain 10 for 0.5, over 3 s).
+    t_left (s) counts down; > 0 while recovering (the filter then holds its bias learning)."""
+    cdef double f
+    if saturated_now:
+        t_left[0] = 3.0
+    if t_left[0] <= 0.0:
+        return 1.0
+    f = 1.0 + 19.0 * t_left[0] * (1.0 / 3.0)
+    t_left[0] -= dt
+    return f
+
+
 cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
     """A gyro sample at or beyond the range (gyro_range 0: range unknown, never)."""
     return gyro_range > 0.0 and (gyr[0] >= gyro_range or gyr[0] <= -gyro_range

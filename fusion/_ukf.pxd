@@ -4,8 +4,7 @@ cdef class UKF(Estimator):
     cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
     cdef double b[3]          # gyro bias, rad/s
     cdef double P[36]         # covariance of the error [p (attitude, body frame), db], 6x6 row-major
-    cdef double gyro_range_   # recovery, as the ekf's (fusion/_ekf.pxd)
-    cdef readonly double motion_rate
+    cdef readonly double motion_rate   # recovery, as the ekf's (fusion/_ekf.pxd)
     cdef double t_run
     cdef void sigma_points(self, double* X) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil

@@ -308,11 +308,6 @@ cdef class UKF(Estimator):
         return np.array([self.b[0], self.b[1], self.b[2]])
 
     @property
-    def gyro_range(self):
-        """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown)."""
-        return self.gyro_range_ if self.gyro_range_ > 0.0 else None
-
-    @property
     def covariance(self):
         """6x6 covariance of the error [attitude (rad, body frame: the same in ENU and NED),
         gyro bias (rad/s)]."""

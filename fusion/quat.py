@@ -9,7 +9,7 @@ shape (4,) and ``q_rows`` of shape (N, 4).
 """
 import numpy as np
 
-__all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "to_matrix",
+__all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "to_matrix", "to_rotvec",
            "to_euler", "from_euler", "from_rotvec", "exp", "from_axis_angle", "angle"]
 
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
@@ -106,6 +106,19 @@ def from_rotvec(rv):
     with np.errstate(invalid="ignore", divide="ignore"):
         k = np.where(small, 0.5 - h * h / 12.0, np.sin(h) / np.where(small, 1.0, th))
     return np.concatenate([np.cos(h)[..., None], k[..., None] * rv], axis=-1)
+
+
+def to_rotvec(q):
+    """Rotation vector (..., 3) of the quaternion ``q`` (..., 4): the inverse of
+    ``from_rotvec``, angle in [0, pi] (``q`` and ``-q`` give the same vector)."""
+    q = normalise(as_quat(q))
+    q = np.where(q[..., :1] < 0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    th = 2 * np.arctan2(s, q[..., 0])
+    small = s < 1e-8
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(small, 2.0 / q[..., 0], th / np.where(small, 1.0, s))
+    return k[..., None] * q[..., 1:]
 
 
 def exp(omega, dt):

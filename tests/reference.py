@@ -311,17 +311,30 @@ class RefGyro(RefEstimator):
 
 # --- mahony -----------------------------------------------------------------------------
 
+def recovery_factor(t_left, gyr, gyro_range, dt):
+    """docs/robustness.md, "Recovery" (complementary filters): (gain factor this step, new
+    t_left). A saturated sample (|w_i| >= gyro_range) sets 3 s; the factor falls linearly
+    from 20 to 1 over them."""
+    if gyr is not None and gyro_range is not None and np.max(np.abs(gyr)) >= gyro_range:
+        t_left = 3.0
+    if t_left <= 0:
+        return 1.0, t_left
+    return 1.0 + 19.0 * t_left / 3.0, t_left - dt
+
+
 class RefMahony(RefEstimator):
-    PARAMS = {"kp": 0.5, "ki": 0.005}
+    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None}
 
     def _reset_state(self):
         self.eps = np.zeros(3)
+        self.t_recover = 0.0
 
     @property
     def bias(self):
         return -self.ki * self.eps
 
     def _step(self, gyr, acc, mag, dt):
+        f, self.t_recover = recovery_factor(self.t_recover, gyr, self.gyro_range, dt)
         q = self.q
         if gyr is not None:                                              # 1.
             q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
@@ -336,10 +349,10 @@ class RefMahony(RefEstimator):
             b = np.array([0.0, np.sqrt(h[0] ** 2 + h[1] ** 2), h[2]])
             w = rotmat(q).T @ b
             e += cross(m, w)
-        if self.ki > 0:                                                  # 4.
+        if self.ki > 0 and f == 1.0:                                     # 4.
             self.eps = self.eps + e * dt
         if self.kp > 0:
-            q = phi(self.kp * e, dt) @ q
+            q = phi(f * self.kp * e, dt) @ q
         self.q = normalise(q)
 
 

@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from reference import (G, I3, I4, RefEKF, RefEstimator, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
+                       recovery_factor,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -38,7 +39,7 @@ def rotmat_unit_form(q):
 
 
 class RefMadgwick(RefEstimator):
-    PARAMS = {"beta": 0.041, "zeta": 0.0}
+    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None}
     DEAD_ZONE = 1e-10
 
     def __init__(self, *args, written_form=False, **kwargs):
@@ -50,12 +51,14 @@ class RefMadgwick(RefEstimator):
 
     def _reset_state(self):
         self.bw = np.zeros(3)
+        self.t_recover = 0.0
 
     @property
     def bias(self):
         return self.bw.copy()
 
     def _step(self, gyr, acc, mag, dt):
+        boost, self.t_recover = recovery_factor(self.t_recover, gyr, self.gyro_range, dt)
         q = self.q
         if gyr is not None:                                              # 1.
             q = phi(gyr - self.bw, dt) @ q
@@ -73,8 +76,9 @@ class RefMadgwick(RefEstimator):
         n = math.sqrt(grad @ grad)                                       # 4.
         if n > self.DEAD_ZONE:
             g = grad / n
-            self.bw = self.bw + self.zeta * dt * 2.0 * qmul(qconj(q), g)[1:]
-            q = q - self.beta * dt * g
+            if boost == 1.0:
+                self.bw = self.bw + self.zeta * dt * 2.0 * qmul(qconj(q), g)[1:]
+            q = q - boost * self.beta * dt * g
         self.q = normalise(q)
 
 
@@ -252,7 +256,8 @@ class RefSlidingMean:
 
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005}
+              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         if params.get("window") is None:        # the seed's 20 ms (10 samples at 500 Hz)
@@ -261,7 +266,7 @@ class RefCFEKF(RefEKF):
 
     def _reset_state(self):
         super()._reset_state()
-        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki)
+        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range)
         self.cf_started = False
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]
 
@@ -289,8 +294,7 @@ class RefCFEKF(RefEKF):
             self.cf.q = self.q.copy()
             self.cf_started = True
         self.cf._step(gyr, acc, mag, dt)                                 # 2.
-        if gyr is not None:                                              # 3.
-            self._predict(gyr, dt)
+        self._propagate(gyr, dt)                                         # 3.
         if acc is not None or mag is not None:                           # 4.
             z = self.cf.q.copy()
             if z @ self.q < 0:

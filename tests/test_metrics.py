@@ -53,6 +53,18 @@ def test_euler_round_trip_and_convention():
     assert np.allclose(quat.to_matrix(quat.from_euler([y, p, r])), Rz @ Ry @ Rx)
 
 
+def test_to_rotvec_inverts_from_rotvec():
+    rng = np.random.default_rng(0)
+    axes = rng.normal(size=(200, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.r_[rng.uniform(0, np.pi - 1e-6, 197), 0.0, 1e-10, np.pi - 1e-9]
+    rv = axes * angles[:, None]
+    assert np.allclose(quat.to_rotvec(quat.from_rotvec(rv)), rv, atol=1e-9, rtol=0)
+    assert np.allclose(quat.to_rotvec(-quat.from_rotvec(rv)), rv, atol=1e-9, rtol=0)   # sign-blind
+    # an angle past pi comes back as the shorter rotation the other way
+    assert np.allclose(quat.to_rotvec(quat.from_rotvec([0, 0, 1.5 * np.pi])), [0, 0, -0.5 * np.pi])
+
+
 def test_exp_integrates_a_constant_rate_exactly():
     w = np.array([0.3, -1.1, 2.0])
     q = np.array([1.0, 0, 0, 0])

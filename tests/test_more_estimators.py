@@ -45,6 +45,19 @@ def compare_more(est, r):
 
 # --- kernel == reference ------------------------------------------------------------------
 
+@pytest.mark.parametrize("name", ["madgwick", "cf-ekf"])
+def test_recovery_after_a_saturated_gyro_equals_reference(data, name):
+    """docs/robustness.md, "Recovery": madgwick raises beta and holds its bias learning;
+    cf-ekf restarts its complementary filter's ramp and grows its covariance as the ekf."""
+    from test_reference import recovery_data
+    gyr, acc, mag, dt = recovery_data(data)
+    params = {"gyro_range": 0.5, **({"zeta": 0.05} if name == "madgwick" else {})}
+    est = fusion.make(name, FS, on_invalid="skip", **params)
+    r = rm.make(name, FS, on_invalid="skip", **params)
+    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
+    compare_more(est, r)
+
+
 @pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
 @pytest.mark.parametrize("name, params", CASES, ids=ids(CASES))
 def test_kernel_equals_reference(data, name, params, nine_axis):

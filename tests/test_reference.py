@@ -368,10 +368,8 @@ def test_reference_mag_model_is_the_measured_direction_when_heading_is_right():
     assert math.isclose(np.linalg.norm(ref.mag_model(q, z)), 1.0, rel_tol=1e-15)
 
 
-@pytest.mark.parametrize("motion_rate", [1.0, 30.0])       # 30: the pi² cap is reached
-def test_recovery_inflation(data, motion_rate):
-    """docs/robustness.md, "Recovery": saturated samples (gyro_range), a run of dropped
-    samples and a time gap grow the attitude covariance the same way in kernel and reference."""
+def recovery_data(data):
+    """Saturated samples (at 0.5 rad/s), a run of dropped samples and a time gap."""
     _, gyr, acc, mag = data
     gyr, acc, mag = gyr[:N_SHORT].copy(), acc[:N_SHORT].copy(), mag[:N_SHORT]
     gyr[300:350] = np.clip(gyr[300:350], -0.5, 0.5)
@@ -379,11 +377,33 @@ def test_recovery_inflation(data, motion_rate):
     acc[800:850] = np.nan
     dt = np.full(N_SHORT, 1 / FS)
     dt[1200] = 0.7
+    return gyr, acc, mag, dt
+
+
+@pytest.mark.parametrize("motion_rate", [1.0, 30.0])       # 30: the pi² cap is reached
+def test_recovery_inflation(data, motion_rate):
+    """docs/robustness.md, "Recovery": saturated samples (gyro_range), a run of dropped
+    samples and a time gap grow the attitude covariance the same way in kernel and reference."""
+    gyr, acc, mag, dt = recovery_data(data)
     params = dict(gyro_range=0.5, motion_rate=motion_rate)
     est = fusion.make("ekf", FS, on_invalid="skip", **params)
     r = ref.make("ekf", FS, on_invalid="skip", **params)
     assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
     compare_state(est, r)
+
+
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+def test_mahony_recovery_gain(data, nine_axis):
+    """docs/robustness.md, "Recovery": after saturated samples the kernel raises kp and holds
+    the integral as the reference does, by the batch and by the per-sample path."""
+    gyr, acc, mag, dt = recovery_data(data)
+    m = mag if nine_axis else None
+    est = fusion.make("mahony", FS, on_invalid="skip", gyro_range=0.5)
+    r = ref.make("mahony", FS, on_invalid="skip", gyro_range=0.5)
+    assert qdiff(est.run(gyr, acc, m, dt=dt), r.run(gyr, acc, m, dt=dt)) < TOL
+    compare_state(est, r)
+    plain = fusion.make("mahony", FS, on_invalid="skip")
+    assert qdiff(plain.run(gyr, acc, m, dt=dt), est.run(gyr, acc, m, dt=dt)) > 1e-3   # it acts
 
 
 @pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf"])
