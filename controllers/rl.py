@@ -155,12 +155,19 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
                   seed=0, progress=True, log=print):
     """Behaviour cloning: run ``teacher`` (a ``Controller``) for ``steps`` environment steps
     in ``venv`` (a ``VecNormalize``; its statistics learn from these steps), then fit the
-    policy of ``model`` (SB3 PPO) to the teacher's actions by maximum likelihood and its value
-    function to the discounted (normalised) returns of the teacher's episodes. The policy's
-    action std is then raised to at least ``action_std`` so that PPO still explores.
-    Returns the number of steps collected."""
+    policy of ``model`` to the teacher's actions (its action std set to ``action_std`` so that
+    the learner still explores).
+
+    PPO: policy by maximum likelihood, value function to the discounted (normalised) returns
+    of the teacher's episodes. SAC: the actor's mean action by least squares and its std to
+    ``action_std``; the teacher's transitions go into the replay buffer, and the critics are
+    fitted to them for as many gradient steps as the actor had (``epochs`` passes of
+    ``batch_size``) with the cloned actor as the policy (SAC's own critic loss), so that the
+    first actor updates follow a critic that knows the clone. Returns the number of steps
+    collected."""
     import torch
     from tqdm.auto import tqdm
+    sac = hasattr(model, "replay_buffer")
     n = venv.num_envs
     teacher.reset()
     venv.reset()
@@ -171,44 +178,94 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
         a = np.asarray(teacher.act(raw), dtype=np.float32).reshape(n, -1)
         obs.append(raw.copy())
         acts.append(a)
-        _, r, done, _ = venv.step(a)
-        raw = venv.get_original_obs()
+        _, r, done, infos = venv.step(a)
+        nxt = venv.get_original_obs()
+        if sac:     # as SB3 stores a transition: raw observations and rewards, the true last state
+            last = nxt.copy()
+            for i in np.flatnonzero(done):
+                last[i] = venv.unnormalize_obs(infos[i]["terminal_observation"])
+            model.replay_buffer.add(raw, last, a, venv.get_original_reward(), done, infos)
+        raw = nxt
         rews.append(r.copy())
         dones.append(done.copy())
         for i in np.flatnonzero(done):
             teacher.reset(i)
-    rews, dones = np.array(rews), np.array(dones)
-    returns = np.zeros_like(rews)
-    g = np.zeros(n)
-    gamma = model.gamma
-    for t in range(len(rews) - 1, -1, -1):     # episodes cut by the end of collection bootstrap 0
-        g = rews[t] + gamma * g * (1.0 - dones[t])
-        returns[t] = g
     x = torch.as_tensor(venv.normalize_obs(np.concatenate(obs)).astype(np.float32))
     y = torch.as_tensor(np.concatenate(acts))
-    ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
-    policy = model.policy
-    opt = torch.optim.Adam(policy.parameters(), lr=lr)
     rng = np.random.default_rng(seed)
-    policy.set_training_mode(True)
-    for epoch in range(epochs):
-        perm = torch.as_tensor(rng.permutation(len(x)))
-        total = 0.0
-        for k in range(0, len(x), batch_size):
-            idx = perm[k:k + batch_size]
-            values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
-            loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-    policy.set_training_mode(False)
-    with torch.no_grad():
-        policy.log_std.clamp_(min=float(np.log(action_std)))
-        mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
+    batches = lambda: (torch.as_tensor(idx) for perm in [rng.permutation(len(x))]
+                       for idx in (perm[k:k + batch_size] for k in range(0, len(x), batch_size)))
+    if sac:
+        actor = model.actor
+        opt = torch.optim.Adam(actor.parameters(), lr=lr)
+        target_log_std = float(np.log(action_std))
+        actor.set_training_mode(True)
+        for epoch in range(epochs):
+            total = 0.0
+            for idx in batches():
+                mean, log_std, _ = actor.get_action_dist_params(x[idx])
+                loss = ((torch.tanh(mean) - y[idx]) ** 2).mean() + ((log_std - target_log_std) ** 2).mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                total += loss.item() * len(idx)
+        actor.set_training_mode(False)
+        _fit_sac_critics(model, epochs * -(-len(x) // batch_size))
+        model.learning_starts = 0       # the buffer is filled: no random-action warm-up
+        with torch.no_grad():
+            mse = float(((actor(x, deterministic=True) - y) ** 2).mean())
+    else:
+        rews, dones = np.array(rews), np.array(dones)
+        returns = np.zeros_like(rews)
+        g = np.zeros(n)
+        for t in range(len(rews) - 1, -1, -1):     # episodes cut by the end of collection bootstrap 0
+            g = rews[t] + model.gamma * g * (1.0 - dones[t])
+            returns[t] = g
+        ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
+        policy = model.policy
+        opt = torch.optim.Adam(policy.parameters(), lr=lr)
+        policy.set_training_mode(True)
+        for epoch in range(epochs):
+            total = 0.0
+            for idx in batches():
+                values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
+                loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                total += loss.item() * len(idx)
+        policy.set_training_mode(False)
+        with torch.no_grad():
+            policy.log_std.clamp_(min=float(np.log(action_std)))
+            mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
     if log:
         log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, final loss {total / len(x):.3f}")
     return len(x)
+
+
+def _fit_sac_critics(model, steps):
+    """SAC's critic update (soft Bellman targets from the target critics and the current
+    actor, entropy coefficient as it stands) for ``steps`` gradient steps on the replay
+    buffer, the actor and the entropy coefficient held."""
+    import torch
+    import torch.nn.functional as F
+    from stable_baselines3.common.utils import polyak_update
+    ent = (torch.exp(model.log_ent_coef.detach()) if model.ent_coef_optimizer is not None
+           else model.ent_coef_tensor)
+    model.critic.set_training_mode(True)
+    for _ in range(steps):
+        data = model.replay_buffer.sample(model.batch_size, env=model._vec_normalize_env)
+        with torch.no_grad():
+            nxt, nxt_logp = model.actor.action_log_prob(data.next_observations)
+            q_next = torch.cat(model.critic_target(data.next_observations, nxt), dim=1).min(dim=1, keepdim=True)[0]
+            discount = data.discounts if data.discounts is not None else model.gamma
+            target = data.rewards + (1 - data.dones) * discount * (q_next - ent * nxt_logp.reshape(-1, 1))
+        loss = 0.5 * sum(F.mse_loss(q, target) for q in model.critic(data.observations, data.actions))
+        model.critic.optimizer.zero_grad()
+        loss.backward()
+        model.critic.optimizer.step()
+        polyak_update(model.critic.parameters(), model.critic_target.parameters(), model.tau)
+    model.critic.set_training_mode(False)
 
 
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
@@ -224,9 +281,9 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     policy stem of the same algorithm (and observation space) whose weights and
     normalisation statistics start the training (fine-tuning: a policy trained on the true
     attitude adapted to an estimator, or a track policy as the start of a waypoints one);
-    ``timesteps`` then counts the new steps only. ``init_from="pid"`` (PPO only) starts
-    from a behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher
-    steps). The starting policy (clone or ``init_from``) is evaluated first and kept as the
+    ``timesteps`` then counts the new steps only. ``init_from="pid"`` starts from a
+    behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher steps;
+    for SAC they also fill the replay buffer). The starting policy (clone or ``init_from``) is evaluated first and kept as the
     best model unless training beats it. ``hyperparams_override``: a dict replacing entries
     of the YAML file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
     """
@@ -277,8 +334,6 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     clone = init_from == TEACHER and start_ckpt is None
     if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
         raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
-    if init_from == TEACHER and algo != "ppo":
-        raise ValueError(f"init_from={TEACHER!r} (behaviour cloning) is implemented for ppo, not {algo}")
     if init_from is not None and init_from != TEACHER and start_ckpt is None:
         _, init_zip, init_json, init_vn = _resolve(init_from)
         if not init_zip.is_file():

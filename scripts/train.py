@@ -52,7 +52,7 @@ def main(argv=None):
     ap.add_argument("--init-from", default=None,
                     help="start from this policy's weights and statistics (same algo), e.g. "
                          "controllers/policies/ppo-waypoints-truth; or 'pid': from a behaviour clone "
-                         "of the PID controller (ppo)")
+                         "of the PID controller (sac: its steps also fill the replay buffer)")
     ap.add_argument("--bc-steps", type=int, default=60_000,
                     help="with --init-from pid: environment steps of the PID teacher to clone")
     ap.add_argument("--hyperparams", nargs="+", default=[], metavar="NAME=VALUE",
