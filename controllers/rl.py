@@ -155,8 +155,8 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
                   seed=0, progress=True, log=print):
     """Behaviour cloning: run ``teacher`` (a ``Controller``) for ``steps`` environment steps
     in ``venv`` (a ``VecNormalize``; its statistics learn from these steps), then fit the
-    policy of ``model`` to the teacher's actions (its action std set to ``action_std`` so that
-    the learner still explores).
+    policy of ``model`` to the teacher's actions, with an action std of ``action_std`` (PPO: at
+    least that) so that the learner still explores.
 
     PPO: policy by maximum likelihood, value function to the discounted (normalised) returns
     of the teacher's episodes. SAC: the actor's mean action by least squares and its std to
@@ -380,6 +380,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             # the teacher runs at the training environments' control rate (env_kwargs may set it)
             teacher = PID.for_env(eval_env.venv.envs[0])
             bc_collected = clone_teacher(model, venv, teacher, bc_steps, seed=seed, progress=progress, log=log)
+            if "learning_starts" in used_hp:
+                used_hp["learning_starts"] = model.learning_starts     # the JSON says what ran
 
         class SaveBestStats(BaseCallback):
             # beside the best model: its normalisation statistics and its score, so that a

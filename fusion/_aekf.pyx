@@ -11,7 +11,7 @@ from libc.stdlib cimport realloc, free
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT
-from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update
+from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated
 from fusion._wahba cimport quest2
 
 cnp.import_array()
@@ -154,7 +154,7 @@ cdef class AEKF(EKF):
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
-        self.propagate(gyr, dt)
+        self.propagate(gyr, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:

@@ -5,3 +5,4 @@ cdef class CFEKF(EKF):
     cdef readonly double cf_noise
     cdef Mahony cf            # the complementary filter whose attitude is the measurement
     cdef bint cf_started
+    cdef int sat_left         # samples the sliding window still holds a saturated raw sample

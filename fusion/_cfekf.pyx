@@ -12,7 +12,7 @@ from fusion._prefilter cimport SlidingMean
 from fusion._core import check_positive, check_param, FLAG
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
-from fusion._qmath cimport quat_normalise, quat_measurement_update
+from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
 
@@ -60,26 +60,38 @@ cdef class CFEKF(EKF):
 
     cdef list _state_fields(self):
         # the inner complementary filter's whole state, under "cf."
-        return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG)]
+        return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
+                                           ("sat_left", <int[:1]>&self.sat_left, (0, None))]
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
         self.cf_started = False
+        self.sat_left = 0
+
+    cdef void _process(self, const double* gyr, const double* acc, const double* mag,
+                       double dt) noexcept nogil:
+        # saturation is a property of the raw sample (the window's mean of rail samples is
+        # not on the rail): flagged while the window holds one
+        cdef bint entered = vec3_finite(gyr)     # the prefilter sees valid samples only
+        if entered and saturated(gyr, self.gyro_range_):
+            self.sat_left = (<SlidingMean>self.pre_gyr).window
+        Estimator._process(self, gyr, acc, mag, dt)
+        if entered and self.sat_left > 0:
+            self.sat_left -= 1
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         cdef double z[4]
         cdef int i
+        cdef bint sat = gyr != NULL and self.sat_left > 0
         if not self.cf_started:         # the complementary filter starts where the EKF does
+            self.cf._reset_state()
             for i in range(4):
                 self.cf.q[i] = self.q[i]
-            self.cf.eint[0] = 0.0
-            self.cf.eint[1] = 0.0
-            self.cf.eint[2] = 0.0
             self.cf_started = True
-        self.cf._step(gyr, acc, mag, dt)
-        self.propagate(gyr, dt)
+        self.cf.step_flagged(gyr, acc, mag, dt, sat)
+        self.propagate(gyr, dt, sat)
         if acc != NULL or mag != NULL:
             if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]
                     + self.cf.q[3] * self.q[3]) < 0.0:

@@ -517,7 +517,7 @@ cdef class Estimator:
         extra = sorted(set(given) - set(names))
         if missing or extra:
             raise ValueError(f"state fields do not match this {self.name!r} estimator (a different "
-                             f"prefilter or window?): missing {missing}, unexpected {extra}")
+                             f"prefilter or window, or a state saved by another version?): missing {missing}, unexpected {extra}")
         # check everything before writing anything
         values = [_checked_field(name, given[name], view, check) for name, view, check in fields]
         for (name, view, check), v in zip(fields, values):

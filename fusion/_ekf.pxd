@@ -11,7 +11,7 @@ cdef class EKF(Estimator):
     cdef bint mag_heading_only   # mag_update="heading": the magnetometer turns the heading only
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses
-    cdef void propagate(self, const double* gyr, double dt) noexcept nogil
+    cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil

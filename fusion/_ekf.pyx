@@ -33,11 +33,11 @@ def check_mag_update(value):
 
 
 cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
-                               const double* gyr, double dt) noexcept nogil:
+                               const double* gyr, double dt, bint sat) noexcept nogil:
     """The time update of one step: predict with the gyro where there is one, then grow
     the attitude covariance for the motion it did not measure (dropped sample, time gap,
-    saturation; docs/robustness.md, "Recovery")."""
-    cdef bint measured = gyr != NULL and not saturated(gyr, e.gyro_range_)
+    saturated sample: sat; docs/robustness.md, "Recovery")."""
+    cdef bint measured = gyr != NULL and not sat
     cdef double v = unobserved_variance(t_run, dt, e.dt_nominal, measured, e.motion_rate)
     if gyr != NULL:
         ekf_predict(e, q, b, P, gyr, dt)
@@ -308,7 +308,7 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
                           double dt) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
     parameters: EKF._step and the batch loop both run this."""
-    ekf_propagate(e, q, b, P, t_run, gyr, dt)
+    ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
     if acc != NULL:
         ekf_acc_update(e, q, b, P, acc, dt)
     if mag != NULL:
@@ -357,8 +357,8 @@ cdef class EKF(Estimator):
         self.t_run = 0.0
 
     # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
-    cdef void propagate(self, const double* gyr, double dt) noexcept nogil:
-        ekf_propagate(self, self.q, self.b, self.P, &self.t_run, gyr, dt)
+    cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:
+        ekf_propagate(self, self.q, self.b, self.P, &self.t_run, gyr, dt, sat)
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
         ekf_predict(self, self.q, self.b, self.P, gyr, dt)

@@ -227,8 +227,12 @@ cdef class Mahony(Estimator):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        cdef double f = recovery_gain(&self.t_recover,
-                                      gyr != NULL and saturated(gyr, self.gyro_range_), dt)
+        self.step_flagged(gyr, acc, mag, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
+
+    cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
+                           double dt, bint sat) noexcept nogil:
+        """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
+        cdef double f = recovery_gain(&self.t_recover, sat, dt)
         cdef double eint[3]
         if f == 1.0:
             mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)

@@ -263,10 +263,12 @@ cdef inline double recovery_gain(double* t_left, bint saturated_now, double dt) 
 
 
 cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
-    """A gyro sample at or beyond the range (gyro_range 0: range unknown, never)."""
-    return gyro_range > 0.0 and (gyr[0] >= gyro_range or gyr[0] <= -gyro_range
-                                 or gyr[1] >= gyro_range or gyr[1] <= -gyro_range
-                                 or gyr[2] >= gyro_range or gyr[2] <= -gyro_range)
+    """A gyro sample at or beyond 98 % of the range on any axis (gyro_range 0: range
+    unknown, never). The margin, as x-io Fusion's: after bias and scale calibration a
+    clipped sample lands near the range, not on it."""
+    cdef double r = 0.98 * gyro_range
+    return gyro_range > 0.0 and (gyr[0] >= r or gyr[0] <= -r or gyr[1] >= r or gyr[1] <= -r
+                                 or gyr[2] >= r or gyr[2] <= -r)
 
 
 cdef inline void quat_measurement_update(double* q, double* b, double* P, const double* z,

@@ -311,11 +311,16 @@ class RefGyro(RefEstimator):
 
 # --- mahony -----------------------------------------------------------------------------
 
-def recovery_factor(t_left, gyr, gyro_range, dt):
+def is_saturated(gyr, gyro_range):
+    """docs/robustness.md, "Recovery": |w_i| >= 0.98 gyro_range on some axis."""
+    return gyr is not None and gyro_range is not None and np.max(np.abs(gyr)) >= 0.98 * gyro_range
+
+
+def recovery_factor(t_left, sat, dt):
     """docs/robustness.md, "Recovery" (complementary filters): (gain factor this step, new
-    t_left). A saturated sample (|w_i| >= gyro_range) sets 3 s; the factor falls linearly
-    from 20 to 1 over them."""
-    if gyr is not None and gyro_range is not None and np.max(np.abs(gyr)) >= gyro_range:
+    t_left). A saturated sample (sat) sets 3 s; the factor falls linearly from 20 to 1 over
+    them."""
+    if sat:
         t_left = 3.0
     if t_left <= 0:
         return 1.0, t_left
@@ -333,8 +338,11 @@ class RefMahony(RefEstimator):
     def bias(self):
         return -self.ki * self.eps
 
-    def _step(self, gyr, acc, mag, dt):
-        f, self.t_recover = recovery_factor(self.t_recover, gyr, self.gyro_range, dt)
+    def _step(self, gyr, acc, mag, dt, sat=None):
+        """sat: the sample is saturated (None: test gyr against gyro_range)."""
+        if sat is None:
+            sat = is_saturated(gyr, self.gyro_range)
+        f, self.t_recover = recovery_factor(self.t_recover, sat, dt)
         q = self.q
         if gyr is not None:                                              # 1.
             q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
@@ -371,13 +379,13 @@ def mag_model(q, z):
     return R.T @ v
 
 
-def unmeasured_variance(t_run, gyr, dt, fs, gyro_range, motion_rate):
+def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
     """docs/robustness.md, "Recovery": (new t_run, attitude variance in rad² to add) for a step
     whose gyro sample is gyr (None: dropped). Unmeasured time: the whole step without a
-    trustworthy rate (dropped, or |w_i| >= gyro_range), else the part beyond 1 / fs; over a
-    run of it the rate is an unknown constant of std motion_rate: total (motion_rate t_run)²,
-    capped at pi²."""
-    measured = gyr is not None and (gyro_range is None or np.max(np.abs(gyr)) < gyro_range)
+    trustworthy rate (dropped, or saturated: sat), else the part beyond 1 / fs; over a run of
+    it the rate is an unknown constant of std motion_rate: total (motion_rate t_run)², capped
+    at pi²."""
+    measured = gyr is not None and not sat
     t = dt - 1.0 / fs if measured else dt
     if t <= 0:
         return 0.0, 0.0
@@ -395,11 +403,12 @@ class RefEKF(RefEstimator):
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
 
-    def _propagate(self, gyr, dt):
+    def _propagate(self, gyr, dt, sat=None):
         """Predict, then the attitude angle variance grows by v about every body axis for the
-        motion the gyro did not measure: Pqq += (v / 4) Xi Xiᵀ."""
-        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs, self.gyro_range,
-                                            self.motion_rate)
+        motion the gyro did not measure: Pqq += (v / 4) Xi Xiᵀ. sat: as RefMahony._step."""
+        if sat is None:
+            sat = is_saturated(gyr, self.gyro_range)
+        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs, sat, self.motion_rate)
         if gyr is not None:
             self._predict(gyr, dt)
         if v > 0:

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from reference import (G, I3, I4, RefEKF, RefEstimator, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
-                       recovery_factor,
+                       recovery_factor, is_saturated,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -58,7 +58,7 @@ class RefMadgwick(RefEstimator):
         return self.bw.copy()
 
     def _step(self, gyr, acc, mag, dt):
-        boost, self.t_recover = recovery_factor(self.t_recover, gyr, self.gyro_range, dt)
+        boost, self.t_recover = recovery_factor(self.t_recover, is_saturated(gyr, self.gyro_range), dt)
         q = self.q
         if gyr is not None:                                              # 1.
             q = phi(gyr - self.bw, dt) @ q
@@ -223,8 +223,8 @@ class RefUKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         # the ekf's recovery; the error p is the attitude angle (rad) to first order
-        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs, self.gyro_range,
-                                            self.motion_rate)
+        self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs,
+                                            is_saturated(gyr, self.gyro_range), self.motion_rate)
         if gyr is not None:
             self._predict(gyr, dt)
         self.P[:3, :3] += v * I3
@@ -269,6 +269,8 @@ class RefCFEKF(RefEKF):
         self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range)
         self.cf_started = False
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]
+        self.sat_left = 0       # samples the window still holds a saturated raw gyro sample
+        self.sat = False
 
     def update(self, gyr, acc, mag=None, dt=None):
         """Prefilter the valid raw vectors, then the usual sample handling on the means."""
@@ -277,7 +279,11 @@ class RefCFEKF(RefEKF):
         mag = None if mag is None else np.asarray(mag, float)
         if self.on_invalid == "raise":
             self._check(gyr, acc, mag)
-        if gyro_valid(gyr):
+        entered = gyro_valid(gyr)
+        if entered:
+            if is_saturated(gyr, self.gyro_range):      # the raw sample, not the mean
+                self.sat_left = int(self.window)
+            self.sat = self.sat_left > 0
             gyr = self.pre[0](gyr)
         if vector_valid(acc):
             acc = self.pre[1](acc)
@@ -288,13 +294,16 @@ class RefCFEKF(RefEKF):
             return super().update(gyr, acc, mag, dt)
         finally:
             self.on_invalid = mode
+            if entered:
+                self.sat_left = max(0, self.sat_left - 1)
 
     def _step(self, gyr, acc, mag, dt):
         if not self.cf_started:                                          # 1.
             self.cf.q = self.q.copy()
             self.cf_started = True
-        self.cf._step(gyr, acc, mag, dt)                                 # 2.
-        self._propagate(gyr, dt)                                         # 3.
+        sat = gyr is not None and self.sat
+        self.cf._step(gyr, acc, mag, dt, sat)                            # 2.
+        self._propagate(gyr, dt, sat)                                    # 3.
         if acc is not None or mag is not None:                           # 4.
             z = self.cf.q.copy()
             if z @ self.q < 0:

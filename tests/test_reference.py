@@ -398,8 +398,9 @@ def test_mahony_recovery_gain(data, nine_axis):
     the integral as the reference does, by the batch and by the per-sample path."""
     gyr, acc, mag, dt = recovery_data(data)
     m = mag if nine_axis else None
-    est = fusion.make("mahony", FS, on_invalid="skip", gyro_range=0.5)
-    r = ref.make("mahony", FS, on_invalid="skip", gyro_range=0.5)
+    # the rail (0.5) 1 % below the range, as after a bias correction: within the 2 % margin
+    est = fusion.make("mahony", FS, on_invalid="skip", gyro_range=0.505)
+    r = ref.make("mahony", FS, on_invalid="skip", gyro_range=0.505)
     assert qdiff(est.run(gyr, acc, m, dt=dt), r.run(gyr, acc, m, dt=dt)) < TOL
     compare_state(est, r)
     plain = fusion.make("mahony", FS, on_invalid="skip")
