@@ -240,6 +240,10 @@ class SphereRobotEnv(gym.Env):
         if self._client < 0:
             raise RuntimeError("could not connect to PyBullet")
 
+    def _ramp_run(self):
+        """(m) the horizontal length of a ramp's slope."""
+        return self.ramp_height / math.tan(math.radians(self.ramp_deg))
+
     def _build_world(self, start_xy, start_yaw, bumps, ramps):
         p, c = self._p, self._client
         p.resetSimulation(physicsClientId=c)
@@ -262,7 +266,7 @@ class SphereRobotEnv(gym.Env):
             statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
         for (x, y, yaw) in ramps:
             h = self.ramp_height
-            run = h / math.tan(math.radians(self.ramp_deg))
+            run = self._ramp_run()
             top, w = RAMP_TOP, RAMP_WIDTH
             xs = (-(top / 2 + run), -top / 2, top / 2, top / 2 + run)
             verts = []
@@ -327,9 +331,8 @@ class SphereRobotEnv(gym.Env):
                 out.append((float(xy[0]), float(xy[1]), yaw))
             return out
 
-        ramp_run = self.ramp_height / math.tan(math.radians(self.ramp_deg))
         bumps = away(self.bumps, 0.5 * BUMP_LENGTH + self.bump_height)
-        ramps = away(self.ramps, math.hypot(0.5 * RAMP_TOP + ramp_run, 0.5 * RAMP_WIDTH))
+        ramps = away(self.ramps, math.hypot(0.5 * RAMP_TOP + self._ramp_run(), 0.5 * RAMP_WIDTH))
         zones = []
         r_imu = self.robot.shell_radius + self.imu_offset[2]
         spec = self._mag_zone_spec
