@@ -368,9 +368,11 @@ cdef class Estimator:
                 raise ValueError(f"acc must be finite and non-zero, got {acc!r} (on_invalid='skip' skips such samples)")
             if mag is not None and not vec3_valid(m):
                 raise ValueError(f"mag must be finite and non-zero, got {mag!r} (on_invalid='skip' skips such samples)")
-        self._process(g, a, m if mag is not None else NULL, h)
         out = cnp.PyArray_SimpleNew(1, &four, cnp.NPY_DOUBLE)
-        self._output_q(<double*>cnp.PyArray_DATA(out))
+        # through the batch loop, so that update() and run() run the same compiled code (the
+        # compiler may fuse multiply-adds differently in two copies of a step)
+        self._run_batch(g, a, m if mag is not None else NULL, NULL, h,
+                        <double*>cnp.PyArray_DATA(out), 1, False)
         return out
 
     def run(self, gyr, acc, mag=None, dt=None):
