@@ -51,9 +51,9 @@ cdef class CFEKF(EKF):
         self.pre_gyr = SlidingMean(int(w))
         self.pre_acc = SlidingMean(int(w))
         self.pre_mag = SlidingMean(int(w))
-        # a saturated gyro (seen on the window's mean) restarts the complementary filter's
-        # gain ramp, and the EKF's attitude covariance grows as the ekf's does, so that it
-        # takes the filter's recovered attitude as the ekf takes the accelerometer's
+        # a saturated gyro (tested on the raw samples: _process) restarts the complementary
+        # filter's gain ramp, and the EKF's attitude covariance grows as the ekf's does, so
+        # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
         self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"])
         self.reset()
