@@ -183,13 +183,16 @@ def test_wrong_start_uneven_dt_skip_and_ned_equal_reference(data, measurement):
 
 
 def test_quiet_body_is_the_ekf():
-    """Nothing rejected, vector measurements: exactly the ekf's numbers."""
+    """Nothing rejected, vector measurements: the ekf's numbers (the same machinery, the
+    same calls; to rounding, since the compiler may fuse multiply-adds differently in the
+    ekf's inlined batch loop and in aekf's calls)."""
     _, gyr, acc, mag, *_ = scenario(n=3000, turn=0.3, burst_amp=0.0, disturb=None, mag_noise=0.2)
     a, e = fusion.make("aekf", FS), fusion.make("ekf", FS)
     qa, qe = a.run(gyr, acc, mag), e.run(gyr, acc, mag)
     assert a.rejected == {"acc": 0, "mag": 0} and a.tested == {"acc": 3000, "mag": 3000}
-    assert np.array_equal(qa, qe)                 # the same machinery, the same calls
-    assert np.array_equal(a.covariance, e.covariance) and np.array_equal(a.bias, e.bias)
+    assert np.abs(qa - qe).max() < 1e-13
+    assert np.abs(a.covariance - e.covariance).max() < 1e-13 * np.abs(e.covariance).max()
+    assert np.abs(a.bias - e.bias).max() < 1e-13
 
 
 # --- run == repeated update -----------------------------------------------------------------
