@@ -41,7 +41,7 @@ PARAM_RANGES = {
     "gyro_noise": (1e-5, 10.0), "bias_noise": (1e-9, 0.01), "acc_noise": (1e-3, 1e3),
     "mag_noise": (1e-4, 10.0), "q_init_std": (1e-4, 1.0), "bias_init_std": (1e-6, 1.0),
     "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
-    "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4),
+    "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4), "acc_lowpass": (1e-3, 1e4),
 }
 
 

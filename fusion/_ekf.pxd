@@ -9,6 +9,10 @@ cdef class EKF(Estimator):
     cdef readonly double motion_rate
     cdef double t_run
     cdef bint mag_heading_only   # mag_update="heading": the magnetometer turns the heading only
+    # acc_lowpass (s, 0: off): the accelerometer low-passed in the navigation frame
+    cdef readonly double acc_lowpass
+    cdef double acc_lp[3]     # its state, navigation frame
+    cdef bint acc_lp_started
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil

@@ -6,7 +6,7 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_param, check_fs, check_positive, check_gyro_range
+from fusion._core import check_param, check_fs, check_positive, check_gyro_range, FLAG
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated)
@@ -303,13 +303,38 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_heading_only)
 
 
+cdef inline void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
+                                 double* out) noexcept nogil:
+    """acc_lowpass (docs/estimators.md): the sample turned into the navigation frame with the
+    predicted attitude q, low-passed there (first order, time constant acc_lowpass; the
+    first sample starts it), and turned back: a vertical the linear acceleration of a
+    shaken body averages out of."""
+    cdef double an[3]
+    cdef double k = dt / (e.acc_lowpass + dt)
+    rot_to_nav(q, acc, an)
+    if not e.acc_lp_started:
+        e.acc_lp[0] = an[0]
+        e.acc_lp[1] = an[1]
+        e.acc_lp[2] = an[2]
+        e.acc_lp_started = True
+    else:
+        e.acc_lp[0] += k * (an[0] - e.acc_lp[0])
+        e.acc_lp[1] += k * (an[1] - e.acc_lp[1])
+        e.acc_lp[2] += k * (an[2] - e.acc_lp[2])
+    rot_to_body(q, e.acc_lp, out)
+
+
 cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
                           const double* gyr, const double* acc, const double* mag,
                           double dt) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
     parameters: EKF._step and the batch loop both run this."""
+    cdef double af[3]
     ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
-    if acc != NULL:
+    if acc != NULL and e.acc_lowpass > 0.0:
+        acc_nav_lowpass(e, q, acc, dt, af)
+        ekf_acc_update(e, q, b, P, af, dt)
+    elif acc != NULL:
         ekf_acc_update(e, q, b, P, acc, dt)
     if mag != NULL:
         ekf_mag_update(e, q, b, P, mag, dt)
@@ -322,7 +347,7 @@ cdef class EKF(Estimator):
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector"}
+              "mag_update": "vector", "acc_lowpass": 0.0}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -335,13 +360,17 @@ cdef class EKF(Estimator):
         self.mag_noise = check_param("mag_noise", p["mag_noise"])
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
+        # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
+        self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.reset()
 
     cdef list _state_fields(self):
         return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
                                                 ("P", <double[:49]>self.P, None),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, None)]
+                                                ("t_unmeasured", <double[:1]>&self.t_run, None),
+                                                ("acc_lp", <double[:3]>self.acc_lp, None),
+                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -355,6 +384,10 @@ cdef class EKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
+        self.acc_lp_started = False
+        self.acc_lp[0] = 0.0
+        self.acc_lp[1] = 0.0
+        self.acc_lp[2] = 0.0
 
     # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

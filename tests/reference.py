@@ -396,9 +396,10 @@ def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector"}
+              "mag_update": "vector", "acc_lowpass": 0.0}
 
     def _reset_state(self):
+        self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, navigation frame
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
@@ -465,6 +466,11 @@ class RefEKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         self._propagate(gyr, dt)                                         # 1.
+        if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
+            an = rotmat(self.q) @ acc
+            self.acc_lp = an if self.acc_lp is None else \
+                self.acc_lp + dt / (self.acc_lowpass + dt) * (an - self.acc_lp)
+            acc = rotmat(self.q).T @ self.acc_lp
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm)
