@@ -303,8 +303,8 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_heading_only)
 
 
-cdef inline void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
-                                 double* out) noexcept nogil:
+cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
+                          double* out) noexcept nogil:
     """acc_lowpass (docs/estimators.md): the sample turned into the navigation frame with the
     predicted attitude q, low-passed there (first order, time constant acc_lowpass; the
     first sample starts it), and turned back: a vertical the linear acceleration of a
@@ -333,8 +333,8 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
     if acc != NULL and e.acc_lowpass > 0.0:
         acc_nav_lowpass(e, q, acc, dt, af)
-        ekf_acc_update(e, q, b, P, af, dt)
-    elif acc != NULL:
+        acc = af
+    if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, b, P, acc, dt)
     if mag != NULL:
         ekf_mag_update(e, q, b, P, mag, dt)
