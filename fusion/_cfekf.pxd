@@ -6,3 +6,4 @@ cdef class CFEKF(EKF):
     cdef Mahony cf            # the complementary filter whose attitude is the measurement
     cdef bint cf_started
     cdef int sat_left         # samples the sliding window still holds a saturated raw sample
+    cdef readonly bint bias_feedback   # the complementary filter integrates gyro - b

@@ -15,6 +15,7 @@ from fusion._mahony import Mahony as _Mahony
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
+MAHONY_KI = _Mahony.PARAMS["ki"]     # ki's default without bias_feedback
 
 
 def default_window(fs):
@@ -26,11 +27,13 @@ cdef class CFEKF(EKF):
     """Seed 004: gyro, accelerometer and magnetometer through a sliding mean; Mahony's
     complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
     4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
-    whose prediction integrates the averaged gyro. gyro_range, motion_rate: as the ekf's."""
+    whose prediction integrates the averaged gyro. bias_feedback: the complementary filter
+    integrates the averaged gyro minus the EKF's bias (ki then defaults to 0, else to
+    mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0}
+              "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0, "bias_feedback": False}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -41,7 +44,15 @@ cdef class CFEKF(EKF):
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         self.cf_noise = check_param("cf_noise", p["cf_noise"])
         kp = check_param("kp", p["kp"])
-        ki = check_param("ki", p["ki"], allow_zero=True)
+        if p["bias_feedback"] not in (True, False):
+            raise ValueError(f"bias_feedback must be True or False, got {p['bias_feedback']!r}")
+        self.bias_feedback = bool(p["bias_feedback"])
+        # with the EKF's bias fed back the complementary filter needs no integral of its own
+        # (docs/cfekf.md, "bias_feedback"); without it, mahony's default
+        ki = p["ki"]
+        if ki is None:
+            ki = 0.0 if self.bias_feedback else MAHONY_KI
+        ki = check_param("ki", ki, allow_zero=True)
         w = p["window"]
         if w is None:
             w = default_window(self.fs)
@@ -83,6 +94,7 @@ cdef class CFEKF(EKF):
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         cdef double z[4]
+        cdef double g[3]
         cdef int i
         cdef bint sat = gyr != NULL and self.sat_left > 0
         if not self.cf_started:         # the complementary filter starts where the EKF does
@@ -90,7 +102,14 @@ cdef class CFEKF(EKF):
             for i in range(4):
                 self.cf.q[i] = self.q[i]
             self.cf_started = True
-        self.cf.step_flagged(gyr, acc, mag, dt, sat)
+        if gyr != NULL and self.bias_feedback:
+            # the complementary filter integrates the gyro corrected by the EKF's bias (from
+            # before this sample's update)
+            for i in range(3):
+                g[i] = gyr[i] - self.b[i]
+            self.cf.step_flagged(g, acc, mag, dt, sat)
+        else:
+            self.cf.step_flagged(gyr, acc, mag, dt, sat)
         self.propagate(gyr, dt, sat)
         if acc != NULL or mag != NULL:
             if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]

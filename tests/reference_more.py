@@ -256,12 +256,14 @@ class RefSlidingMean:
 
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": 0.005, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0}
+              "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0, "bias_feedback": False}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         if params.get("window") is None:        # the seed's 20 ms (10 samples at 500 Hz)
             params["window"] = max(1, round(0.02 * fs))
+        if params.get("ki") is None:            # no integral of its own with the bias fed back
+            params["ki"] = 0.0 if params.get("bias_feedback", False) else 0.005
         super().__init__(fs, frame=frame, on_invalid=on_invalid, **params)
 
     def _reset_state(self):
@@ -302,7 +304,10 @@ class RefCFEKF(RefEKF):
             self.cf.q = self.q.copy()
             self.cf_started = True
         sat = gyr is not None and self.sat
-        self.cf._step(gyr, acc, mag, dt, sat)                            # 2.
+        w = gyr
+        if gyr is not None and self.bias_feedback:      # the EKF's bias before this sample
+            w = gyr - self.b
+        self.cf._step(w, acc, mag, dt, sat)                              # 2.
         self._propagate(gyr, dt, sat)                                    # 3.
         if acc is not None or mag is not None:                           # 4.
             z = self.cf.q.copy()

@@ -14,7 +14,7 @@ from test_reference import (FS, N, TOL, compare_state, count_invalid, inject_inv
 
 N_SHORT = 600       # dt / NED / skip variants (the UKF reference takes ~0.5 ms per sample)
 NAMES = ["madgwick", "ukf", "cf-ekf"]
-CASES = [("madgwick", {}), ("ukf", {}), ("cf-ekf", {})]
+CASES = [("madgwick", {}), ("ukf", {}), ("cf-ekf", {}), ("cf-ekf", {"bias_feedback": True})]
 VARIANTS = [("madgwick", {"beta": 0.2, "zeta": 0.05}),
             ("ukf", {"gyro_noise": 0.003, "bias_noise": 1e-3, "acc_noise": 0.3, "mag_noise": 0.1,
                      "q_init_std": 0.2, "bias_init_std": 0.05}),
@@ -323,11 +323,11 @@ def test_ukf_centre_means_keep_exact_readings_exact():
 
 
 def test_cf_ekf_measures_mahony_on_the_sliding_means(data):
-    """Composition: the complementary filter inside cf-ekf is `mahony` run on the sliding
-    means, from the same start."""
+    """Composition: without bias_feedback, the complementary filter inside cf-ekf is `mahony`
+    run on the sliding means, from the same start."""
     _, gyr, acc, mag = data
     n = 3000
-    est = fusion.make("cf-ekf", FS, window=10, kp=1.0, ki=0.02)
+    est = fusion.make("cf-ekf", FS, window=10, kp=1.0, ki=0.02, bias_feedback=False)
     q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))
     est.reset(q0)
     est.run(gyr[:n], acc[:n], mag[:n])
@@ -337,6 +337,34 @@ def test_cf_ekf_measures_mahony_on_the_sliding_means(data):
     mahony.run(*mean)
     assert np.abs(est.cf_quaternion - mahony.quaternion).max() < 1e-12
     assert [type(p).__name__ for p in est.prefilters.values()] == ["SlidingMean"] * 3
+
+
+def test_cf_ekf_bias_feedback_removes_the_complementary_filters_tilt():
+    """A static sensor with a constant gyro bias: mahony (and cf-ekf without bias_feedback,
+    which follows it) carries the tilt (horizontal bias) / kp until its slow integral learns the
+    bias; with the EKF's bias fed back into the complementary filter the tilt goes with the
+    bias the EKF learns."""
+    from test_estimators import axis_angle, inclination, static_body
+    bias = np.array([0.02, -0.015, 0.01])       # rad/s: 1.5 deg/s horizontal
+    q_true = axis_angle([0.2, 0.1, 1.0], 1.0)
+    gyr, acc, mag = static_body(q_true, 3000, seed=5, noise=(0.003, 0.05, 0.005), bias=bias)
+    for m in (mag, None):
+        tilt = {}
+        for label, name, params in [("mahony", "mahony", {}),
+                                    ("old", "cf-ekf", {"bias_feedback": False}),
+                                    ("new", "cf-ekf", {"bias_feedback": True})]:
+            est = fusion.make(name, 100.0, **params)
+            est.reset(q_true)
+            out = est.run(gyr, acc, m)
+            tilt[label] = np.degrees(inclination(out[-100:], q_true)).max()     # the 30th s
+        assert tilt["mahony"] > 2.0 and tilt["old"] > 2.0
+        assert tilt["new"] < 0.75
+
+
+def test_cf_ekf_ki_default_follows_bias_feedback():
+    assert fusion.make("cf-ekf", 100.0).ki == fusion.make("mahony", 100.0).ki
+    assert fusion.make("cf-ekf", 100.0, bias_feedback=True).ki == 0.0
+    assert fusion.make("cf-ekf", 100.0, bias_feedback=True, ki=0.01).ki == 0.01
 
 
 def test_cf_ekf_window_default_is_the_seeds_20_ms():
@@ -364,6 +392,8 @@ def test_cf_ekf_window_default_is_the_seeds_20_ms():
     ("cf-ekf", {"window": True}, r"window must be an integer >= 1"),
     ("cf-ekf", {"kp": 0.0}, r"kp must be finite and > 0"),
     ("cf-ekf", {"ki": -0.1}, r"ki must be finite and >= 0"),
+    ("cf-ekf", {"bias_feedback": 1.5}, r"bias_feedback must be True or False"),
+    ("cf-ekf", {"bias_feedback": "yes"}, r"bias_feedback must be True or False"),
     ("cf-ekf", {"cf_noise": 0.0}, r"cf_noise must be finite and > 0"),
     ("cf-ekf", {"gyro_noise": -0.01}, r"gyro_noise must be finite and > 0"),
     ("cf-ekf", {"acc_noise": 1.0}, r"unknown parameter\(s\) acc_noise"),
