@@ -73,8 +73,9 @@ cdef class AEKF(EKF):
     attitude expects (linear acceleration, magnetic disturbance); with measurement="quest" a
     QUEST quaternion is the measurement while both sensors are accepted."""
     name = "aekf"
-    # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer)
-    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+    # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer); the
+    # accelerometer corrects the inclination only (docs/aekf.md, "Why these defaults")
+    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_update="tilt", acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -156,6 +157,7 @@ cdef class AEKF(EKF):
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
         self.propagate(gyr, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
+        self.rest_update(gyr, acc, dt)
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:

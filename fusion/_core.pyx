@@ -42,6 +42,8 @@ PARAM_RANGES = {
     "mag_noise": (1e-4, 10.0), "q_init_std": (1e-4, 1.0), "bias_init_std": (1e-6, 1.0),
     "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
     "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4), "acc_lowpass": (1e-3, 1e4),
+    "rest_time": (1e-3, 1e4), "rest_gyro_tol": (1e-6, 10.0), "rest_acc_tol": (1e-6, 100.0),
+    "rest_noise": (1e-7, 1.0),
 }
 
 

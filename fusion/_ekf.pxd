@@ -8,17 +8,26 @@ cdef class EKF(Estimator):
     # unmeasured time (rad/s), length of the current run of unmeasured time (s)
     cdef readonly double motion_rate
     cdef double t_run
-    cdef bint mag_heading_only   # mag_update="heading": the magnetometer turns the heading only
+    # the vector updates' gains (_ekf.pyx GAIN_*): mag_update="heading", acc_update="tilt"
+    cdef int acc_gain, mag_gain
     # acc_lowpass (s, 0: off): the accelerometer low-passed in the navigation frame
     cdef readonly double acc_lowpass
     cdef double acc_lp[3]     # its state, navigation frame
     cdef bint acc_lp_started
+    # rest detection and the zero-rate update (rest_time 0: off)
+    cdef readonly double rest_time, rest_gyro_tol, rest_acc_tol, rest_noise
+    cdef double rest_gyr[3]   # the detector's low-passes
+    cdef double rest_acc[3]
+    cdef double t_rest        # s at rest so far
+    cdef bint rest_started
+    cdef Py_ssize_t n_rest
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil
+    cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil
 
 cdef class IIREKF(EKF):
     pass

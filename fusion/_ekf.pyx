@@ -1,7 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
 import numpy as np
-from libc.math cimport sqrt
+from libc.math cimport sqrt, fabs
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
@@ -12,6 +12,8 @@ from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_bo
                             jac_up_in_body, unit3, unobserved_variance, saturated)
 
 cdef double G0 = 9.81
+cdef double REST_TAU = 0.5  # s: the rest detector's low-passes (VQF's restFilterTau)
+REST_GYRO_TOL = 0.034906585039886591    # rad/s: 2 deg/s (VQF's restThGyr and biasClip)
 MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyway
 
 
@@ -21,15 +23,21 @@ def check_recovery_params(p):
     return check_gyro_range(p["gyro_range"]), check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
 
 
+# the vector updates' gains: "vector" the Kalman gain (seed 003 as written), "heading" the
+# magnetometer's projected onto a turn about the vertical, "tilt" the accelerometer's off it
 MAG_UPDATES = ("heading", "vector")
+ACC_UPDATES = ("tilt", "vector")
+cdef enum:
+    GAIN_FULL = 0
+    GAIN_HEADING = 1
+    GAIN_TILT = 2
+    GAIN_BIAS = 3
 
 
-def check_mag_update(value):
-    """True for "heading" (the magnetometer corrects the heading only), False for "vector"
-    (seed 003's eqs. 11-16 as written: the full 3-D update, which also tilts)."""
-    if not isinstance(value, str) or value not in MAG_UPDATES:
-        raise ValueError(f"mag_update must be one of {MAG_UPDATES}, got {value!r}")
-    return value == "heading"
+def check_choice(name, value, choices):
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+    return value
 
 
 cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
@@ -147,6 +155,27 @@ cdef inline void heading_only_gain(const double* q, const double* U, const doubl
             K[(4 + i) * 3 + j] = w[i] * kc
 
 
+cdef inline void tilt_only_gain(const double* q, double* K) noexcept nogil:
+    """The complement of heading_only_gain, for the accelerometer (acc_update="tilt"): K's
+    quaternion rows projected off u = e_z (x) q (no turn about the vertical) and its bias
+    rows off the body-frame vertical w = R^T e_z, so that a linear acceleration the filter
+    takes for gravity cannot turn the heading or the bias along the vertical, which the
+    accelerometer does not observe (docs/estimators.md, step 4)."""
+    cdef double u[4]
+    cdef double w[3]
+    cdef double a, c
+    cdef int i, j
+    u[0] = -q[3]; u[1] = -q[2]; u[2] = q[1]; u[3] = q[0]
+    up_in_body(q, w)
+    for j in range(3):
+        a = u[0] * K[j] + u[1] * K[3 + j] + u[2] * K[6 + j] + u[3] * K[9 + j]
+        c = w[0] * K[12 + j] + w[1] * K[15 + j] + w[2] * K[18 + j]
+        for i in range(4):
+            K[i * 3 + j] -= u[i] * a
+        for i in range(3):
+            K[(4 + i) * 3 + j] -= w[i] * c
+
+
 cdef inline void joseph_entry(double* P, const double* K, const double* U, const double* V,
                               int i, int j) noexcept nogil:
     """P[i, j] and P[j, i] of the Joseph update P - K Uᵀ - V Kᵀ (ekf_vector_update)."""
@@ -160,17 +189,14 @@ cdef inline void joseph_entry(double* P, const double* K, const double* U, const
 
 cdef inline void ekf_vector_update(double* q, double* b, double* P, const double* z,
                                    const double* h, const double* H, double r,
-                                   bint heading_only) noexcept nogil:
+                                   int gain) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
-    and noise variance r per axis; ``heading_only``: the gain projected by
-    heading_only_gain (the Joseph form below holds for any gain)."""
+    and noise variance r per axis; ``gain``: GAIN_FULL, or the gain projected by
+    heading_only_gain / tilt_only_gain (the Joseph form in kalman_apply holds for any gain)."""
     cdef double U[21]    # P H^T, 7x3
     cdef double S[9]
-    cdef double Si[9]    # adj(S)
-    cdef double K[21]    # 7x3
-    cdef double V[21]    # U - K S, 7x3
     cdef double y[3]
-    cdef double s, det
+    cdef double s
     cdef int i, j, k
     for i in range(7):
         for k in range(3):
@@ -186,18 +212,35 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     S[0] += r
     S[4] += r
     S[8] += r
+    y[0] = z[0] - h[0]
+    y[1] = z[1] - h[1]
+    y[2] = z[2] - h[2]
+    kalman_apply(q, b, P, U, S, y, gain)
+
+
+cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
+                              double* S, const double* y, int gain) noexcept nogil:
+    """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3),
+    S = H P Hᵀ + Rm and the residual y."""
+    cdef double Si[9]    # adj(S)
+    cdef double K[21]    # 7x3
+    cdef double V[21]    # U - K S, 7x3
+    cdef double det
+    cdef int i, j
     # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for the
     # division (~13 cycles on the chain from P to the next update)
     det = sym3_adjugate(S, Si)
-    if heading_only:
+    if gain == GAIN_HEADING:
         heading_only_gain(q, U, Si, det, K)
     else:
         for i in range(7):
             for j in range(3):
                 K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
-    y[0] = z[0] - h[0]
-    y[1] = z[1] - h[1]
-    y[2] = z[2] - h[2]
+        if gain == GAIN_TILT:
+            tilt_only_gain(q, K)
+        elif gain == GAIN_BIAS:
+            for i in range(12):
+                K[i] = 0.0
     for i in range(4):
         q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
     for i in range(3):
@@ -236,7 +279,7 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     unit3(acc, z)
     up_in_body(q, h)
     jac_up_in_body(q, H)
-    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, False)
+    ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, e.acc_gain)
 
 
 cdef inline void rot_to_body_yz(const double* q, double b, double c, double* out) noexcept nogil:
@@ -300,7 +343,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
-    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_heading_only)
+    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_gain)
 
 
 cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
@@ -324,6 +367,53 @@ cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
     rot_to_body(q, e.acc_lp, out)
 
 
+cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
+                   const double* acc, double dt) noexcept nogil:
+    """Rest detection and the zero-rate update (docs/estimators.md, "Rest"): gyr and acc
+    (either may be NULL: the rest run ends) against their low-passes; after rest_time s
+    at rest, the gyro sample measures the bias: z = gyr, h = b, H = [0 I3]."""
+    cdef double k, dg = 0.0, da = 0.0, d
+    cdef double U[21]    # P Hᵀ = P[:, 4:7]
+    cdef double S[9]
+    cdef double y[3]
+    cdef bint still = True
+    cdef int i, j
+    if gyr == NULL or acc == NULL:
+        e.t_rest = 0.0
+        return
+    if not e.rest_started:      # the low-passes start at the first sample with both
+        for i in range(3):
+            e.rest_gyr[i] = gyr[i]
+            e.rest_acc[i] = acc[i]
+        e.rest_started = True
+        e.t_rest = 0.0
+        return
+    k = dt / (REST_TAU + dt)
+    for i in range(3):
+        e.rest_gyr[i] += k * (gyr[i] - e.rest_gyr[i])
+        e.rest_acc[i] += k * (acc[i] - e.rest_acc[i])
+        d = gyr[i] - e.rest_gyr[i]
+        dg += d * d
+        d = acc[i] - e.rest_acc[i]
+        da += d * d
+        # a steady turn is not rest, however smooth: the mean rate must be bias-sized
+        still = still and fabs(e.rest_gyr[i]) < e.rest_gyro_tol
+    still = still and dg < e.rest_gyro_tol * e.rest_gyro_tol and da < e.rest_acc_tol * e.rest_acc_tol
+    e.t_rest = e.t_rest + dt if still else 0.0
+    if e.t_rest < e.rest_time:
+        return
+    e.n_rest += 1
+    for i in range(7):
+        for j in range(3):
+            U[i * 3 + j] = P[i * 7 + 4 + j]
+    for i in range(3):
+        for j in range(3):
+            S[i * 3 + j] = P[(4 + i) * 7 + 4 + j]
+        S[i * 4] += e.rest_noise * e.rest_noise / dt
+        y[i] = gyr[i] - b[i]
+    kalman_apply(q, b, P, U, S, y, GAIN_BIAS)
+
+
 cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
                           const double* gyr, const double* acc, const double* mag,
                           double dt) noexcept nogil:
@@ -331,6 +421,8 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
     ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
+    if e.rest_time > 0.0:
+        ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:
         acc_nav_lowpass(e, q, acc, dt, af)
         acc = af
@@ -347,13 +439,15 @@ cdef class EKF(Estimator):
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0}
+              "mag_update": "vector", "acc_lowpass": 0.0, "rest_time": 1.5,
+              "rest_gyro_tol": REST_GYRO_TOL, "rest_acc_tol": 0.5, "rest_noise": 1e-3, "acc_update": "vector"}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
-        self.mag_heading_only = check_mag_update(p["mag_update"])
+        self.mag_gain = GAIN_HEADING if check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading" else GAIN_FULL
+        self.acc_gain = GAIN_TILT if check_choice("acc_update", p["acc_update"], ACC_UPDATES) == "tilt" else GAIN_FULL
         self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
         self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
         self.acc_noise = check_param("acc_noise", p["acc_noise"])
@@ -362,6 +456,10 @@ cdef class EKF(Estimator):
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
         self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
+        self.rest_time = check_param("rest_time", p["rest_time"], allow_zero=True)
+        self.rest_gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
+        self.rest_acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
+        self.rest_noise = check_param("rest_noise", p["rest_noise"])
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.reset()
 
@@ -370,7 +468,11 @@ cdef class EKF(Estimator):
                                                 ("P", <double[:49]>self.P, None),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
+                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                ("rest_gyr", <double[:3]>self.rest_gyr, None),
+                                                ("rest_acc", <double[:3]>self.rest_acc, None),
+                                                ("t_rest", <double[:1]>&self.t_rest, None),
+                                                ("rest_started", <int[:1]><int*>&self.rest_started, FLAG)]
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -385,6 +487,12 @@ cdef class EKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         self.acc_lp_started = False
+        self.rest_started = False
+        self.t_rest = 0.0
+        self.n_rest = 0
+        for i in range(3):
+            self.rest_gyr[i] = 0.0
+            self.rest_acc[i] = 0.0
         self.acc_lp[0] = 0.0
         self.acc_lp[1] = 0.0
         self.acc_lp[2] = 0.0
@@ -401,6 +509,10 @@ cdef class EKF(Estimator):
 
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
         ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
+
+    cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil:
+        if self.rest_time > 0.0:
+            ekf_rest(self, self.q, self.b, self.P, gyr, acc, dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -453,9 +565,24 @@ cdef class EKF(Estimator):
         return np.array([self.b[0], self.b[1], self.b[2]])
 
     @property
+    def at_rest(self):
+        """True while the rest detector holds (the last sample was a zero-rate update)."""
+        return self.rest_time > 0.0 and self.t_rest >= self.rest_time
+
+    @property
+    def rest_samples(self):
+        """Zero-rate updates (samples detected at rest) since the last reset."""
+        return self.n_rest
+
+    @property
     def mag_update(self):
         """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
-        return "heading" if self.mag_heading_only else "vector"
+        return "heading" if self.mag_gain == GAIN_HEADING else "vector"
+
+    @property
+    def acc_update(self):
+        """"tilt" (the accelerometer corrects the inclination only) or "vector" (seed 003)."""
+        return "tilt" if self.acc_gain == GAIN_TILT else "vector"
 
     @property
     def covariance(self):

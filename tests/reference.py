@@ -396,10 +396,16 @@ def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0}
+              "mag_update": "vector", "acc_lowpass": 0.0, "rest_time": 1.5,
+              "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
+              "acc_update": "vector"}
+    REST_TAU = 0.5      # s, the rest detector's low-passes
 
     def _reset_state(self):
         self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, navigation frame
+        self.rest_lp = None         # rest detection: the low-passed (gyr, acc)
+        self.t_rest = 0.0
+        self.rest_samples = 0
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
@@ -444,21 +450,52 @@ class RefEKF(RefEstimator):
         self.q = normalise(A1 @ q_old)
         self.P = F @ self.P @ F.T + Q
 
-    def _correct(self, z, hfun, Rm, heading_only=False):
-        """heading_only: the gain projected so that the update turns the attitude about the
-        vertical only (quaternion part onto the direction e_z (x) q of such a turn) and moves
-        the bias along the body-frame vertical only; Joseph form holds for any gain."""
+    def _rest(self, gyr, acc, dt):
+        """Rest detection; at rest the zero-rate update z = gyr, h = b, H = [0 I3]."""
+        if gyr is None or acc is None:
+            self.t_rest = 0.0
+            return
+        if self.rest_lp is None:
+            self.rest_lp = (gyr.copy(), acc.copy())
+            self.t_rest = 0.0
+            return
+        k = dt / (self.REST_TAU + dt)
+        lg, la = (lp + k * (x - lp) for lp, x in zip(self.rest_lp, (gyr, acc)))
+        self.rest_lp = (lg, la)
+        still = (np.linalg.norm(gyr - lg) < self.rest_gyro_tol and np.linalg.norm(acc - la) < self.rest_acc_tol
+                 and np.max(np.abs(lg)) < self.rest_gyro_tol)
+        self.t_rest = self.t_rest + dt if still else 0.0
+        if self.t_rest >= self.rest_time:
+            self.rest_samples += 1
+            H = np.zeros((3, 7))
+            H[:, 4:] = I3
+            self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")
+
+    def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)
         H = np.zeros((3, 7))
         H[:, :4] = J
+        self._update(z - h, H, Rm, gain)
+
+    def _update(self, y, H, Rm, gain="full"):
+        """gain "heading": projected so that the update turns the attitude about the vertical
+        only (quaternion part onto the direction u = e_z (x) q of such a turn) and moves the
+        bias along the body-frame vertical w only; "tilt": the complement (off u and off w);
+        "bias": the bias alone (quaternion rows zero). The Joseph form holds for any gain."""
         S = H @ self.P @ H.T + Rm
         K = self.P @ H.T @ np.linalg.inv(S)
-        if heading_only:
+        if gain == "bias":
+            K[:4] = 0.0
+        elif gain != "full":
             u = qmul(np.array([0.0, 0.0, 0.0, 1.0]), self.q)
-            K[:4] = np.outer(u, u) @ K[:4] / (u @ u)
             w = acc_model(self.q)
-            K[4:] = np.outer(w, w) @ K[4:]
-        x = np.concatenate([self.q, self.b]) + K @ (z - h)
+            Pu = np.outer(u, u) / (u @ u)
+            Pw = np.outer(w, w)
+            if gain == "tilt":
+                Pu, Pw = np.eye(4) - Pu, I3 - Pw
+            K[:4] = Pu @ K[:4]
+            K[4:] = Pw @ K[4:]
+        x = np.concatenate([self.q, self.b]) + K @ y
         self.q = normalise(x[:4])
         self.b = x[4:]
         IKH = I7 - K @ H
@@ -466,6 +503,8 @@ class RefEKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         self._propagate(gyr, dt)                                         # 1.
+        if self.rest_time > 0:                                           # rest
+            self._rest(gyr, acc, dt)
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
             an = rotmat(self.q) @ acc
             self.acc_lp = an if self.acc_lp is None else \
@@ -473,13 +512,14 @@ class RefEKF(RefEstimator):
             acc = rotmat(self.q).T @ self.acc_lp
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
-            self._correct(normalise(acc), acc_model, Rm)
+            self._correct(normalise(acc), acc_model, Rm, "tilt" if self.acc_update == "tilt" else "full")
         if mag is not None:                                              # 3.
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
                 Rm = self.mag_noise ** 2 / dt * I3
-                self._correct(z, lambda q: mag_model(q, z), Rm, self.mag_update == "heading")
+                self._correct(z, lambda q: mag_model(q, z), Rm,
+                              "heading" if self.mag_update == "heading" else "full")
         self.P = (self.P + self.P.T) / 2                                 # 5.
 
 

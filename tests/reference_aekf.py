@@ -52,7 +52,7 @@ def wahba_svd(b, r, w):
 # --- the filter ---------------------------------------------------------------------------
 
 class RefAEKF(ref.RefEKF):
-    PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+    PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_update="tilt", acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -68,12 +68,13 @@ class RefAEKF(ref.RefEKF):
         self.mag_dip = None if p["mag_dip"] is None else float(p["mag_dip"])
         self.gyro_range = None if p["gyro_range"] is None else float(p["gyro_range"])
         self.mag_update = p["mag_update"]
+        self.acc_update = p["acc_update"]
         self.fs = float(fs)
         self.frame = frame
         self.on_invalid = on_invalid
         self.params = p
         for k, v in p.items():
-            if k not in ("measurement", "mag_norm", "mag_dip", "gyro_range", "mag_update"):
+            if k not in ("measurement", "mag_norm", "mag_dip", "gyro_range", "mag_update", "acc_update"):
                 setattr(self, k, float(v))
         learn = self.mag_norm is None or self.mag_dip is None
         self.n_learn = max(1, round(self.learn_time * self.fs)) if learn else 0
@@ -118,6 +119,8 @@ class RefAEKF(ref.RefEKF):
     def _step(self, gyr, acc, mag, dt):
         # 1. predict (the ekf's, with its recovery)
         self._propagate(gyr, dt)
+        if self.rest_time > 0:
+            self._rest(gyr, acc, dt)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = mag_rej = mag_tested = False
@@ -181,12 +184,13 @@ class RefAEKF(ref.RefEKF):
         # 3b. the ekf's vector updates, variances times reject_factor when rejected
         if acc is not None:
             f = self.reject_factor if acc_rej else 1.0
-            self._correct(normalise(acc), ref.acc_model, (self.acc_noise / G) ** 2 / dt * f * I3)
+            self._correct(normalise(acc), ref.acc_model, (self.acc_noise / G) ** 2 / dt * f * I3,
+                          "tilt" if self.acc_update == "tilt" else "full")
         if mag is not None:
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
                 f = self.reject_factor if mag_rej else 1.0
                 self._correct(z, lambda q: ref.mag_model(q, z), self.mag_noise ** 2 / dt * f * I3,
-                              self.mag_update == "heading")
+                              "heading" if self.mag_update == "heading" else "full")
         self.P = (self.P + self.P.T) / 2

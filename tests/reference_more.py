@@ -155,7 +155,8 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = {k: v for k, v in RefEKF.PARAMS.items() if k != "mag_update"}
+    PARAMS = {k: v for k, v in RefEKF.PARAMS.items()
+              if k not in ("mag_update", "acc_update") and not k.startswith("rest_")}
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 

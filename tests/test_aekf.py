@@ -187,7 +187,8 @@ def test_quiet_body_is_the_ekf():
     same calls; to rounding, since the compiler may fuse multiply-adds differently in the
     ekf's inlined batch loop and in aekf's calls)."""
     _, gyr, acc, mag, *_ = scenario(n=3000, turn=0.3, burst_amp=0.0, disturb=None, mag_noise=0.2)
-    a, e = fusion.make("aekf", FS), fusion.make("ekf", FS)
+    a = fusion.make("aekf", FS)
+    e = fusion.make("ekf", FS, acc_update=a.acc_update)
     qa, qe = a.run(gyr, acc, mag), e.run(gyr, acc, mag)
     assert a.rejected == {"acc": 0, "mag": 0} and a.tested == {"acc": 3000, "mag": 3000}
     assert np.abs(qa - qe).max() < 1e-13
@@ -362,9 +363,10 @@ def test_static_wrong_start_recovers_through_the_timeout():
     q = est.run(gyr, acc)
     d = est.decisions & 1
     assert d[:150].all() and not d[150:300].any()        # 1.5 s at 100 Hz, then accepted
-    # once the error falls below the direction threshold (6 deg) the test may reject a few
-    # noisy samples again, never for longer than the timeout
-    assert d[300:].sum() < 150
+    # until the error falls below the direction threshold (6 deg) the test may reject noisy
+    # samples again, never for longer than the timeout
+    edges = np.flatnonzero(np.diff(np.r_[0, d[300:], 0]))
+    assert (edges[1::2] - edges[::2]).max(initial=0) <= 151
     assert errors_deg(q[-100:], np.tile(q_true, (100, 1)))[0].max() < 2.0
 
 

@@ -451,8 +451,119 @@ def test_heading_only_magnetometer_cannot_tilt(name):
     mag = np.tile([np.sin(east) * np.cos(dip), np.cos(east) * np.cos(dip), -np.sin(dip)], (n, 1))
     tilt = {}
     for mode in ("vector", "heading"):
-        est = fusion.make(name, FS, mag_update=mode)
+        # rest detection off: its zero-rate update corrects the bias through correlations
+        # the turn leaves in P, which tilts by 6e-4 deg here; this test is about the gain
+        est = fusion.make(name, FS, mag_update=mode, rest_time=0.0)
         est.reset([1.0, 0.0, 0.0, 0.0])
         q = est.run(gyr, acc, mag)
         tilt[mode] = np.degrees(2 * np.arctan2(np.hypot(q[:, 1], q[:, 2]), np.hypot(q[:, 0], q[:, 3]))).max()
     assert tilt["heading"] < 1e-6 < 0.1 < tilt["vector"], tilt
+
+
+def rest_data(data, n_still=400):
+    """The synthetic run, its first n_still samples replaced by a still sensor (gyro = bias
+    + noise, level accelerometer and constant field + noise), and a still spell in the middle."""
+    _, gyr, acc, mag = (x[:N_SHORT].copy() for x in data)
+    rng = np.random.default_rng(8)
+    for a, b in ((0, n_still), (1200, 1800)):
+        gyr[a:b] = GYRO_BIAS + 0.005 * rng.standard_normal((b - a, 3))
+        acc[a:b] = acc[a] + 0.05 * rng.standard_normal((b - a, 3))
+        mag[a:b] = mag[a] + 0.5 * rng.standard_normal((b - a, 3))
+    return gyr, acc, mag
+
+
+@pytest.mark.parametrize("name, params", [("ekf", {}), ("ekf", {"acc_update": "tilt", "mag_update": "heading"}),
+                                          ("ekf", {"rest_time": 0.3, "rest_noise": 0.01})],
+                         ids=["defaults", "tilt-heading", "short-rest"])
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+def test_rest_update_equals_reference(data, name, params, nine_axis):
+    """docs/estimators.md, "Rest": the detector and the zero-rate update of the kernel, by the
+    batch and by the per-sample path, against the reference, on a record whose still spells
+    the detector finds (and whose motion it must not take for rest)."""
+    gyr, acc, mag = rest_data(data)
+    m = mag if nine_axis else None
+    est, r = fusion.make(name, FS, **params), ref.make(name, FS, **params)
+    dt = np.full(N_SHORT, 1 / FS)
+    dt[700] = 0.05         # a longer step inside the motion
+    assert qdiff(est.run(gyr, acc, m, dt=dt), r.run(gyr, acc, m, dt=dt)) < TOL
+    compare_state(est, r)
+    assert est.rest_samples == r.rest_samples
+    # found in both still spells (the second after its low-passes forget the motion), and
+    # only there: at most (400 - 1 - rest_time fs) + (600 - rest_time fs)
+    first = 400 - 1 - est.rest_time * FS
+    assert first + 100 < est.rest_samples <= first + 600 - est.rest_time * FS
+    one = fusion.make(name, FS, **params)
+    q1 = np.array([one.update(g, a, None if m is None else m[i], dt=dt[i])
+                   for i, (g, a) in enumerate(zip(gyr, acc))])
+    assert np.abs(q1 - est.run(gyr, acc, m, dt=dt) if False else q1 - fusion.make(name, FS, **params).run(gyr, acc, m, dt=dt)).max() < 1e-15
+    assert one.rest_samples == est.rest_samples
+
+
+@pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf"])
+def test_rest_learns_the_whole_gyro_bias(name):
+    """A still sensor with a constant gyro bias, 6-axis: the accelerometer sees only the
+    horizontal part of the bias, so without rest detection the vertical part is never learned
+    and the heading drifts; with it (the default) the whole bias is learned within seconds.
+    A steady turn (10 deg/s, smooth) and a shaken sensor are not rest."""
+    n = int(20 * FS)
+    rng = np.random.default_rng(4)
+    bias = np.radians([0.8, -0.5, 1.2])                 # deg/s: under the 2 deg/s limit
+    gyr = bias + rng.normal(0, 0.002, (n, 3))
+    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.02, (n, 3))
+    for rest_time in (1.5, 0.0):
+        est = fusion.make(name, FS, rest_time=rest_time)
+        est.reset([1.0, 0.0, 0.0, 0.0])
+        q = est.run(gyr, acc)
+        yaw = np.degrees(2 * np.arctan2(q[:, 3], q[:, 0]))
+        drift = abs(yaw[-1] - yaw[n // 2])              # over the last 10 s
+        if rest_time:
+            assert est.at_rest and est.rest_samples > n - 2 * FS
+            assert np.abs(est.bias - bias).max() < np.radians(0.05), np.degrees(est.bias)
+            assert drift < 0.2, drift
+        else:
+            assert drift > 5.0, drift                   # about 1 deg/s unlearned
+            assert not est.at_rest and est.rest_samples == 0
+            assert abs(est.bias[2] - bias[2]) > np.radians(0.5), np.degrees(est.bias)
+    turning = gyr + np.radians([0.0, 0.0, 10.0])
+    shaken = acc + rng.normal(0, 1.0, (n, 3))
+    for g, a in ((turning, acc), (gyr, shaken)):
+        est = fusion.make(name, FS)
+        est.run(g, a)
+        assert est.rest_samples == 0 and not est.at_rest
+
+
+def test_rest_parameters_are_checked():
+    for name in ("rest_time", "rest_gyro_tol", "rest_acc_tol", "rest_noise"):
+        for bad in (-1.0, np.inf, "1", None):
+            with pytest.raises(ValueError, match=name):
+                fusion.make("ekf", FS, **{name: bad})
+    with pytest.raises(ValueError, match="acc_update"):
+        fusion.make("aekf", FS, acc_update="heading")
+    assert fusion.make("ekf", FS, rest_time=0.0).rest_time == 0.0
+    assert fusion.make("ekf", FS).acc_update == "vector" and fusion.make("aekf", FS).acc_update == "tilt"
+
+
+@pytest.mark.parametrize("name", ["ekf", "aekf"])
+def test_tilt_only_accelerometer_cannot_turn_the_heading(data, name):
+    """After a moving run (P full of correlations), one accelerometer update with a reading
+    20 deg off the estimate's vertical (and the gyro equal to the bias: no rotation
+    predicted): with the full gain ("vector") the correction also turns the attitude about
+    the vertical and moves the bias along the body vertical; with the projected gain ("tilt")
+    it does neither (to rounding)."""
+    _, gyr, acc, _ = data
+    turn, along = {}, {}
+    for mode in ("vector", "tilt"):
+        est = fusion.make(name, FS, acc_update=mode, rest_time=0.0, acc_norm_tol=100.0, acc_pred_tol=100.0) \
+            if name == "aekf" else fusion.make(name, FS, acc_update=mode, rest_time=0.0)
+        est.run(gyr[:1000], acc[:1000])
+        q0, b0 = est.quaternion, est.bias
+        up = ref.rotmat(q0).T @ [0.0, 0.0, 1.0]
+        side = np.cross(up, [1.0, 0.0, 0.0])
+        reading = 9.81 * (np.cos(np.radians(20)) * up + np.sin(np.radians(20)) * side / np.linalg.norm(side))
+        q1 = est.update(b0, reading)
+        d = ref.qmul(q1, ref.qconj(q0))                 # the correction, navigation frame
+        turn[mode] = abs(2 * np.arctan2(d[3], d[0]))     # its part about the vertical
+        along[mode] = abs((est.bias - b0) @ up)
+        assert np.degrees(2 * np.arccos(min(1.0, abs(d[0])))) > 0.01        # it corrected
+    assert turn["tilt"] < 1e-12 < 1e-6 < turn["vector"], turn
+    assert along["tilt"] < 1e-15 < 1e-9 < along["vector"], along
