@@ -7,3 +7,4 @@ cdef class CFEKF(EKF):
     cdef bint cf_started
     cdef int sat_left         # samples the sliding window still holds a saturated raw sample
     cdef readonly bint bias_feedback   # the complementary filter integrates gyro - b
+    cdef double t_quiet       # bias_feedback: s the filter has been quiet (bias learned after LEARN_HOLD)

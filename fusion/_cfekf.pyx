@@ -12,10 +12,18 @@ from fusion._prefilter cimport SlidingMean
 from fusion._core import check_positive, check_param, FLAG
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
+from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
 MAHONY_KI = _Mahony.PARAMS["ki"]     # ki's default without bias_feedback
+# bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
+# with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
+# 2 acos(LEARN_COS) = 2 deg of the EKF's prediction
+cdef double G0 = 9.81
+cdef double LEARN_ACC_TOL = 0.5             # m/s^2, the aekf's acc_norm_tol
+cdef double LEARN_COS = 0.99984769515639127 # cos(1 deg): 2 deg between the quaternions
+cdef double LEARN_HOLD = 0.5                # s
 
 
 def default_window(fs):
@@ -33,7 +41,8 @@ cdef class CFEKF(EKF):
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
               "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": False}
+              "motion_rate": 1.0, "bias_feedback": True,
+              **{k: v for k, v in EKF.PARAMS.items() if k.startswith("rest_")}}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -43,6 +52,10 @@ cdef class CFEKF(EKF):
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         self.cf_noise = check_param("cf_noise", p["cf_noise"])
+        self.rest_time = check_param("rest_time", p["rest_time"], allow_zero=True)
+        self.rest_gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
+        self.rest_acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
+        self.rest_noise = check_param("rest_noise", p["rest_noise"])
         kp = check_param("kp", p["kp"])
         if p["bias_feedback"] not in (True, False):
             raise ValueError(f"bias_feedback must be True or False, got {p['bias_feedback']!r}")
@@ -72,13 +85,15 @@ cdef class CFEKF(EKF):
     cdef list _state_fields(self):
         # the inner complementary filter's whole state, under "cf."
         return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
-                                           ("sat_left", <int[:1]>&self.sat_left, (0, None))]
+                                           ("sat_left", <int[:1]>&self.sat_left, (0, None)),
+                                           ("t_quiet", <double[:1]>&self.t_quiet, None)]
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
         self.cf_started = False
         self.sat_left = 0
+        self.t_quiet = 0.0
 
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil:
@@ -97,6 +112,8 @@ cdef class CFEKF(EKF):
         cdef double g[3]
         cdef int i
         cdef bint sat = gyr != NULL and self.sat_left > 0
+        cdef bint learn
+        cdef double na, c
         if not self.cf_started:         # the complementary filter starts where the EKF does
             self.cf._reset_state()
             for i in range(4):
@@ -111,6 +128,7 @@ cdef class CFEKF(EKF):
         else:
             self.cf.step_flagged(gyr, acc, mag, dt, sat)
         self.propagate(gyr, dt, sat)
+        self.rest_update(gyr, acc, dt)
         if acc != NULL or mag != NULL:
             if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]
                     + self.cf.q[3] * self.q[3]) < 0.0:
@@ -119,8 +137,22 @@ cdef class CFEKF(EKF):
             else:
                 for i in range(4):
                     z[i] = self.cf.q[i]
+            learn = True
+            if self.bias_feedback:
+                # the bias is learned from the filter only while it is quiet (docs/cfekf.md):
+                # not under linear acceleration (its correction then turns the wrong way),
+                # nor while it corrects a large error (a start, a glitch), which would be
+                # read as bias and, fed back, integrated
+                na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+                c = fabs(z[0] * self.q[0] + z[1] * self.q[1] + z[2] * self.q[2] + z[3] * self.q[3])
+                if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
+                    self.t_quiet = 0.0
+                    learn = False
+                else:
+                    self.t_quiet += dt
+                    learn = self.t_quiet >= LEARN_HOLD
             quat_measurement_update(self.q, self.b, self.P, z, self.cf_noise * self.cf_noise / dt,
-                                    NULL, 0.0)
+                                    NULL, 0.0, learn)
         quat_normalise(self.q)
 
     @property

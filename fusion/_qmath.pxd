@@ -272,11 +272,13 @@ cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
 
 
 cdef inline void quat_measurement_update(double* q, double* b, double* P, const double* z,
-                                         double r, const double* v, double rv) noexcept nogil:
+                                         double r, const double* v, double rv, bint learn_bias=True) noexcept nogil:
     """Kalman update of the quaternion + gyro-bias state (q, b, P 7x7 row-major) with a
     quaternion measurement z (sign-aligned with q): H = [I4 0], noise Rm = r I4 + rv v vᵀ
     (v may be NULL). K = P Hᵀ S⁻¹, S⁻¹ = L⁻ᵀ L⁻¹ from the Cholesky factor L of S = Pqq + Rm;
-    Joseph form (I - K H) P (I - K H)ᵀ + K Rm Kᵀ. cf-ekf and aekf (measurement="quest")."""
+    Joseph form (I - K H) P (I - K H)ᵀ + K Rm Kᵀ (right for any gain: learn_bias=False zeroes
+    the bias rows of K, the bias is then not learned from z). cf-ekf and aekf
+    (measurement="quest")."""
     cdef double S[16]     # Pqq + Rm
     cdef double L[16]     # Cholesky factor of S, lower
     cdef double Ld[4]     # 1 / diag(L)
@@ -325,6 +327,9 @@ cdef inline void quat_measurement_update(double* q, double* b, double* P, const 
         for j in range(4):
             K[i * 4 + j] = (P[i * 7] * S[j] + P[i * 7 + 1] * S[4 + j]
                             + P[i * 7 + 2] * S[8 + j] + P[i * 7 + 3] * S[12 + j])
+    if not learn_bias:
+        for i in range(16, 28):
+            K[i] = 0.0
     for j in range(4):
         y[j] = z[j] - q[j]
     for i in range(4):

@@ -258,13 +258,15 @@ class RefSlidingMean:
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
               "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": False}
+              "motion_rate": 1.0, "bias_feedback": True,
+              **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_")}}
+    LEARN_ACC_TOL, LEARN_ANGLE, LEARN_HOLD = 0.5, math.radians(2.0), 0.5     # bias_feedback
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         if params.get("window") is None:        # the seed's 20 ms (10 samples at 500 Hz)
             params["window"] = max(1, round(0.02 * fs))
         if params.get("ki") is None:            # no integral of its own with the bias fed back
-            params["ki"] = 0.0 if params.get("bias_feedback", False) else 0.005
+            params["ki"] = 0.0 if params.get("bias_feedback", True) else 0.005
         super().__init__(fs, frame=frame, on_invalid=on_invalid, **params)
 
     def _reset_state(self):
@@ -274,6 +276,7 @@ class RefCFEKF(RefEKF):
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]
         self.sat_left = 0       # samples the window still holds a saturated raw gyro sample
         self.sat = False
+        self.t_quiet = 0.0      # bias_feedback: time the filter has been quiet
 
     def update(self, gyr, acc, mag=None, dt=None):
         """Prefilter the valid raw vectors, then the usual sample handling on the means."""
@@ -310,6 +313,8 @@ class RefCFEKF(RefEKF):
             w = gyr - self.b
         self.cf._step(w, acc, mag, dt, sat)                              # 2.
         self._propagate(gyr, dt, sat)                                    # 3.
+        if self.rest_time > 0:                                           # 3a. rest
+            self._rest(gyr, acc, dt)
         if acc is not None or mag is not None:                           # 4.
             z = self.cf.q.copy()
             if z @ self.q < 0:
@@ -319,6 +324,16 @@ class RefCFEKF(RefEKF):
             Rm = self.cf_noise ** 2 / dt * I4
             S = H @ self.P @ H.T + Rm
             K = self.P @ H.T @ np.linalg.inv(S)
+            if self.bias_feedback:                  # learned only while the filter is quiet
+                na = G if acc is None else np.linalg.norm(acc)
+                angle = 2 * math.acos(min(1.0, abs(z @ self.q)))
+                if abs(na - G) > self.LEARN_ACC_TOL or angle > self.LEARN_ANGLE:
+                    self.t_quiet = 0.0
+                    K[4:] = 0.0
+                else:
+                    self.t_quiet += dt
+                    if self.t_quiet < self.LEARN_HOLD:
+                        K[4:] = 0.0
             x = np.concatenate([self.q, self.b]) + K @ (z - H @ np.concatenate([self.q, self.b]))
             self.q = normalise(x[:4])
             self.b = x[4:]

@@ -362,9 +362,27 @@ def test_cf_ekf_bias_feedback_removes_the_complementary_filters_tilt():
 
 
 def test_cf_ekf_ki_default_follows_bias_feedback():
-    assert fusion.make("cf-ekf", 100.0).ki == fusion.make("mahony", 100.0).ki
-    assert fusion.make("cf-ekf", 100.0, bias_feedback=True).ki == 0.0
-    assert fusion.make("cf-ekf", 100.0, bias_feedback=True, ki=0.01).ki == 0.01
+    assert fusion.make("cf-ekf", 100.0, bias_feedback=False).ki == fusion.make("mahony", 100.0).ki
+    assert fusion.make("cf-ekf", 100.0).ki == 0.0 and fusion.make("cf-ekf", 100.0).bias_feedback
+    assert fusion.make("cf-ekf", 100.0, ki=0.01).ki == 0.01
+
+
+@pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
+def test_cf_ekf_rest_and_learning_gate_equal_the_reference(data, nine_axis):
+    """The rest detector (zero-rate update) and the quiet-filter gate of bias_feedback, on a
+    record with still spells, linear-acceleration bursts (the gate closes) and fast turns:
+    kernel and reference, by the batch and by the per-sample path."""
+    from test_reference import rest_data
+    gyr, acc, mag = rest_data(data)
+    m = mag if nine_axis else None
+    est, r = fusion.make("cf-ekf", FS), rm.make("cf-ekf", FS)
+    q = est.run(gyr, acc, m)
+    assert qdiff(q, r.run(gyr, acc, m)) < TOL
+    compare_state(est, r)
+    assert est.rest_samples == r.rest_samples > 300
+    one = fusion.make("cf-ekf", FS)
+    q1 = np.array([one.update(g, a, None if m is None else m[i]) for i, (g, a) in enumerate(zip(gyr, acc))])
+    assert np.abs(q1 - q).max() < 1e-15
 
 
 def test_cf_ekf_window_default_is_the_seeds_20_ms():
