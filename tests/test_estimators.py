@@ -73,7 +73,11 @@ def test_constant_rotation_rate_is_followed_exactly(name):
     est.reset(q0)
     out = est.run(gyr, acc, mag)
     if any(est.prefilters.values()):    # a low-pass delays the turning vectors: close, not exact
-        assert np.degrees(angle_between(out, q)).max() < 1.0
+        # cf-ekf's sliding mean puts the vectors 0.66 deg behind; its complementary filter's
+        # steady correction of that lag is, with bias_feedback, learned as bias (docs/cfekf.md,
+        # "Behaviour to know"): 1.17 deg; without the feedback 0.66 deg
+        limit = 1.5 if getattr(est, "bias_feedback", False) else 1.0
+        assert np.degrees(angle_between(out, q)).max() < limit
     else:
         assert angle_between(out, q).max() < 1e-9
 
