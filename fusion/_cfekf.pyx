@@ -9,7 +9,7 @@ from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
-from fusion._core import check_positive, check_param, FLAG
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, FLAG
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
 from libc.math cimport sqrt, fabs
@@ -42,7 +42,7 @@ cdef class CFEKF(EKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
               "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
               "motion_rate": 1.0, "bias_feedback": True,
-              **{k: v for k, v in EKF.PARAMS.items() if k.startswith("rest_")}}
+              **REST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -52,10 +52,7 @@ cdef class CFEKF(EKF):
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         self.cf_noise = check_param("cf_noise", p["cf_noise"])
-        self.rest_time = check_param("rest_time", p["rest_time"], allow_zero=True)
-        self.rest_gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
-        self.rest_acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
-        self.rest_noise = check_param("rest_noise", p["rest_noise"])
+        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
         kp = check_param("kp", p["kp"])
         if p["bias_feedback"] not in (True, False):
             raise ValueError(f"bias_feedback must be True or False, got {p['bias_feedback']!r}")

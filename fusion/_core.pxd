@@ -1,4 +1,5 @@
 from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
+from fusion._rest cimport RestDetector
 
 # sqrt(1/2) to the last bit (the NED frame change)
 cdef extern from *:
@@ -30,6 +31,8 @@ cdef class Estimator:
     cdef long long n_skip_gyr, n_skip_acc, n_skip_mag
     # optional prefilters an estimator composes (None: raw samples), applied to valid samples
     cdef Prefilter pre_gyr, pre_acc, pre_mag
+    # rest detection, for the estimators that learn the gyro bias at rest (time 0: off)
+    cdef RestDetector rest
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil
@@ -37,6 +40,7 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
+    cdef list _rest_fields(self)
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
     # may override it with a loop that inlines its step (see run_fast). With stop_invalid it

@@ -65,6 +65,18 @@ def check_positive(name, value, upper=None, allow_zero=False, lower=None):
     return v
 
 
+# rest detection (docs/estimators.md, "Rest"): 2 deg/s and 0.5 m/s^2 are VQF's thresholds
+REST_PARAMS = {"rest_time": 1.5, "rest_gyro_tol": 0.034906585039886591, "rest_acc_tol": 0.5,
+               "rest_noise": 1e-3}
+
+
+def check_rest_params(p):
+    """(rest_time, rest_gyro_tol, rest_acc_tol, rest_noise) from the merged parameters p."""
+    return (check_param("rest_time", p["rest_time"], allow_zero=True),
+            check_param("rest_gyro_tol", p["rest_gyro_tol"]),
+            check_param("rest_acc_tol", p["rest_acc_tol"]), check_param("rest_noise", p["rest_noise"]))
+
+
 def check_gyro_range(value):
     """gyro_range (docs/robustness.md, "Recovery"): None (unknown, stored as 0) or > 0 rad/s."""
     return 0.0 if value is None else check_positive("gyro_range", value, upper=1e6)
@@ -293,6 +305,13 @@ cdef class Estimator:
         self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
                    mag if mag_ok else NULL, dt)
 
+    cdef list _rest_fields(self):
+        """The rest detector's state, for the _state_fields of the estimators that use it."""
+        return [("rest_gyr", <double[:3]>self.rest.gyr, None), ("rest_acc", <double[:3]>self.rest.acc, None),
+                ("t_rest", <double[:1]>&self.rest.t, None),
+                ("rest_started", <int[:1]><int*>&self.rest.started, FLAG),
+                ("rest_samples", <long long[:1]>&self.rest.n, COUNT)]
+
     cdef list _state_fields(self):
         return [("q", <double[:4]>self.q, "unit"), ("q0", <double[:4]>self.q0, "unit"),
                 ("is_init", <int[:1]><int*>&self.is_init, FLAG), ("has_q0", <int[:1]><int*>&self.has_q0, FLAG),
@@ -463,6 +482,34 @@ cdef class Estimator:
         """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown, or an
         estimator without saturation handling)."""
         return self.gyro_range_ if self.gyro_range_ > 0.0 else None
+
+    @property
+    def rest_time(self):
+        """s of rest before the gyro measures its bias; 0: no rest detection (off, or an
+        estimator without it). rest_gyro_tol, rest_acc_tol, rest_noise: docs/estimators.md."""
+        return self.rest.time
+
+    @property
+    def rest_gyro_tol(self):
+        return self.rest.gyro_tol
+
+    @property
+    def rest_acc_tol(self):
+        return self.rest.acc_tol
+
+    @property
+    def rest_noise(self):
+        return self.rest.noise
+
+    @property
+    def at_rest(self):
+        """True while the rest detector holds (the last sample was a zero-rate update)."""
+        return self.rest.time > 0.0 and self.rest.t >= self.rest.time
+
+    @property
+    def rest_samples(self):
+        """Zero-rate updates (samples detected at rest) since the last reset."""
+        return self.rest.n
 
     @property
     def frame(self):

@@ -14,13 +14,6 @@ cdef class EKF(Estimator):
     cdef readonly double acc_lowpass
     cdef double acc_lp[3]     # its state, navigation frame
     cdef bint acc_lp_started
-    # rest detection and the zero-rate update (rest_time 0: off)
-    cdef readonly double rest_time, rest_gyro_tol, rest_acc_tol, rest_noise
-    cdef double rest_gyr[3]   # the detector's low-passes
-    cdef double rest_acc[3]
-    cdef double t_rest        # s at rest so far
-    cdef bint rest_started
-    cdef Py_ssize_t n_rest
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil

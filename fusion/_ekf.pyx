@@ -4,16 +4,15 @@ import numpy as np
 from libc.math cimport sqrt, fabs
 from libc.string cimport memcpy
 
+from fusion._rest cimport rest_detect, rest_clear
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_param, check_fs, check_positive, check_gyro_range, FLAG
+from fusion._core import check_rest_params, REST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated)
 
 cdef double G0 = 9.81
-cdef double REST_TAU = 0.5  # s: the rest detector's low-passes (VQF's restFilterTau)
-REST_GYRO_TOL = 0.034906585039886591    # rad/s: 2 deg/s (VQF's restThGyr and biasClip)
 MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyway
 
 
@@ -369,47 +368,22 @@ cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
 
 cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
                    const double* acc, double dt) noexcept nogil:
-    """Rest detection and the zero-rate update (docs/estimators.md, "Rest"): gyr and acc
-    (either may be NULL: the rest run ends) against their low-passes; after rest_time s
-    at rest, the gyro sample measures the bias: z = gyr, h = b, H = [0 I3]."""
-    cdef double k, dg = 0.0, da = 0.0, d
+    """Rest detection (fusion/_rest.pxd) and, at rest, the zero-rate update: the gyro sample
+    measures the bias, z = gyr, h = b, H = [0 I3], its gain on the bias only
+    (docs/estimators.md, "Rest")."""
     cdef double U[21]    # P Hᵀ = P[:, 4:7]
     cdef double S[9]
     cdef double y[3]
-    cdef bint still = True
     cdef int i, j
-    if gyr == NULL or acc == NULL:
-        e.t_rest = 0.0
+    if not rest_detect(&e.rest, gyr, acc, dt):
         return
-    if not e.rest_started:      # the low-passes start at the first sample with both
-        for i in range(3):
-            e.rest_gyr[i] = gyr[i]
-            e.rest_acc[i] = acc[i]
-        e.rest_started = True
-        e.t_rest = 0.0
-        return
-    k = dt / (REST_TAU + dt)
-    for i in range(3):
-        e.rest_gyr[i] += k * (gyr[i] - e.rest_gyr[i])
-        e.rest_acc[i] += k * (acc[i] - e.rest_acc[i])
-        d = gyr[i] - e.rest_gyr[i]
-        dg += d * d
-        d = acc[i] - e.rest_acc[i]
-        da += d * d
-        # a steady turn is not rest, however smooth: the mean rate must be bias-sized
-        still = still and fabs(e.rest_gyr[i]) < e.rest_gyro_tol
-    still = still and dg < e.rest_gyro_tol * e.rest_gyro_tol and da < e.rest_acc_tol * e.rest_acc_tol
-    e.t_rest = e.t_rest + dt if still else 0.0
-    if e.t_rest < e.rest_time:
-        return
-    e.n_rest += 1
     for i in range(7):
         for j in range(3):
             U[i * 3 + j] = P[i * 7 + 4 + j]
     for i in range(3):
         for j in range(3):
             S[i * 3 + j] = P[(4 + i) * 7 + 4 + j]
-        S[i * 4] += e.rest_noise * e.rest_noise / dt
+        S[i * 4] += e.rest.noise * e.rest.noise / dt
         y[i] = gyr[i] - b[i]
     kalman_apply(q, b, P, U, S, y, GAIN_BIAS)
 
@@ -421,7 +395,7 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
     ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
-    if e.rest_time > 0.0:
+    if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:
         acc_nav_lowpass(e, q, acc, dt, af)
@@ -439,8 +413,8 @@ cdef class EKF(Estimator):
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0, "rest_time": 1.5,
-              "rest_gyro_tol": REST_GYRO_TOL, "rest_acc_tol": 0.5, "rest_noise": 1e-3, "acc_update": "vector"}
+              "mag_update": "vector", "acc_lowpass": 0.0, "acc_update": "vector",
+              **REST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -456,23 +430,17 @@ cdef class EKF(Estimator):
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
         self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
-        self.rest_time = check_param("rest_time", p["rest_time"], allow_zero=True)
-        self.rest_gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
-        self.rest_acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
-        self.rest_noise = check_param("rest_noise", p["rest_noise"])
+        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
+        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
                                                 ("P", <double[:49]>self.P, None),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                ("rest_gyr", <double[:3]>self.rest_gyr, None),
-                                                ("rest_acc", <double[:3]>self.rest_acc, None),
-                                                ("t_rest", <double[:1]>&self.t_rest, None),
-                                                ("rest_started", <int[:1]><int*>&self.rest_started, FLAG)]
+                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
+                + self._rest_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -487,12 +455,7 @@ cdef class EKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         self.acc_lp_started = False
-        self.rest_started = False
-        self.t_rest = 0.0
-        self.n_rest = 0
-        for i in range(3):
-            self.rest_gyr[i] = 0.0
-            self.rest_acc[i] = 0.0
+        rest_clear(&self.rest)
         self.acc_lp[0] = 0.0
         self.acc_lp[1] = 0.0
         self.acc_lp[2] = 0.0
@@ -511,7 +474,7 @@ cdef class EKF(Estimator):
         ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
 
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil:
-        if self.rest_time > 0.0:
+        if self.rest.time > 0.0:
             ekf_rest(self, self.q, self.b, self.P, gyr, acc, dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
@@ -563,16 +526,6 @@ cdef class EKF(Estimator):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.b[0], self.b[1], self.b[2]])
-
-    @property
-    def at_rest(self):
-        """True while the rest detector holds (the last sample was a zero-rate update)."""
-        return self.rest_time > 0.0 and self.t_rest >= self.rest_time
-
-    @property
-    def rest_samples(self):
-        """Zero-rate updates (samples detected at rest) since the last reset."""
-        return self.n_rest
 
     @property
     def mag_update(self):

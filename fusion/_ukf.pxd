@@ -10,5 +10,6 @@ cdef class UKF(Estimator):
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void correct(self, const double* X, const double* Z, const double* z,
                       double r) noexcept nogil
+    cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil
     cdef void mag_update(self, const double* mag, double dt) noexcept nogil

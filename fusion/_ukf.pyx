@@ -4,8 +4,9 @@ seed 003 compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
 
+from fusion._rest cimport rest_detect, rest_clear
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS
 from fusion._ekf import check_recovery_params
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3, unobserved_variance,
@@ -59,7 +60,8 @@ cdef class UKF(Estimator):
     north-folded magnetometer measurements as the `ekf`."""
     name = "ukf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0}
+              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+              **REST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -72,12 +74,14 @@ cdef class UKF(Estimator):
         self.mag_noise = check_param("mag_noise", p["mag_noise"])
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"])
+        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
+        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
                                                 ("P", <double[:36]>self.P, None),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None)]
+                + self._rest_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -92,6 +96,7 @@ cdef class UKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
+        rest_clear(&self.rest)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -245,6 +250,49 @@ cdef class UKF(Estimator):
                 P[i * 6 + j] = s
                 P[j * 6 + i] = s
 
+    cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil:
+        """At rest the gyro sample measures the bias (docs/estimators.md, "Rest"): z = gyr,
+        h = b, H = [0 I3] on the error (linear: no sigma points), the gain on the bias only,
+        K = [0; Pbb S⁻¹], S = Pbb + r I; P by the Joseph form: Ppp unchanged,
+        Ppb (I - Kb)ᵀ, (I - Kb) Pbb (I - Kb)ᵀ + r Kb Kbᵀ."""
+        cdef double S[9]
+        cdef double Si[9]
+        cdef double Kb[9]
+        cdef double A[9]      # I - Kb
+        cdef double T[18]     # rows of [Ppb; Pbb] times (I - Kb)ᵀ, 6x3
+        cdef double y[3]
+        cdef double* P = self.P
+        cdef double r = self.rest.noise * self.rest.noise / dt
+        cdef double s
+        cdef int i, j, k
+        for i in range(3):
+            for j in range(3):
+                S[i * 3 + j] = P[(3 + i) * 6 + 3 + j]
+            S[i * 4] += r
+            y[i] = gyr[i] - self.b[i]
+        sym3_inverse(S, Si)
+        for i in range(3):
+            for j in range(3):
+                Kb[i * 3 + j] = (P[(3 + i) * 6 + 3] * Si[j] + P[(3 + i) * 6 + 4] * Si[3 + j]
+                                 + P[(3 + i) * 6 + 5] * Si[6 + j])
+                A[i * 3 + j] = (1.0 if i == j else 0.0) - Kb[i * 3 + j]
+        for i in range(3):
+            self.b[i] += Kb[i * 3] * y[0] + Kb[i * 3 + 1] * y[1] + Kb[i * 3 + 2] * y[2]
+        for i in range(6):          # T = P[:, 3:6] Aᵀ
+            for j in range(3):
+                T[i * 3 + j] = P[i * 6 + 3] * A[j * 3] + P[i * 6 + 4] * A[j * 3 + 1] + P[i * 6 + 5] * A[j * 3 + 2]
+        for i in range(3):          # Ppb <- Ppb Aᵀ
+            for j in range(3):
+                P[i * 6 + 3 + j] = T[i * 3 + j]
+                P[(3 + j) * 6 + i] = T[i * 3 + j]
+        for i in range(3):          # Pbb <- A Pbb Aᵀ + r Kb Kbᵀ
+            for j in range(i, 3):
+                s = A[i * 3] * T[9 + j] + A[i * 3 + 1] * T[12 + j] + A[i * 3 + 2] * T[15 + j]
+                for k in range(3):
+                    s += r * Kb[i * 3 + k] * Kb[j * 3 + k]
+                P[(3 + i) * 6 + 3 + j] = s
+                P[(3 + j) * 6 + 3 + i] = s
+
     cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
         cdef double X[NS * 6]
         cdef double Z[NS * 3]
@@ -296,6 +344,8 @@ cdef class UKF(Estimator):
             self.P[0] += v
             self.P[7] += v
             self.P[14] += v
+        if rest_detect(&self.rest, gyr, acc, dt):
+            self.zero_rate_update(gyr, dt)
         if acc != NULL:
             self.acc_update(acc, dt)
         if mag != NULL:

@@ -393,19 +393,47 @@ def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
     return t_run + t, total(t_run + t) - total(t_run)
 
 
+class RefRest:
+    """docs/estimators.md, "Rest": call with each sample; True at rest (counted in n)."""
+    TAU = 0.5       # s, the low-passes
+
+    def __init__(self, time, gyro_tol, acc_tol):
+        self.time, self.gyro_tol, self.acc_tol = time, gyro_tol, acc_tol
+        self.lp = None          # the low-passed (gyr, acc)
+        self.t = 0.0
+        self.n = 0
+
+    def __call__(self, gyr, acc, dt):
+        if self.time <= 0:
+            return False
+        if gyr is None or acc is None:
+            self.t = 0.0
+            return False
+        if self.lp is None:
+            self.lp = (gyr.copy(), acc.copy())
+            return False
+        k = dt / (self.TAU + dt)
+        lg, la = (lp + k * (x - lp) for lp, x in zip(self.lp, (gyr, acc)))
+        self.lp = (lg, la)
+        still = (np.linalg.norm(gyr - lg) < self.gyro_tol and np.linalg.norm(acc - la) < self.acc_tol
+                 and np.max(np.abs(lg)) < self.gyro_tol)
+        self.t = self.t + dt if still else 0.0
+        if self.t >= self.time:
+            self.n += 1
+            return True
+        return False
+
+
 class RefEKF(RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "vector", "acc_lowpass": 0.0, "rest_time": 1.5,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
               "acc_update": "vector"}
-    REST_TAU = 0.5      # s, the rest detector's low-passes
 
     def _reset_state(self):
         self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, navigation frame
-        self.rest_lp = None         # rest detection: the low-passed (gyr, acc)
-        self.t_rest = 0.0
-        self.rest_samples = 0
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
@@ -451,25 +479,15 @@ class RefEKF(RefEstimator):
         self.P = F @ self.P @ F.T + Q
 
     def _rest(self, gyr, acc, dt):
-        """Rest detection; at rest the zero-rate update z = gyr, h = b, H = [0 I3]."""
-        if gyr is None or acc is None:
-            self.t_rest = 0.0
-            return
-        if self.rest_lp is None:
-            self.rest_lp = (gyr.copy(), acc.copy())
-            self.t_rest = 0.0
-            return
-        k = dt / (self.REST_TAU + dt)
-        lg, la = (lp + k * (x - lp) for lp, x in zip(self.rest_lp, (gyr, acc)))
-        self.rest_lp = (lg, la)
-        still = (np.linalg.norm(gyr - lg) < self.rest_gyro_tol and np.linalg.norm(acc - la) < self.rest_acc_tol
-                 and np.max(np.abs(lg)) < self.rest_gyro_tol)
-        self.t_rest = self.t_rest + dt if still else 0.0
-        if self.t_rest >= self.rest_time:
-            self.rest_samples += 1
+        """Rest detection; at rest the zero-rate update z = gyr, h = b, H = [0 I3] (bias only)."""
+        if self.rest(gyr, acc, dt):
             H = np.zeros((3, 7))
             H[:, 4:] = I3
             self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
 
     def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)
@@ -503,8 +521,7 @@ class RefEKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         self._propagate(gyr, dt)                                         # 1.
-        if self.rest_time > 0:                                           # rest
-            self._rest(gyr, acc, dt)
+        self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
             an = rotmat(self.q) @ acc
             self.acc_lp = an if self.acc_lp is None else \

@@ -119,8 +119,7 @@ class RefAEKF(ref.RefEKF):
     def _step(self, gyr, acc, mag, dt):
         # 1. predict (the ekf's, with its recovery)
         self._propagate(gyr, dt)
-        if self.rest_time > 0:
-            self._rest(gyr, acc, dt)
+        self._rest(gyr, acc, dt)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = mag_rej = mag_tested = False

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, RefEKF, RefEstimator, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
+from reference import (G, I3, I4, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
                        recovery_factor, is_saturated,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
@@ -155,8 +155,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = {k: v for k, v in RefEKF.PARAMS.items()
-              if k not in ("mag_update", "acc_update") and not k.startswith("rest_")}
+    PARAMS = {k: v for k, v in RefEKF.PARAMS.items() if k not in ("mag_update", "acc_update", "acc_lowpass")}
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
@@ -177,6 +176,11 @@ class RefUKF(RefEstimator):
         self.b = np.zeros(3)
         self.P = np.diag([(2 * self.q_init_std) ** 2] * 3 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
 
     @property
     def bias(self):
@@ -229,6 +233,15 @@ class RefUKF(RefEstimator):
         if gyr is not None:
             self._predict(gyr, dt)
         self.P[:3, :3] += v * I3
+        if self.rest(gyr, acc, dt):     # zero-rate update, linear, on the bias only
+            H = np.zeros((3, 6))
+            H[:, 3:] = I3
+            Rm = self.rest_noise ** 2 / dt * I3
+            K = np.zeros((6, 3))
+            K[3:] = self.P[3:, 3:] @ np.linalg.inv(self.P[3:, 3:] + Rm)
+            self.b = self.b + K[3:] @ (gyr - self.b)
+            IKH = np.eye(6) - K @ H
+            self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
         if acc is not None:
             self._correct(normalise(acc), acc_model_rows, (self.acc_noise / G) ** 2 / dt * I3)
         if mag is not None:
@@ -313,8 +326,7 @@ class RefCFEKF(RefEKF):
             w = gyr - self.b
         self.cf._step(w, acc, mag, dt, sat)                              # 2.
         self._propagate(gyr, dt, sat)                                    # 3.
-        if self.rest_time > 0:                                           # 3a. rest
-            self._rest(gyr, acc, dt)
+        self._rest(gyr, acc, dt)                                         # 3a. rest
         if acc is not None or mag is not None:                           # 4.
             z = self.cf.q.copy()
             if z @ self.q < 0:

@@ -1,0 +1,61 @@
+# Rest detection (docs/estimators.md, "Rest"): the state and the detector the ekf family and
+# the ukf share; each filter does its own zero-rate update when rest_detect says so.
+
+cdef struct RestDetector:
+    double time         # s at rest before the gyro measures its bias (0: detection off)
+    double gyro_tol     # rad/s: gyro within this of its low-pass, the low-pass within this of 0
+    double acc_tol      # m/s^2: accelerometer within this of its low-pass
+    double noise        # rad/s/sqrt(Hz): the zero-rate measurement's noise density
+    double gyr[3]       # the low-passes
+    double acc[3]
+    double t            # s at rest so far
+    bint started        # the low-passes have their first sample
+    long long n         # zero-rate updates since the reset
+
+
+cdef inline void rest_clear(RestDetector* r) noexcept nogil:
+    cdef int i
+    for i in range(3):
+        r.gyr[i] = 0.0
+        r.acc[i] = 0.0
+    r.t = 0.0
+    r.started = False
+    r.n = 0
+
+
+cdef inline bint rest_detect(RestDetector* r, const double* gyr, const double* acc,
+                             double dt) noexcept nogil:
+    """One sample (gyr or acc NULL: the rest run ends); True when the body has been still for
+    r.time s (counted in r.n): the caller then makes its zero-rate update."""
+    cdef double k, dg = 0.0, da = 0.0, d, m
+    cdef bint still = True
+    cdef int i
+    if r.time <= 0.0:
+        return False
+    if gyr == NULL or acc == NULL:
+        r.t = 0.0
+        return False
+    if not r.started:           # the low-passes start at the first sample with both
+        for i in range(3):
+            r.gyr[i] = gyr[i]
+            r.acc[i] = acc[i]
+        r.started = True
+        r.t = 0.0
+        return False
+    k = dt / (0.5 + dt)         # 0.5 s low-passes (VQF's restFilterTau)
+    for i in range(3):
+        r.gyr[i] += k * (gyr[i] - r.gyr[i])
+        r.acc[i] += k * (acc[i] - r.acc[i])
+        d = gyr[i] - r.gyr[i]
+        dg += d * d
+        d = acc[i] - r.acc[i]
+        da += d * d
+        # a steady turn is not rest, however smooth: the mean rate must be bias-sized
+        m = r.gyr[i] if r.gyr[i] > 0.0 else -r.gyr[i]
+        still = still and m < r.gyro_tol
+    still = still and dg < r.gyro_tol * r.gyro_tol and da < r.acc_tol * r.acc_tol
+    r.t = r.t + dt if still else 0.0
+    if r.t < r.time:
+        return False
+    r.n += 1
+    return True
