@@ -12,6 +12,8 @@ from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_
                             saturated)
 
 
+
+cdef double RECOVERY_STEP_MAX = 0.5    # share of the error one recovery step may correct
 cdef inline void mahony_error(const double* q, const double* acc, const double* mag,
                               double* e) noexcept nogil:
     """e = sum of measured x estimated directions, gravity and north-folded field (acc, mag
@@ -237,7 +239,11 @@ cdef class Mahony(Estimator):
         if f == 1.0:
             mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
             return
-        # recovering: the large error is the attitude's, not the gyro's bias
+        # recovering: the large error is the attitude's, not the gyro's bias. At low rates
+        # the raised gain would turn by more than the error in one step and overshoot: at
+        # most RECOVERY_STEP_MAX of it per step (never below the plain gain)
+        if f * self.kp * dt > RECOVERY_STEP_MAX:
+            f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
         memcpy(eint, self.eint, 3 * sizeof(double))
         mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt)
         memcpy(self.eint, eint, 3 * sizeof(double))

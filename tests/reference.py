@@ -343,6 +343,9 @@ class RefMahony(RefEstimator):
         if sat is None:
             sat = is_saturated(gyr, self.gyro_range)
         f, self.t_recover = recovery_factor(self.t_recover, sat, dt)
+        recovering = f != 1.0
+        if recovering and f * self.kp * dt > 0.5:      # at most half the error per step
+            f = max(1.0, 0.5 / (self.kp * dt))
         q = self.q
         if gyr is not None:                                              # 1.
             q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
@@ -357,7 +360,7 @@ class RefMahony(RefEstimator):
             b = np.array([0.0, np.sqrt(h[0] ** 2 + h[1] ** 2), h[2]])
             w = rotmat(q).T @ b
             e += cross(m, w)
-        if self.ki > 0 and f == 1.0:                                     # 4.
+        if self.ki > 0 and not recovering:                               # 4.
             self.eps = self.eps + e * dt
         if self.kp > 0:
             q = phi(f * self.kp * e, dt) @ q

@@ -424,6 +424,28 @@ def test_recovery_inflation(data, motion_rate):
     compare_state(est, r)
 
 
+def test_mahony_recovery_does_not_overshoot_at_low_rates():
+    """At 5 Hz the raised gain (20 kp dt = 2) would turn by twice the error each step and
+    swing the estimate from side to side; capped, each recovery step corrects at most half
+    the error. A level, still body started 30 deg off in roll, one saturated sample at the
+    start: the roll error shrinks without changing sign, in kernel and reference alike."""
+    fs, n = 5.0, 100
+    gyr = np.zeros((n, 3))
+    gyr[0] = [0.5, 0.0, 0.0]                   # on the rail of a 0.505 rad/s gyro
+    acc = np.tile([0.0, 0.0, 9.81], (n, 1))
+    start = [np.cos(np.radians(15)), np.sin(np.radians(15)), 0.0, 0.0]
+    est = fusion.make("mahony", fs, gyro_range=0.505)
+    r = ref.make("mahony", fs, gyro_range=0.505)
+    for e in (est, r):
+        e.reset(start)
+    q = est.run(gyr, acc)
+    assert qdiff(q, r.run(gyr, acc)) < TOL
+    roll = np.degrees(2 * np.arctan2(q[:, 1], q[:, 0]))
+    ramp = roll[:int(3 * fs)]                   # the 3 s of raised gain
+    assert (ramp > 0).all() and np.all(np.diff(ramp) < 0), ramp[:8]
+    assert np.abs(roll[-20:]).max() < 0.01
+
+
 @pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
 def test_mahony_recovery_gain(data, nine_axis):
     """docs/robustness.md, "Recovery": after saturated samples the kernel raises kp and holds
