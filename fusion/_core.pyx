@@ -21,7 +21,7 @@ FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
 # --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
-STATE_VERSION = 1
+STATE_VERSION = 2     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter

@@ -79,7 +79,7 @@ def test_copies_are_independent():
 
 def test_state_is_plain_data():
     s = fusion.make("cf-ekf", 100.0).state()
-    assert s["version"] == 1 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 2
+    assert s["version"] == 2 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 2
 
     def plain(x):
         if isinstance(x, dict):
@@ -116,9 +116,9 @@ def _broken(change):
 @pytest.mark.parametrize("state, match", [
     (None, "must be a dict"),
     ([1, 2], "must be a dict"),
-    ({"version": 1}, "lacks key"),
-    (_broken(lambda s: s.update(version=2)), "version 2 is not supported"),
-    (_broken(lambda s: s.update(version="1")), "version '1'"),
+    ({"version": 2}, "lacks key"),
+    (_broken(lambda s: s.update(version=1)), "version 1 is not supported"),     # saved before rest detection
+    (_broken(lambda s: s.update(version="2")), "version '2'"),
     (_broken(lambda s: s.update(estimator="ukf")), "estimator 'ukf', not 'ekf'"),
     (_broken(lambda s: s["fields"].pop("P")), r"missing \['P'\]"),
     (_broken(lambda s: s["fields"].update(extra=1.0)), r"unexpected \['extra'\]"),
