@@ -1,7 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
 import numpy as np
-from libc.math cimport sqrt, fabs
+from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
@@ -474,8 +474,7 @@ cdef class EKF(Estimator):
         ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
 
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil:
-        if self.rest.time > 0.0:
-            ekf_rest(self, self.q, self.b, self.P, gyr, acc, dt)
+        ekf_rest(self, self.q, self.b, self.P, gyr, acc, dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
