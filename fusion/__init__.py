@@ -16,8 +16,9 @@ from fusion._ukf import UKF
 from fusion._cfekf import CFEKF
 from fusion._aekf import AEKF
 from fusion._prefilter import Butterworth, SlidingMean
+from fusion.bank import Bank, make_bank
 
-__all__ = ["make", "available", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
+__all__ = ["make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
            "Butterworth", "SlidingMean"]
 __version__ = "0.1.0"
 

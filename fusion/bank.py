@@ -1,0 +1,349 @@
+"""A bank of count independent estimators of one kind in one object (docs/estimators.md,
+"Banks"): many IMUs, or many robots, stepped by one call per sample.
+
+    bank = fusion.make_bank("ekf", fs=100.0, count=64, acc_noise=[0.5] * 32 + [2.0] * 32)
+    q = bank.update(gyr, acc, mag)      # (64, 3) each -> (64, 4)
+    Q = bank.run(G, A, M)               # (T, 64, 3) each -> (T, 64, 4)
+
+The loop over the filters is compiled and runs without the GIL (fusion._bank). Each filter
+is an ordinary estimator kernel stepped through its own batch loop, so the numbers are those
+of count separate estimators, bit for bit. The kernels keep their state per object for now
+(not yet the structure-of-arrays layout a vectorising compiler would want): the bank is an
+array of pointers to count kernels.
+"""
+import numbers
+import threading
+
+import numpy as np
+
+from fusion._bank import Kernels, as_samples, check_samples
+from fusion._core import DT_MAX, DT_MIN, Estimator, check_dt
+
+BANK_STATE_VERSION = 1
+BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
+
+
+def _per_filter(value):
+    """True for a parameter value given per filter: a list, tuple or array of one or more
+    dimensions (a string is one value)."""
+    return isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim >= 1)
+
+
+def _check_count(count):
+    if isinstance(count, (bool, np.bool_)) or not isinstance(count, numbers.Integral) or count < 1:
+        raise ValueError(f"count must be an integer >= 1, got {count!r}")
+    return int(count)
+
+
+def make_bank(name, fs, count, frame="ENU", on_invalid="raise", **params):
+    """count independent estimators `name` at sample rate fs (Hz), as fusion.Bank.
+
+    A parameter given as a sequence of length count gives each filter its own value; any
+    other value is shared. frame and on_invalid are the bank's (fusion.make's meanings)."""
+    import fusion
+    count = _check_count(count)
+    per = {k: v for k, v in params.items() if _per_filter(v)}
+    for k, v in per.items():
+        if len(v) != count:
+            raise ValueError(f"parameter {k} has {len(v)} values but count is {count}: give one "
+                             f"value for all filters or a sequence of length {count}")
+    filters = []
+    for i in range(count):
+        p = dict(params)
+        p.update({k: (v[i].item() if isinstance(v, np.ndarray) else v[i]) for k, v in per.items()})
+        try:
+            filters.append(fusion.make(name, fs, frame=frame, on_invalid=on_invalid, **p))
+        except ValueError as e:
+            if per:
+                raise ValueError(f"{e} (filter {i})") from None
+            raise
+    return Bank(filters)
+
+
+class Bank:
+    """count estimators of one kind, same fs, frame and on_invalid, each with its own
+    parameters and state. Build with fusion.make_bank; bank[i] is a copy of filter i."""
+
+    def __init__(self, filters):
+        filters = list(filters)
+        if not filters:
+            raise ValueError("count must be an integer >= 1, got 0")
+        f0 = filters[0]
+        for i, e in enumerate(filters):
+            if not isinstance(e, Estimator):
+                raise ValueError(f"filters[{i}] is a {type(e).__name__}, not a fusion estimator")
+            if (e.name, e.fs, e.frame, e.on_invalid) != (f0.name, f0.fs, f0.frame, f0.on_invalid):
+                raise ValueError(f"filters[{i}] is ({e.name!r}, fs={e.fs}, frame={e.frame!r}, "
+                                 f"on_invalid={e.on_invalid!r}); a bank's filters share those of "
+                                 f"filters[0] ({f0.name!r}, fs={f0.fs}, frame={f0.frame!r}, "
+                                 f"on_invalid={f0.on_invalid!r})")
+        if len({id(e) for e in filters}) != len(filters):
+            raise ValueError("filters must be distinct objects (the same estimator twice would "
+                             "step twice per sample)")
+        self._filters = filters
+        self._k = Kernels(filters)
+        self._lock = threading.Lock()
+        self._skip = f0.on_invalid == "skip"
+        self._dt = 1.0 / f0.fs
+        self._count = len(filters)
+
+    # --- in-use guard ---------------------------------------------------------------------
+    def _enter(self):
+        if not self._lock.acquire(False):
+            raise RuntimeError("this bank is in use by another thread (update, run, reset or "
+                               "load_state in progress); give each thread its own bank")
+
+    def _exit(self):
+        self._lock.release()
+
+    # --- input checks ---------------------------------------------------------------------
+    @staticmethod
+    def _steps(dt, shape):
+        D = np.asarray(dt)
+        if D.dtype.kind not in "fiu" or D.shape != shape:
+            return None
+        D = np.ascontiguousarray(D, dtype=np.float64)
+        bad = np.flatnonzero(~((D >= DT_MIN) & (D <= DT_MAX)))     # NaN fails too
+        if bad.size:
+            idx = np.unravel_index(bad[0], shape)
+            raise ValueError(f"dt must be finite and > 0 and in [{DT_MIN:g}, {DT_MAX:g}] s; "
+                             f"dt[{', '.join(map(str, idx))}] = {D[idx]!r}")
+        return D
+
+    # --- stepping -------------------------------------------------------------------------
+    def update(self, gyr, acc, mag=None, dt=None):
+        """One sample for every filter: gyr, acc, mag (count, 3) arrays (mag None: 6-axis);
+        dt None (1/fs), a scalar, or (count,) steps in s. Returns (count, 4) quaternions."""
+        D, h = None, self._dt
+        if dt is not None:
+            if np.ndim(dt) == 0:
+                h = check_dt(dt)
+            else:
+                n = self._count
+                D = self._steps(dt, (n,))
+                if D is None:
+                    raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), got {dt!r}")
+        self._enter()
+        try:
+            return self._k.update(gyr, acc, mag, D, h, not self._skip)
+        finally:
+            self._exit()
+
+    def run(self, gyr, acc, mag=None, dt=None):
+        """T samples for every filter: gyr, acc, mag (T, count, 3) arrays (mag None: 6-axis);
+        dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
+        (T, count, 4) quaternions, the same numbers as count separate est.run calls."""
+        n = self._count
+        g = np.asarray(gyr)
+        T = g.shape[0] if g.ndim == 3 else -1
+        what = f"(T, {n}, 3)"
+        G = as_samples(gyr, "gyr", (T, n, 3), what, n)
+        what = f"({T}, {n}, 3) as gyr"
+        A = as_samples(acc, "acc", (T, n, 3), what, n)
+        M = None if mag is None else as_samples(mag, "mag", (T, n, 3), what, n)
+        D, h = None, self._dt
+        if dt is not None:
+            if np.ndim(dt) == 0:
+                h = check_dt(dt)
+            else:
+                D = self._steps(dt, (T,))
+                if D is not None:
+                    D = np.ascontiguousarray(np.broadcast_to(D[None, :], (n, T)))
+                else:
+                    D = self._steps(dt, (T, n))
+                    if D is None:
+                        raise ValueError(f"dt must be None, a scalar or an array of shape ({T},) or "
+                                         f"({T}, {n}), got dtype {np.asarray(dt).dtype} shape {np.shape(dt)}")
+                    D = np.ascontiguousarray(D.T)
+        self._enter()
+        try:
+            if not self._skip:
+                check_samples(G, A, M, n, True)
+            # filter-major copies, so that each filter's batch loop reads rows of 3
+            Gf = np.ascontiguousarray(G.transpose(1, 0, 2))
+            Af = np.ascontiguousarray(A.transpose(1, 0, 2))
+            Mf = None if M is None else np.ascontiguousarray(M.transpose(1, 0, 2))
+            out = np.empty((n, T, 4))
+            self._k.run(Gf, Af, Mf, D, h, out)
+        finally:
+            self._exit()
+        return np.ascontiguousarray(out.transpose(1, 0, 2))
+
+    def reset(self, index=None, q0=None):
+        """Reset every filter (index None) or filter `index` only, as est.reset(q0): q0 None,
+        one [w, x, y, z] for all, or with index None a (count, 4) array, one per filter."""
+        n = self._count
+        if index is not None:
+            if isinstance(index, (bool, np.bool_)) or not isinstance(index, numbers.Integral) \
+                    or not -n <= index < n:
+                raise ValueError(f"index must be None or an integer in [{-n}, {n - 1}], got {index!r}")
+            targets, q0s = [self._filters[index]], [q0]
+        else:
+            targets = self._filters
+            if q0 is not None and np.ndim(q0) == 2:
+                q = np.asarray(q0)
+                if q.shape != (n, 4):
+                    raise ValueError(f"q0 must be None, 4 numbers [w, x, y, z] or shape ({n}, 4), got shape {q.shape}")
+                q0s = list(q)
+            else:
+                q0s = [q0] * n
+        self._enter()
+        try:
+            # check every q0 before resetting any filter: one bad row changes nothing
+            for i, q in enumerate(q0s):
+                if q is not None:
+                    a = np.asarray(q)
+                    ok = a.dtype.kind in "fiu" and a.shape == (4,)
+                    nrm = float(np.sqrt(np.sum(np.asarray(a, dtype=float) ** 2))) if ok else 0.0
+                    if not (ok and np.isfinite(nrm) and nrm > 0.0):
+                        row = "" if len(q0s) == 1 or np.ndim(q0) == 1 else f"[{i}]"
+                        raise ValueError(f"q0{row} must be 4 finite real numbers [w, x, y, z], "
+                                         f"not all zero, got {q!r}")
+            for e, q in zip(targets, q0s):
+                e.reset(q)
+        finally:
+            self._exit()
+
+    # --- reading --------------------------------------------------------------------------
+    def __len__(self):
+        return self._count
+
+    def __getitem__(self, index):
+        """A copy of filter `index` (a new estimator with its configuration and state);
+        changing it does not change the bank (bank.load_state writes states back)."""
+        n = self._count
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, numbers.Integral) or not -n <= index < n:
+            raise IndexError(f"bank index must be an integer in [{-n}, {n - 1}], got {index!r}")
+        return Estimator.from_state(self._read(lambda: self._filters[index].state()))
+
+    def _read(self, f):
+        self._enter()
+        try:
+            return f()
+        finally:
+            self._exit()
+
+    def _stack(self, attr):
+        vals = self._read(lambda: [getattr(e, attr) for e in self._filters])
+        return None if vals[0] is None else np.array(vals)
+
+    @property
+    def quaternion(self):
+        """(count, 4) attitudes [w, x, y, z] in the bank's frame."""
+        return self._read(self._k.quaternions)
+
+    @property
+    def euler(self):
+        """(count, 3) ZYX Euler angles [yaw, pitch, roll], rad."""
+        return self._stack("euler")
+
+    @property
+    def bias(self):
+        """(count, 3) gyro biases (rad/s), or None for an estimator without one."""
+        return self._stack("bias")
+
+    @property
+    def covariance(self):
+        """(count, k, k) state covariances, or None for an estimator without one."""
+        return self._stack("covariance")
+
+    @property
+    def initialised(self):
+        """(count,) bool: start attitude set."""
+        return self._stack("initialised")
+
+    @property
+    def at_rest(self):
+        """(count,) bool: the rest detector holds."""
+        return self._stack("at_rest")
+
+    @property
+    def skipped(self):
+        """Per sensor, (count,) counts of samples skipped as invalid since each filter's last reset."""
+        s = self._read(lambda: [e.skipped for e in self._filters])
+        return {k: np.array([d[k] for d in s], dtype=np.int64) for k in ("gyr", "acc", "mag")}
+
+    @property
+    def name(self):
+        return self._filters[0].name
+
+    @property
+    def fs(self):
+        return self._filters[0].fs
+
+    @property
+    def frame(self):
+        return self._filters[0].frame
+
+    @property
+    def on_invalid(self):
+        return self._filters[0].on_invalid
+
+    @property
+    def params(self):
+        """Each filter's parameters: a list of count dicts."""
+        return [e.params for e in self._filters]
+
+    # --- state, pickling, copies ----------------------------------------------------------
+    def state(self):
+        """The bank's state: a plain dict whose "filters" is the list of count est.state()
+        dicts (each with its configuration). bank.load_state(s) / Bank.from_state(s) resume
+        bit-identically; pickling and copy.deepcopy go through it."""
+        return {"version": BANK_STATE_VERSION, "bank": True, "estimator": self.name,
+                "count": self._count,
+                "filters": self._read(lambda: [e.state() for e in self._filters])}
+
+    @staticmethod
+    def _check_header(state):
+        if not isinstance(state, dict):
+            raise ValueError(f"state must be a dict made by bank.state(), got {type(state).__name__}")
+        missing = [k for k in BANK_STATE_KEYS if k not in state]
+        if missing:
+            raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from bank.state()")
+        v = state["version"]
+        if isinstance(v, bool) or not isinstance(v, int) or v != BANK_STATE_VERSION:
+            raise ValueError(f"bank state version {v!r} is not supported (this build reads "
+                             f"version {BANK_STATE_VERSION})")
+        fl = state["filters"]
+        if not isinstance(fl, list) or len(fl) != state["count"]:
+            raise ValueError(f"state['filters'] must be a list of {state['count']!r} filter states")
+
+    def load_state(self, state):
+        """Restore every filter from bank.state() of a bank of the same estimator and count.
+        Each filter keeps its configuration (est.load_state's rules); all filters' states are
+        checked before any is written: a ValueError leaves the bank unchanged."""
+        self._check_header(state)
+        if state["estimator"] != self.name:
+            raise ValueError(f"state is of a bank of {state['estimator']!r}, not {self.name!r}")
+        if state["count"] != self._count:
+            raise ValueError(f"state has count {state['count']!r} but this bank has count {self._count}")
+        self._enter()
+        try:
+            for i, (e, s) in enumerate(zip(self._filters, state["filters"])):
+                scratch = Estimator.from_state(e.state())
+                try:
+                    scratch.load_state(s)
+                except ValueError as err:
+                    raise ValueError(f"state['filters'][{i}]: {err}") from None
+            for e, s in zip(self._filters, state["filters"]):
+                e.load_state(s)
+        finally:
+            self._exit()
+
+    @classmethod
+    def from_state(cls, state):
+        """A new bank with the configurations and states in `state` (from bank.state())."""
+        cls._check_header(state)
+        filters = []
+        for i, s in enumerate(state["filters"]):
+            try:
+                filters.append(Estimator.from_state(s))
+            except ValueError as err:
+                raise ValueError(f"state['filters'][{i}]: {err}") from None
+        return cls(filters)
+
+    def __reduce__(self):
+        return (Bank.from_state, (self.state(),))
+
+    def __repr__(self):
+        return f"<fusion bank of {self._count} {self.name!r}, fs={self.fs!r}, frame={self.frame!r}>"
