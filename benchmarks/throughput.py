@@ -28,9 +28,17 @@ is not timed, except for the ahrs batch constructors, which are the batch call);
 the 5. Speed only: a quick sanity check (finite, unit-norm, moving quaternions that track the
 true tilt) is printed first, not scored.
 
+Bank section (same run, after the table): a bank of BANK_COUNT ``ekf`` (``fusion.make_bank``),
+9-axis, the recording cut into BANK_COUNT consecutive pieces, one per filter: ``bank.update``
+once per sample from a Python loop over the rows of (T, count, 3) arrays, against BANK_COUNT
+separate ``ekf.update`` calls per sample (the same loop, one call per filter on the row's views),
+``bank.run`` on the whole (T, count, 3) arrays, one ``ekf.run`` and ``vqf.VQF.updateBatch`` over
+all T x count samples; rates in filter-samples/s, the same interleaved rounds.
+
     .venv/bin/python benchmarks/throughput.py            # about 1.5-2 minutes
     .venv/bin/python benchmarks/throughput.py --quick    # under a minute
     .venv/bin/python benchmarks/throughput.py --out DIR  # default results/benchmarks/
+    .venv/bin/python benchmarks/throughput.py --bank-only   # the bank section alone
 """
 import argparse
 import csv
@@ -52,6 +60,8 @@ import fusion                                    # noqa: E402
 from benchmarks.peers import Data, all_methods, sanity   # noqa: E402
 
 FS = 100.0
+BANK_COUNT = 64
+BANK_NAME = "ekf"
 MODES = ("update 6-axis", "update 9-axis", "run 6-axis", "run 9-axis")
 DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
 
@@ -191,6 +201,86 @@ def versions():
     return out
 
 
+# ---------------------------------------------------------------------------------------------
+# bank section
+
+class _Cell:
+    """A timed cell for measure_all: builders["run"](d, n, nine) returns the callable."""
+
+    def __init__(self, name, build):
+        self.name, self.builders = name, {"run": build}
+
+
+def bank_cells(d, n):
+    """Cells over n = T * BANK_COUNT filter-samples of d (9-axis)."""
+    import vqf
+    c, T = BANK_COUNT, n // BANK_COUNT
+    n = T * c
+
+    def pieces(x):                    # filter i gets the recording's i-th piece of T samples
+        return np.ascontiguousarray(x[:n].reshape(c, T, 3).transpose(1, 0, 2))
+
+    G, A, M = pieces(d.gyr), pieces(d.acc), pieces(d.mag)
+
+    def bank_update(d, n, nine):
+        upd = fusion.make_bank(BANK_NAME, d.fs, c).update
+
+        def go():
+            for g, a, m in zip(G, A, M):
+                q = upd(g, a, m)
+            return q
+        return go
+
+    def separate_update(d, n, nine):
+        upds = [fusion.make(BANK_NAME, d.fs).update for _ in range(c)]
+
+        def go():
+            for g, a, m in zip(G, A, M):
+                q = [u(gi, ai, mi) for u, gi, ai, mi in zip(upds, g, a, m)]
+            return q
+        return go
+
+    def bank_run(d, n, nine):
+        b = fusion.make_bank(BANK_NAME, d.fs, c)
+        return lambda: b.run(G, A, M)
+
+    def single_run(d, n, nine):
+        e = fusion.make(BANK_NAME, d.fs)
+        g, a, m = d.gyr[:n], d.acc[:n], d.mag[:n]
+        return lambda: e.run(g, a, m)
+
+    def vqf_batch(d, n, nine):
+        v = vqf.VQF(d.ts)
+        g, a, m = d.gyr[:n], d.acc[:n], d.mag_ut[:n]
+        return lambda: v.updateBatch(g, a, m)["quat9D"]
+
+    names = {"bank update": (f"bank of {c} {BANK_NAME}: bank.update per sample", bank_update),
+             "separate update": (f"{c} x {BANK_NAME}.update per sample", separate_update),
+             "bank run": (f"bank of {c} {BANK_NAME}: bank.run", bank_run),
+             "single run": (f"one {BANK_NAME}.run over all samples", single_run),
+             "vqf batch": ("vqf.VQF.updateBatch over all samples", vqf_batch)}
+    return {key: (_Cell(label, build), "run", True, n) for key, (label, build) in names.items()}
+
+
+def bank_section(d, n, repeats):
+    """Time the bank cells (interleaved rounds); the report's lines."""
+    print(f"\nbank section: {BANK_COUNT} {BANK_NAME}, 9-axis, {n // BANK_COUNT:,} samples per filter "
+          f"({n // BANK_COUNT * BANK_COUNT:,} filter-samples per call), {repeats} interleaved rounds:", flush=True)
+    cells = bank_cells(d, n)
+    res = measure_all(cells, d, repeats, lambda msg: print(msg, flush=True))
+    rate = {k: r["rate"] for k, r in res.items()}
+    lines = ["| method | filter-samples/s |", "|---|---:|"]
+    lines += [f"| {cells[k][0].name} | {fmt_rate(rate[k])} |" for k in cells]
+    lines += ["",
+              f"- bank.update / {BANK_COUNT} separate update calls: {rate['bank update'] / rate['separate update']:.2f}x "
+              "(target >= 4x)",
+              f"- bank.update time per filter-sample / VQF updateBatch time per sample: "
+              f"{rate['vqf batch'] / rate['bank update']:.2f} (target <= 1)",
+              f"- bank.run / one {BANK_NAME}.run: {rate['bank run'] / rate['single run']:.2f}x; "
+              f"bank.run / VQF updateBatch: {rate['bank run'] / rate['vqf batch']:.2f}x"]
+    return "\n".join(lines), res
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true",
@@ -199,6 +289,7 @@ def main(argv=None):
                     help="output folder for throughput.md / throughput.csv (default: %(default)s)")
     ap.add_argument("--target", type=float, default=None,
                     help="seconds per measurement used to scale N (default 0.3, quick 0.06)")
+    ap.add_argument("--bank-only", action="store_true", help="only the bank section")
     args = ap.parse_args(argv)
 
     if args.quick:
@@ -220,6 +311,12 @@ def main(argv=None):
           f"median of {repeats} after 1 warm-up\n", flush=True)
 
     d = Data.mixed(max(n_run, n_upd, n_sanity), fs=FS)
+    n_bank = n_run if not args.quick else 48_000
+    if args.bank_only:
+        text, _ = bank_section(d, n_bank, repeats)
+        print("\n" + text)
+        print(f"total {time.perf_counter() - t_start:.0f} s")
+        return
     methods = all_methods(print)
 
     # sanity first (also imports and warms every code path)
@@ -277,6 +374,8 @@ def main(argv=None):
              "the quaternion each sample); run = one batch call. Ratios: ours / fastest peer in that column. "
              "Median of %d repeats; N per cell in throughput_detail.csv." % repeats)
     print("\n" + table + "\n\n" + notes + "\n")
+    bank_text, bank_res = bank_section(d, n_bank, repeats)
+    print("\n" + bank_text + "\n")
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -289,6 +388,7 @@ def main(argv=None):
         f.write(f"- settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; "
                 f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement\n\n")
         f.write(table + "\n\n" + notes + "\n")
+        f.write("\n## Bank\n\n" + bank_text + "\n")
     with open(csv_path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(csv_header)
