@@ -17,6 +17,9 @@ from fusion._qmath cimport vec3_valid, vec3_finite
 
 cnp.import_array()
 
+# samples per filter gathered per call of its batch loop in Kernels.run
+cdef Py_ssize_t RUN_BLOCK = 128
+
 _RULE = {"gyr": "finite", "acc": "finite and non-zero", "mag": "finite and non-zero"}
 
 
@@ -134,23 +137,50 @@ cdef class Kernels:
         return out
 
     def run(self, G, A, M, D, double dt, out):
-        """T samples per filter, filter-major: G, A, M C-contiguous float64 (count, T, 3) (M
-        None: 6-axis), D None (dt throughout) or (count, T) steps; out (count, T, 4). Each
-        filter's batch loop runs over its T samples in one call, as est.run does."""
-        cdef Py_ssize_t i, n = G.shape[1]
+        """T samples per filter: G, A, M C-contiguous float64 (T, count, 3) (M None: 6-axis),
+        D None (dt throughout) or (T, count) steps; out (T, count, 4). Block by block of time,
+        each filter's samples are gathered into rows of 3 and its batch loop runs over them:
+        the same steps as one est.run over the whole column."""
+        cdef Py_ssize_t T = G.shape[0], c = self.count
+        cdef Py_ssize_t t0, nb, i, k, src
         cdef const double* g = _ptr(G)
         cdef const double* a = _ptr(A)
         cdef const double* m = _ptr(M)
         cdef const double* h = _ptr(D)
         cdef double* o = <double*>cnp.PyArray_DATA(<cnp.ndarray>out)
-        if n == 0:
+        if T == 0:
             return
+        # gathered block by block (in cache): whole (count, T, 3) transposed copies cost 15 %
+        # of a 64-ekf bank's run; gathered, the bank runs as fast as count separate est.run
+        cdef double* buf = <double*>malloc(RUN_BLOCK * 14 * sizeof(double))
+        if buf == NULL:
+            raise MemoryError()
+        cdef double* sg = buf
+        cdef double* sa = buf + 3 * RUN_BLOCK
+        cdef double* sm = buf + 6 * RUN_BLOCK
+        cdef double* so = buf + 9 * RUN_BLOCK
+        cdef double* sd = buf + 13 * RUN_BLOCK
         with nogil:
-            for i in range(self.count):
-                (<Estimator>self.p[i])._run_batch(g + 3 * n * i, a + 3 * n * i,
-                                                  m + 3 * n * i if m != NULL else NULL,
-                                                  h + n * i if h != NULL else NULL, dt,
-                                                  o + 4 * n * i, n, False)
+            t0 = 0
+            while t0 < T:
+                nb = min(RUN_BLOCK, T - t0)
+                for i in range(c):
+                    for k in range(nb):
+                        src = 3 * ((t0 + k) * c + i)
+                        sg[3 * k] = g[src]; sg[3 * k + 1] = g[src + 1]; sg[3 * k + 2] = g[src + 2]
+                        sa[3 * k] = a[src]; sa[3 * k + 1] = a[src + 1]; sa[3 * k + 2] = a[src + 2]
+                        if m != NULL:
+                            sm[3 * k] = m[src]; sm[3 * k + 1] = m[src + 1]; sm[3 * k + 2] = m[src + 2]
+                        if h != NULL:
+                            sd[k] = h[(t0 + k) * c + i]
+                    (<Estimator>self.p[i])._run_batch(sg, sa, sm if m != NULL else NULL,
+                                                      sd if h != NULL else NULL, dt, so, nb, False)
+                    for k in range(nb):
+                        src = 4 * ((t0 + k) * c + i)
+                        o[src] = so[4 * k]; o[src + 1] = so[4 * k + 1]
+                        o[src + 2] = so[4 * k + 2]; o[src + 3] = so[4 * k + 3]
+                t0 += nb
+        free(buf)
 
     def quaternions(self):
         """(count, 4): every filter's attitude in its public frame."""
@@ -160,3 +190,4 @@ cdef class Kernels:
         for i in range(self.count):
             output_q(<Estimator>self.p[i], &o[i, 0])
         return out
+

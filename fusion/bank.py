@@ -148,26 +148,21 @@ class Bank:
             else:
                 D = self._steps(dt, (T,))
                 if D is not None:
-                    D = np.ascontiguousarray(np.broadcast_to(D[None, :], (n, T)))
+                    D = np.ascontiguousarray(np.broadcast_to(D[:, None], (T, n)))
                 else:
                     D = self._steps(dt, (T, n))
                     if D is None:
                         raise ValueError(f"dt must be None, a scalar or an array of shape ({T},) or "
                                          f"({T}, {n}), got dtype {np.asarray(dt).dtype} shape {np.shape(dt)}")
-                    D = np.ascontiguousarray(D.T)
         self._enter()
         try:
             if not self._skip:
                 check_samples(G, A, M, n, True)
-            # filter-major copies, so that each filter's batch loop reads rows of 3
-            Gf = np.ascontiguousarray(G.transpose(1, 0, 2))
-            Af = np.ascontiguousarray(A.transpose(1, 0, 2))
-            Mf = None if M is None else np.ascontiguousarray(M.transpose(1, 0, 2))
-            out = np.empty((n, T, 4))
-            self._k.run(Gf, Af, Mf, D, h, out)
+            out = np.empty((T, n, 4))
+            self._k.run(G, A, M, D, h, out)
         finally:
             self._exit()
-        return np.ascontiguousarray(out.transpose(1, 0, 2))
+        return out
 
     def reset(self, index=None, q0=None):
         """Reset every filter (index None) or filter `index` only, as est.reset(q0): q0 None,
