@@ -57,15 +57,28 @@ def make_bank(name, fs, count, frame="ENU", on_invalid="raise", **params):
             if per:
                 raise ValueError(f"{e} (filter {i})") from None
             raise
-    return Bank(filters)
+    return Bank._own(filters)
 
 
 class Bank:
     """count estimators of one kind, same fs, frame and on_invalid, each with its own
-    parameters and state. Build with fusion.make_bank; bank[i] is a copy of filter i."""
+    parameters and state. Build with fusion.make_bank, Bank(estimators) (copies them) or
+    Bank.from_state; bank[i] is a copy of filter i."""
 
     def __init__(self, filters):
-        filters = list(filters)
+        """A bank of copies of the given estimators (one kind, same fs, frame, on_invalid):
+        the bank steps objects no one else holds, so its in-use guard covers them."""
+        self._setup([Estimator.from_state(e.state()) if isinstance(e, Estimator) else e
+                     for e in filters])
+
+    @classmethod
+    def _own(cls, filters):
+        """A bank of these (new, unshared) estimators themselves (make_bank, from_state)."""
+        bank = cls.__new__(cls)
+        bank._setup(list(filters))
+        return bank
+
+    def _setup(self, filters):
         if not filters:
             raise ValueError("count must be an integer >= 1, got 0")
         f0 = filters[0]
@@ -77,9 +90,6 @@ class Bank:
                                  f"on_invalid={e.on_invalid!r}); a bank's filters share those of "
                                  f"filters[0] ({f0.name!r}, fs={f0.fs}, frame={f0.frame!r}, "
                                  f"on_invalid={f0.on_invalid!r})")
-        if len({id(e) for e in filters}) != len(filters):
-            raise ValueError("filters must be distinct objects (the same estimator twice would "
-                             "step twice per sample)")
         self._filters = filters
         self._k = Kernels(filters)
         self._lock = threading.Lock()
@@ -335,7 +345,7 @@ class Bank:
                 filters.append(Estimator.from_state(s))
             except ValueError as err:
                 raise ValueError(f"state['filters'][{i}]: {err}") from None
-        return cls(filters)
+        return cls._own(filters)
 
     def __reduce__(self):
         return (Bank.from_state, (self.state(),))

@@ -326,3 +326,38 @@ def test_in_use_guard_and_threads(data):
         th.join()
     assert np.array_equal(out[0], seq[0]) and np.array_equal(out[1], seq[1])
     bank.update(G[0], A[0], M[0])
+
+
+def test_bank_of_given_estimators(data):
+    """fusion.Bank(estimators) steps copies: the caller's estimators do not move."""
+    G, A, M = data
+    es = [fusion.make("ekf", 100.0, acc_noise=v) for v in (1.0, 2.0)]
+    es[0].run(G[:50, 0], A[:50, 0], M[:50, 0])
+    before = [e.state() for e in es]
+    bank = fusion.Bank(es)
+    assert bank.state()["filters"] == before
+    bank.run(G[:, :2], A[:, :2], M[:, :2])
+    assert [e.state() for e in es] == before
+    with pytest.raises(ValueError, match="share those of filters"):
+        fusion.Bank([fusion.make("ekf", 100.0), fusion.make("ekf", 200.0)])
+    with pytest.raises(ValueError, match="share those of filters"):
+        fusion.Bank([fusion.make("ekf", 100.0), fusion.make("aekf", 100.0)])
+    with pytest.raises(ValueError, match="not a fusion estimator"):
+        fusion.Bank([fusion.make("ekf", 100.0), 3])
+    with pytest.raises(ValueError, match="count"):
+        fusion.Bank([])
+
+
+def test_any_real_array_layout(data):
+    """Lists, float32, Fortran order and strided views give the float64 numbers."""
+    G, A, M = data
+    ref = fusion.make_bank("mahony", 100.0, COUNT)
+    q = ref.update(G[0], A[0], M[0])
+    Q = ref.run(G[1:20], A[1:20], M[1:20])
+    bank = fusion.make_bank("mahony", 100.0, COUNT)
+    assert np.array_equal(bank.update(G[0].tolist(), np.asfortranarray(A[0]), np.stack([M[0], M[0]], 2)[:, :, 0]), q)
+    Gs = np.repeat(G, 2, axis=1)[:, ::2]               # strided view, same values
+    assert np.array_equal(bank.run(Gs[1:20], A[1:20], M[1:20].tolist()), Q)
+    a32 = fusion.make_bank("mahony", 100.0, COUNT).update(G[0], A[0].astype(np.float32), M[0])
+    e = fusion.make("mahony", 100.0)
+    assert np.array_equal(a32[2], e.update(G[0, 2], A[0, 2].astype(np.float32).astype(float), M[0, 2]))
