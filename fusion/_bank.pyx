@@ -1,6 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """The compiled part of fusion.Bank (fusion/bank.py): count estimator kernels stepped in one
-loop without the GIL, and the input checks of the per-sample path.
+loop without the GIL, the in-use guard, and the per-sample path.
 
 The kernels keep their state per object today, so the bank holds an array of pointers to
 count ordinary estimators and calls each one's batch loop (Estimator._run_batch, the code
@@ -13,11 +13,12 @@ import numpy as np
 cimport numpy as cnp
 
 from fusion._core cimport Estimator, output_q
+from fusion._core import DT_MAX, DT_MIN, check_dt
 from fusion._qmath cimport vec3_valid, vec3_finite
 
 cnp.import_array()
 
-# samples per filter gathered per call of its batch loop in Kernels.run
+# samples per filter gathered per call of its batch loop in BankCore._run
 cdef Py_ssize_t RUN_BLOCK = 128
 
 _RULE = {"gyr": "finite", "acc": "finite and non-zero", "mag": "finite and non-zero"}
@@ -86,41 +87,97 @@ def check_samples(G, A, M, Py_ssize_t count, bint timed):
                      f"on_invalid='skip' skips such samples)")
 
 
-cdef class Kernels:
-    """Borrowed pointers to count estimators (kept alive by self.refs), for nogil loops.
-    The caller (fusion.Bank) holds the in-use guard and checks time steps; the arrays come
-    from as_samples."""
-    cdef PyObject** p
-    cdef readonly Py_ssize_t count
-    cdef readonly list refs
+def time_steps(dt, tuple shape):
+    """dt as a C-contiguous float64 array of `shape` with every step in [DT_MIN, DT_MAX], None
+    if it is not a real array of that shape, or a ValueError naming the first bad step."""
+    D = np.asarray(dt)
+    if D.dtype.kind not in "fiu" or D.shape != shape:
+        return None
+    D = np.ascontiguousarray(D, dtype=np.float64)
+    bad = np.flatnonzero(~((D >= DT_MIN) & (D <= DT_MAX)))     # NaN fails too
+    if bad.size:
+        idx = np.unravel_index(bad[0], shape)
+        raise ValueError(f"dt must be finite and > 0 and in [{DT_MIN:g}, {DT_MAX:g}] s; "
+                         f"dt[{', '.join(map(str, idx))}] = {D[idx]!r}")
+    return D
 
-    def __cinit__(self, list ests):
-        cdef Py_ssize_t i
-        for e in ests:
-            if not isinstance(e, Estimator):
-                raise TypeError(f"Kernels holds fusion estimators, got {type(e).__name__}")
-        self.refs = list(ests)
-        self.count = len(self.refs)
-        self.p = <PyObject**>malloc(max(self.count, 1) * sizeof(PyObject*))
-        if self.p == NULL:
-            raise MemoryError()
-        for i in range(self.count):
-            self.p[i] = <PyObject*>self.refs[i]
+
+cdef inline bint _rows_ok(object x, Py_ssize_t n) noexcept:
+    """x is already what as_samples would return for shape (n, 3)."""
+    cdef cnp.ndarray arr
+    if type(x) is not np.ndarray:
+        return False
+    arr = <cnp.ndarray>x
+    return (cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_IS_C_CONTIGUOUS(arr)
+            and cnp.PyArray_NDIM(arr) == 2 and cnp.PyArray_DIM(arr, 0) == n
+            and cnp.PyArray_DIM(arr, 1) == 3)
+
+
+cdef class BankCore:
+    """The compiled base of fusion.Bank: borrowed pointers to count estimators (kept alive by
+    self._filters), the in-use flag, and the per-sample path. fusion.Bank (bank.py) adds the
+    rest of the interface in Python."""
+    cdef PyObject** p
+    cdef Py_ssize_t count
+    cdef readonly double dt_nominal    # 1/fs as the filters hold it
+    cdef bint check                  # on_invalid == "raise"
+    cdef bint busy                   # a call is in progress (set and tested with the GIL held)
+    cdef readonly list _filters
 
     def __dealloc__(self):
         free(self.p)
 
-    def update(self, gyr, acc, mag, d, double dt, bint check):
-        """One sample per filter: gyr, acc, mag (count, 3) (mag None: 6-axis), d None (dt for
-        all) or a checked (count,) float64 array of steps; check: refuse invalid samples
-        (before any filter steps). Returns (count, 4) quaternions."""
+    def _bind(self, list ests, bint check):
+        """Take these estimators (fusion.Bank._setup has checked them)."""
+        cdef Py_ssize_t i
+        cdef PyObject** p
+        for e in ests:
+            if not isinstance(e, Estimator):
+                raise TypeError(f"a bank holds fusion estimators, got {type(e).__name__}")
+        p = <PyObject**>malloc(max(len(ests), 1) * sizeof(PyObject*))
+        if p == NULL:
+            raise MemoryError()
+        self._enter()
+        free(self.p)
+        self.p = p
+        self._filters = list(ests)
+        self.count = len(self._filters)
+        for i in range(self.count):
+            self.p[i] = <PyObject*>self._filters[i]
+        self.dt_nominal = (<Estimator>self._filters[0]).dt_nominal
+        self.check = check
+        self._exit()
+
+    # --- in-use guard: the GIL is held from the test to the set, so two threads cannot both pass
+    def _enter(self):
+        if self.busy:
+            raise RuntimeError("this bank is in use by another thread (a call on it is in "
+                               "progress); give each thread its own bank")
+        self.busy = True
+
+    def _exit(self):
+        self.busy = False
+
+    @property
+    def _in_use(self):
+        return bool(self.busy)
+
+    def update(self, gyr, acc, mag=None, dt=None):
+        """One sample for every filter: gyr, acc, mag (count, 3) arrays (mag None: 6-axis);
+        dt None (1/fs), a scalar, or (count,) steps in s. Returns (count, 4) quaternions."""
         cdef Py_ssize_t n = self.count, i
-        what = f"({n}, 3)"
-        G = as_samples(gyr, "gyr", (n, 3), what, n)
-        A = as_samples(acc, "acc", (n, 3), what, n)
-        M = None if mag is None else as_samples(mag, "mag", (n, 3), what, n)
-        if check:
-            check_samples(G, A, M, n, False)
+        cdef double h = self.dt_nominal
+        D = None
+        if dt is not None:
+            if np.ndim(dt) == 0:
+                h = check_dt(dt)
+            else:
+                D = time_steps(dt, (n,))
+                if D is None:
+                    raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), got {dt!r}")
+        G = gyr if _rows_ok(gyr, n) else as_samples(gyr, "gyr", (n, 3), f"({n}, 3)", n)
+        A = acc if _rows_ok(acc, n) else as_samples(acc, "acc", (n, 3), f"({n}, 3)", n)
+        M = None if mag is None else (mag if _rows_ok(mag, n) else as_samples(mag, "mag", (n, 3), f"({n}, 3)", n))
         cdef cnp.npy_intp dims[2]
         dims[0] = n
         dims[1] = 4
@@ -128,15 +185,27 @@ cdef class Kernels:
         cdef const double* g = _ptr(G)
         cdef const double* a = _ptr(A)
         cdef const double* m = _ptr(M)
-        cdef const double* h = _ptr(d)
+        cdef const double* hd = _ptr(D)
         cdef double* o = <double*>cnp.PyArray_DATA(<cnp.ndarray>out)
-        with nogil:
-            for i in range(n):
-                (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
-                                                  NULL, h[i] if h != NULL else dt, o + 4 * i, 1, False)
+        cdef int s = 0
+        if self.busy:
+            self._enter()                                      # raises
+        self.busy = True
+        try:
+            if self.check:
+                with nogil:
+                    i = _first_invalid(g, a, m, n, &s)
+                if i >= 0:
+                    check_samples(G, A, M, n, False)           # raises, naming it
+            with nogil:
+                for i in range(n):
+                    (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
+                                                      NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
+        finally:
+            self.busy = False
         return out
 
-    def run(self, G, A, M, D, double dt, out):
+    def _run(self, G, A, M, D, double dt, out):
         """T samples per filter: G, A, M C-contiguous float64 (T, count, 3) (M None: 6-axis),
         D None (dt throughout) or (T, count) steps; out (T, count, 4). Block by block of time,
         each filter's samples are gathered into rows of 3 and its batch loop runs over them:
@@ -182,7 +251,7 @@ cdef class Kernels:
                 t0 += nb
         free(buf)
 
-    def quaternions(self):
+    def _quaternions(self):
         """(count, 4): every filter's attitude in its public frame."""
         out = np.empty((self.count, 4))
         cdef double[:, ::1] o = out

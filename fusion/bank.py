@@ -12,12 +12,10 @@ of count separate estimators, bit for bit. The kernels keep their state per obje
 array of pointers to count kernels.
 """
 import numbers
-import threading
-
 import numpy as np
 
-from fusion._bank import Kernels, as_samples, check_samples
-from fusion._core import DT_MAX, DT_MIN, Estimator, check_dt
+from fusion._bank import BankCore, as_samples, check_samples, time_steps
+from fusion._core import Estimator, check_dt
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
@@ -60,7 +58,7 @@ def make_bank(name, fs, count, frame="ENU", on_invalid="raise", **params):
     return Bank._own(filters)
 
 
-class Bank:
+class Bank(BankCore):
     """count estimators of one kind, same fs, frame and on_invalid, each with its own
     parameters and state. Build with fusion.make_bank, Bank(estimators) (copies them) or
     Bank.from_state; bank[i] is a copy of filter i."""
@@ -90,55 +88,10 @@ class Bank:
                                  f"on_invalid={e.on_invalid!r}); a bank's filters share those of "
                                  f"filters[0] ({f0.name!r}, fs={f0.fs}, frame={f0.frame!r}, "
                                  f"on_invalid={f0.on_invalid!r})")
-        self._filters = filters
-        self._k = Kernels(filters)
-        self._lock = threading.Lock()
-        self._skip = f0.on_invalid == "skip"
-        self._dt = 1.0 / f0.fs
+        self._bind(filters, f0.on_invalid == "raise")
         self._count = len(filters)
 
-    # --- in-use guard ---------------------------------------------------------------------
-    def _enter(self):
-        if not self._lock.acquire(False):
-            raise RuntimeError("this bank is in use by another thread (update, run, reset or "
-                               "load_state in progress); give each thread its own bank")
-
-    def _exit(self):
-        self._lock.release()
-
-    # --- input checks ---------------------------------------------------------------------
-    @staticmethod
-    def _steps(dt, shape):
-        D = np.asarray(dt)
-        if D.dtype.kind not in "fiu" or D.shape != shape:
-            return None
-        D = np.ascontiguousarray(D, dtype=np.float64)
-        bad = np.flatnonzero(~((D >= DT_MIN) & (D <= DT_MAX)))     # NaN fails too
-        if bad.size:
-            idx = np.unravel_index(bad[0], shape)
-            raise ValueError(f"dt must be finite and > 0 and in [{DT_MIN:g}, {DT_MAX:g}] s; "
-                             f"dt[{', '.join(map(str, idx))}] = {D[idx]!r}")
-        return D
-
-    # --- stepping -------------------------------------------------------------------------
-    def update(self, gyr, acc, mag=None, dt=None):
-        """One sample for every filter: gyr, acc, mag (count, 3) arrays (mag None: 6-axis);
-        dt None (1/fs), a scalar, or (count,) steps in s. Returns (count, 4) quaternions."""
-        D, h = None, self._dt
-        if dt is not None:
-            if np.ndim(dt) == 0:
-                h = check_dt(dt)
-            else:
-                n = self._count
-                D = self._steps(dt, (n,))
-                if D is None:
-                    raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), got {dt!r}")
-        self._enter()
-        try:
-            return self._k.update(gyr, acc, mag, D, h, not self._skip)
-        finally:
-            self._exit()
-
+    # --- stepping (update: BankCore.update, compiled) -------------------------------------
     def run(self, gyr, acc, mag=None, dt=None):
         """T samples for every filter: gyr, acc, mag (T, count, 3) arrays (mag None: 6-axis);
         dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
@@ -151,25 +104,25 @@ class Bank:
         what = f"({T}, {n}, 3) as gyr"
         A = as_samples(acc, "acc", (T, n, 3), what, n)
         M = None if mag is None else as_samples(mag, "mag", (T, n, 3), what, n)
-        D, h = None, self._dt
+        D, h = None, self.dt_nominal
         if dt is not None:
             if np.ndim(dt) == 0:
                 h = check_dt(dt)
             else:
-                D = self._steps(dt, (T,))
+                D = time_steps(dt, (T,))
                 if D is not None:
                     D = np.ascontiguousarray(np.broadcast_to(D[:, None], (T, n)))
                 else:
-                    D = self._steps(dt, (T, n))
+                    D = time_steps(dt, (T, n))
                     if D is None:
                         raise ValueError(f"dt must be None, a scalar or an array of shape ({T},) or "
                                          f"({T}, {n}), got dtype {np.asarray(dt).dtype} shape {np.shape(dt)}")
         self._enter()
         try:
-            if not self._skip:
+            if self.on_invalid == "raise":
                 check_samples(G, A, M, n, True)
             out = np.empty((T, n, 4))
-            self._k.run(G, A, M, D, h, out)
+            self._run(G, A, M, D, h, out)
         finally:
             self._exit()
         return out
@@ -235,7 +188,7 @@ class Bank:
     @property
     def quaternion(self):
         """(count, 4) attitudes [w, x, y, z] in the bank's frame."""
-        return self._read(self._k.quaternions)
+        return self._read(self._quaternions)
 
     @property
     def euler(self):

@@ -303,7 +303,7 @@ def test_in_use_guard_and_threads(data):
     worker.start()
     deadline = time.monotonic() + 30.0
     while worker.is_alive() and time.monotonic() < deadline:
-        if bank._lock.locked():
+        if bank._in_use:
             for call in (lambda: bank.update(G[0], A[0], M[0]), lambda: bank.reset(),
                          lambda: bank.state(), lambda: bank.quaternion, lambda: bank.load_state(s0), lambda: bank[0]):
                 calls.append(1)
