@@ -95,7 +95,7 @@ def tiny_policy(tmp_path_factory):
 
 def test_train_writes_policy_and_loads(tiny_policy):
     stem = tiny_policy
-    for suffix in (".zip", ".vecnormalize.pkl", ".json"):
+    for suffix in (".zip", ".vecnormalize.npz", ".json"):
         assert (stem.parent / (stem.name + suffix)).is_file()
     meta = json.loads((stem.parent / (stem.name + ".json")).read_text())
     assert meta["algo"] == "ppo" and meta["estimator"] == "truth" and meta["timesteps"] == 600
