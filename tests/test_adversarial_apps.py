@@ -44,9 +44,6 @@ else:
 @pytest.mark.parametrize("kw, name", [
     ("control_hz=1e-9", "control_hz"),          # was: 400 billion substeps, step() never returned
     ("imu_hz=0.005", "imu_hz"),                  # was: a message about fusion's fs
-    ("imu_hz=float('nan')", "imu_hz"),
-    ("physics_hz=float('inf')", "physics_hz"),
-    ("control_hz=-50.0", "control_hz"),
     ("control_hz=400.0, imu_hz=200.0, physics_hz=400.0", "control_hz"),   # control above the IMU rate
     ("control_hz=1.0, imu_hz=1000.0, physics_hz=20000.0", "control_hz"),  # 20,000 substeps per step
 ])
@@ -199,13 +196,16 @@ def test_train_bad_options_before_work(tmp_path, kw, name):
 
 
 @pytest.mark.parametrize("args, word", [(["--n-envs", "0"], "--n-envs"), (["--n-envs", "-1"], "--n-envs"),
-                                        (["--env-kwargs", "{bad json"], "--env-kwargs"),
-                                        (["--env-kwargs", "imu_hz:0.005"], "imu_hz"),
+                                        (["--env-kwargs", '{"imu_hz": 0.005}'], "imu_hz"),
+                                        (["--env-kwargs", '{"bogus": 1}'], "bogus"),
                                         (["--hyperparams", "learning_rate=abc"], "learning_rate")])
 def test_train_cli_bad_options(tmp_path, args, word):
-    r = run([str(ROOT / "scripts" / "train.py"), "--algo", "ppo", "--env", "track", "--estimator", "truth",
-             "-f", str(tmp_path)] + args, timeout=120)
-    assert r.returncode == 2 and word in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
+    # the flags the script had before (--task, --out), so that the old script parses them too
+    r = run([str(ROOT / "scripts" / "train.py"), "--algo", "ppo", "--task", "track", "--estimator", "truth",
+             "--out", str(tmp_path / "p"), "--timesteps", "64", "--eval-episodes", "0", "--no-progress"] + args,
+            timeout=300)
+    assert r.returncode == 2 and word in r.stderr, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr and "unrecognized" not in r.stderr, r.stderr[-2000:]
     assert not any(tmp_path.iterdir())
 
 
