@@ -225,7 +225,7 @@ def _check_hyperparams(override, hp, algo, task):
             ok, what = isinstance(value, bool), "true or false"
         elif isinstance(default, numbers.Number) or name == "ent_coef":
             is_num = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-            if name == "ent_coef" and isinstance(value, str):
+            if name == "ent_coef" and isinstance(value, str) and isinstance(default, str):
                 ok, what = value == "auto" or value.startswith("auto_"), "a number >= 0 or 'auto'"
             elif isinstance(default, int) and not isinstance(default, bool) and name not in ("learning_rate",):
                 ok, what = is_num and float(value) == int(value), "an integer"
