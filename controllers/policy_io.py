@@ -79,6 +79,8 @@ def load_normalization(path):
     """The statistics saved by ``save_normalization``: a dict of float64 arrays (``obs_*``,
     ``ret_*``), floats and bools. ``PolicyError`` for a file that is not such an ``.npz``."""
     path = Path(path)
+    if not path.is_file():
+        raise PolicyError(f"normalisation statistics {path} do not exist")
     try:
         with np.load(path, allow_pickle=False) as d:
             out = {k: np.array(d[k]) for k in d.files}

@@ -370,7 +370,7 @@ def _fit_sac_critics(model, steps):
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
           command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print):
+          log=print, trusted=False):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
     (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
     written into the package: ``install_policy`` does that).
@@ -381,7 +381,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
     continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
     policy stem of the same algorithm (and observation space) whose weights and
-    normalisation statistics start the training (a name of ``available_policies()`` or a path) (fine-tuning: a policy trained on the true
+    normalisation statistics start the training (a name of ``available_policies()`` or a path;
+    outside the package an ``UntrustedPolicyWarning`` unless ``trusted``) (fine-tuning: a policy trained on the true
     attitude adapted to an estimator, or a track policy as the start of a waypoints one);
     ``timesteps`` then counts the new steps only. ``init_from="pid"`` starts from a
     behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher steps;
@@ -450,6 +451,10 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         _, init_zip, init_json, init_vn = _resolve(init_from)
         if not init_zip.is_file():
             raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
+        if not trusted and not _in_package(init_zip):
+            warnings.warn(f"init_from: {init_zip} is outside the package: model files can be crafted to run code; "
+                          f"it is read with pickled entries refused, but start only from files you trust "
+                          f"(trusted=True, --trusted, silences this)", UntrustedPolicyWarning, stacklevel=2)
         init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
         if init_meta.get("algo", algo) != algo:
             raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy; this run trains {algo}")

@@ -126,6 +126,8 @@ def parser():
                     help="start from this policy's weights and statistics (same algo): a shipped name "
                          "(e.g. ppo-waypoints-truth) or a path; or 'pid': from a behaviour clone of the "
                          "PID controller (sac: its steps also fill the replay buffer)")
+    ap.add_argument("--trusted", action="store_true",
+                    help="--init-from a path outside the package without the warning that model files can carry code")
     ap.add_argument("--bc-steps", type=_int(1), default=60_000,
                     help="with --init-from pid: environment steps of the PID teacher to clone (default: %(default)s)")
     ap.add_argument("--hyperparams", nargs="+", default=[], metavar="NAME:VALUE",
@@ -163,7 +165,7 @@ def main(argv=None):
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
                         command=command, init_from=a.init_from, overwrite=a.overwrite, eval_freq=a.eval_freq,
                         checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes,
-                        bc_steps=a.bc_steps, hyperparams_override=override)
+                        bc_steps=a.bc_steps, hyperparams_override=override, trusted=a.trusted)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError, FileExistsError) as e:

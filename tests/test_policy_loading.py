@@ -147,8 +147,12 @@ def test_crafted_init_from_and_resume_refused(tmp_path):
     stem = tmp_path / "crafted"
     _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
     kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None)
-    with pytest.raises(rl.PolicyError, match="refused"):
+    with pytest.warns(rl.UntrustedPolicyWarning, match="init_from"), pytest.raises(rl.PolicyError, match="refused"):
         rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft", init_from=stem, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rl.UntrustedPolicyWarning)
+        with pytest.raises(rl.PolicyError, match="refused"):
+            rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft2", init_from=stem, trusted=True, **kw)
     # --resume: every checkpoint crafted -> no readable checkpoint, nothing run
     ck = tmp_path / "r.run" / "checkpoints"
     ck.mkdir(parents=True)
