@@ -426,3 +426,19 @@ def sanity(method, kind, nine, d, n):
     err = float(np.median(tilt_error_deg(q, ref, method.up))) if finite else float("nan")
     ok = finite and unit and moved and (err < 10.0 or method.drifts)
     return ok, err
+
+
+def main(argv=None):
+    """``python benchmarks/peers.py``: which methods the benchmarks would compare here."""
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="Without options: list our estimators and the peers importable here.")
+    ap.parse_args(argv)
+    for m in all_methods(print):
+        print(f"{m.name:18s} {m.feeding}")
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

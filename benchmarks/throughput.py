@@ -284,10 +284,10 @@ def bank_section(d, n, repeats):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="spherebot-bench", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true",
                     help="fewer samples and repeats (whole script under about a minute)")
-    ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks"),
+    ap.add_argument("--out", default=os.path.join("results", "benchmarks"),
                     help="output folder for throughput.md / throughput.csv (default: %(default)s)")
     ap.add_argument("--target", type=float, default=None,
                     help="seconds per measurement used to scale N (default 0.3, quick 0.06)")
@@ -404,4 +404,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,21 +1,22 @@
 """Controllers for the spherical robot: one interface (``reset()``, ``act(obs)``) for the
 cascaded PID and for policies trained with stable-baselines3.
 
-    from controllers import PID, load_policy, evaluate
+    from controllers import PID, load_policy, evaluate, available_policies
 
-``load_policy`` and ``evaluate`` are imported on first use, so ``import controllers`` needs
-neither torch nor PyBullet.
+``load_policy("ppo-waypoints-truth")`` takes a shipped policy by name (``available_policies()``)
+or a path. ``load_policy``, ``available_policies`` and ``evaluate`` are imported on first
+use, so ``import controllers`` needs neither torch nor PyBullet.
 """
 from controllers.base import Controller
 from controllers.pid import PID, PIDGains
 
-__all__ = ["Controller", "PID", "PIDGains", "load_policy", "evaluate"]
+__all__ = ["Controller", "PID", "PIDGains", "load_policy", "available_policies", "evaluate"]
 
 
 def __getattr__(name):
-    if name == "load_policy":
-        from controllers.rl import load_policy
-        return load_policy
+    if name in ("load_policy", "available_policies"):
+        from controllers import rl
+        return getattr(rl, name)
     if name == "evaluate":
         from controllers.evaluation import evaluate
         return evaluate

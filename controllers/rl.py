@@ -1,14 +1,17 @@
 """Training, saving and loading stable-baselines3 policies for the spherical robot.
 
-A trained policy is three files with one stem, e.g. ``controllers/policies/ppo-waypoints-ekf``:
+A trained policy is three files with one stem, e.g. ``logs/ppo/SphereBotWaypoints-v0_1/ppo-waypoints-ekf``:
 
 - ``<stem>.zip``: the SB3 model (the best one found by the evaluation callback);
-- ``<stem>.vecnormalize.pkl``: the ``VecNormalize`` observation statistics it was trained with;
+- ``<stem>.vecnormalize.npz``: the ``VecNormalize`` statistics it was trained with, as plain arrays;
 - ``<stem>.json``: the exact command, algorithm, task, estimator, environment arguments,
   timesteps, seed, wall time, training throughput, the observation names and the final
   evaluation.
 
-``load_policy(stem_or_zip)`` returns a ``PolicyController`` (the ``Controller`` interface).
+``load_policy(name_or_path)`` returns a ``PolicyController`` (the ``Controller`` interface):
+a name of ``available_policies()`` (shipped in the package, found from any folder) or a path.
+Nothing is unpickled: ``controllers.policy_io`` reads the zip with its pickled entries refused.
+Checkpoints and the best model are written atomically (``policy_io.atomic_write``).
 Hyperparameters live in rl-zoo3-style YAML files, ``controllers/hyperparams/<algo>.yml``,
 keyed by environment id. Heavy imports (torch, SB3) happen inside the functions, so that
 ``import controllers`` stays light.
@@ -17,27 +20,36 @@ from __future__ import annotations
 
 import json
 import os
-import pickle
-import shutil
 import sys
 import time
+import warnings
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from controllers.base import Controller, obs_batch
+from controllers.policy_io import (PolicyError, atomic_write, load_model, load_normalization, save_model,
+                                   save_normalization, vec_normalize)
 
 __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_policy", "PolicyController",
-           "policy_stem", "PolicyError"]
+           "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
 
 ALGOS = ("ppo", "sac")
 TASK_IDS = {"track": "SphereBotTrack-v0", "waypoints": "SphereBotWaypoints-v0"}
-HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
-POLICY_DIR = Path(__file__).resolve().parent / "policies"
+# package resources (not the current folder): found the same from a checkout or a wheel
+HYPERPARAMS_DIR = Path(str(resources.files("controllers") / "hyperparams"))
+POLICY_DIR = Path(str(resources.files("controllers") / "policies"))
+NORM_SUFFIX = ".vecnormalize.npz"
 
 
-class PolicyError(ValueError):
-    """A policy file that is missing, corrupt or does not fit the environment."""
+class UntrustedPolicyWarning(UserWarning):
+    """A policy loaded from outside the package."""
+
+
+def available_policies():
+    """The names of the policies shipped in the package (``load_policy(name)`` takes them)."""
+    return sorted(p.stem for p in POLICY_DIR.glob("*.zip"))
 
 
 def _check_choice(name, value, accepted):
@@ -46,8 +58,30 @@ def _check_choice(name, value, accepted):
 
 
 def policy_stem(algo, task, estimator, directory=POLICY_DIR):
-    """Where ``scripts/train.py`` puts the policy of (algo, task, estimator)."""
+    """The policy of (algo, task, estimator) in ``directory`` (default: the package's)."""
     return Path(directory) / f"{algo}-{task}-{estimator}"
+
+
+def new_run_stem(algo, task, estimator, log_folder="logs"):
+    """rl-zoo3's layout: ``<log_folder>/<algo>/<env-id>_<n>/<algo>-<task>-<estimator>``, ``n`` one
+    more than the highest run there (from 1)."""
+    base = Path(log_folder) / algo
+    env_id = TASK_IDS[task]
+    runs = [int(p.name.rsplit("_", 1)[1]) for p in base.glob(f"{env_id}_*") if p.name.rsplit("_", 1)[1].isdigit()]
+    return base / f"{env_id}_{max(runs, default=0) + 1}" / f"{algo}-{task}-{estimator}"
+
+
+def latest_run_stem(algo, task, estimator, log_folder="logs"):
+    """The newest run of (algo, task, estimator) in ``log_folder`` that holds checkpoints, or None."""
+    base = Path(log_folder) / algo
+    env_id = TASK_IDS[task]
+    runs = sorted((int(p.name.rsplit("_", 1)[1]), p) for p in base.glob(f"{env_id}_*")
+                  if p.name.rsplit("_", 1)[1].isdigit())
+    for _, run in reversed(runs):
+        stem = run / f"{algo}-{task}-{estimator}"
+        if _checkpoints(Path(str(stem) + ".run") / "checkpoints"):
+            return stem
+    return None
 
 
 def hyperparams(algo, task):
@@ -64,7 +98,22 @@ def hyperparams(algo, task):
     return dict(table[env_id])
 
 
-def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir, worker=False):
+def _monitor_file(monitor_dir, rank, append):
+    """The Monitor file name for ``rank``; when appending (a resumed run), an unfinished last
+    line (the run was killed mid-write) is cut so that the next row starts on its own line."""
+    if monitor_dir is None:
+        return None
+    base = os.path.join(monitor_dir, str(rank))
+    path = base + ".monitor.csv"
+    if append and os.path.isfile(path):
+        with open(path, "rb+") as f:
+            text = f.read()
+            if text and not text.endswith(b"\n"):
+                f.truncate(text.rfind(b"\n") + 1)
+    return base
+
+
+def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir, worker=False, append=False):
     def make():
         if worker:
             # Ctrl-C reaches every process of the terminal's group: the workers ignore it and
@@ -78,7 +127,8 @@ def _make_env_fn(task, estimator, env_kwargs, rank, seed, monitor_dir, worker=Fa
         import envs  # noqa: F401  (registers the ids)
         from stable_baselines3.common.monitor import Monitor
         env = gym.make(TASK_IDS[task], estimator=estimator, **env_kwargs)
-        env = Monitor(env, None if monitor_dir is None else os.path.join(monitor_dir, str(rank)))
+        # a resumed run appends: the episodes logged before the interrupt stay
+        env = Monitor(env, _monitor_file(monitor_dir, rank, append), override_existing=not append)
         env.reset(seed=seed + rank)
         env.action_space.seed(seed + rank)
         return env
@@ -116,11 +166,12 @@ def _interrupt_safe_subproc_vec_env(fns):
     return InterruptSafeSubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
 
 
-def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True):
-    """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``)."""
+def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True, append=False):
+    """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``);
+    ``append``: the Monitor files are continued, not overwritten."""
     from stable_baselines3.common.vec_env import DummyVecEnv
     sub = subprocess and n_envs > 1
-    fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir, worker=sub)
+    fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir, worker=sub, append=append)
            for i in range(n_envs)]
     if sub:
         return _interrupt_safe_subproc_vec_env(fns)
@@ -132,19 +183,67 @@ def _algo_class(algo):
     return {"ppo": PPO, "sac": SAC}[algo]
 
 
-def _latest_checkpoint(ckpt_dir):
+def _checkpoints(ckpt_dir):
+    """The checkpoints in ``ckpt_dir``, newest (most steps) first."""
     d = Path(ckpt_dir)
     if not d.is_dir():
-        return None
-    best, best_steps = None, -1
+        return []
+    found = []
     for f in d.glob("ckpt_*_steps.zip"):
         try:
-            steps = int(f.stem.split("_")[1])
+            found.append((int(f.stem.split("_")[1]), f))
         except (IndexError, ValueError):
             continue
-        if steps > best_steps:
-            best, best_steps = f, steps
-    return best
+    return [f for _, f in sorted(found, reverse=True)]
+
+
+def _latest_checkpoint(ckpt_dir):
+    found = _checkpoints(ckpt_dir)
+    return found[0] if found else None
+
+
+def _checkpoint_stats(ckpt):
+    """The normalisation statistics file written beside checkpoint ``ckpt``."""
+    return ckpt.with_name(ckpt.name.replace("ckpt_", "ckpt_vecnormalize_").replace(".zip", ".npz"))
+
+
+def _check_hyperparams(override, hp, algo, task):
+    """Each override has the type of the YAML entry it replaces (a number for a number, an
+    integer for an integer, ...) and a sane range; a ValueError names the entry."""
+    unknown = sorted(set(override) - set(hp))
+    if unknown:
+        raise ValueError(f"unknown hyperparameter(s) {', '.join(unknown)} for {algo} on {task}; "
+                         f"accepted (controllers/hyperparams/{algo}.yml): {', '.join(sorted(hp))}")
+    import math
+    import numbers
+    positive = {"learning_rate", "n_steps", "batch_size", "n_epochs", "buffer_size", "train_freq",
+                "gradient_steps", "n_timesteps", "n_envs", "clip_range", "tau"}
+    unit = {"gamma", "gae_lambda", "tau"}
+    for name, value in override.items():
+        default = hp[name]
+        if isinstance(default, bool):
+            ok, what = isinstance(value, bool), "true or false"
+        elif isinstance(default, numbers.Number) or name == "ent_coef":
+            is_num = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+            if name == "ent_coef" and isinstance(value, str) and isinstance(default, str):
+                ok, what = value == "auto" or value.startswith("auto_"), "a number >= 0 or 'auto'"
+            elif isinstance(default, int) and not isinstance(default, bool) and name not in ("learning_rate",):
+                ok, what = is_num and float(value) == int(value), "an integer"
+            else:
+                ok, what = is_num, "a finite number"
+            if ok and name in positive:
+                ok, what = value > 0, what + " > 0"
+            if ok and name in unit:
+                ok, what = 0 < value <= 1, what + " in (0, 1]"
+            if ok and name in ("ent_coef", "learning_starts") and not isinstance(value, str):
+                ok, what = value >= 0, what + " >= 0"
+        else:
+            ok, what = isinstance(value, type(default)), f"a {type(default).__name__}"
+        if not ok:
+            raise ValueError(f"hyperparameter {name} must be {what}, got {value!r}")
+        if isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float) \
+                and name != "learning_rate":
+            override[name] = int(value)
 
 
 #: ``init_from`` value that starts training from a clone of the PID controller
@@ -271,15 +370,19 @@ def _fit_sac_critics(model, steps):
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
           command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print):
-    """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem.
+          log=print, trusted=False):
+    """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
+    (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
+    written into the package: ``install_policy`` does that).
 
-    Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
+    All arguments are checked (a ValueError names the one at fault: ``n_envs``, a bad
+    ``env_kwargs`` entry, a hyperparameter) before any work. Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
     ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
     the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
     continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
     policy stem of the same algorithm (and observation space) whose weights and
-    normalisation statistics start the training (fine-tuning: a policy trained on the true
+    normalisation statistics start the training (a name of ``available_policies()`` or a path;
+    outside the package an ``UntrustedPolicyWarning`` unless ``trusted``) (fine-tuning: a policy trained on the true
     attitude adapted to an estimator, or a track policy as the start of a waypoints one);
     ``timesteps`` then counts the new steps only. ``init_from="pid"`` starts from a
     behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher steps;
@@ -290,7 +393,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     import torch
     torch.set_num_threads(1)
     import fusion
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
 
     _check_choice("algorithm", algo, ALGOS)
@@ -298,21 +401,33 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
     hp = hyperparams(algo, task)
     override = dict(hyperparams_override or {})
-    unknown = sorted(set(override) - set(hp))
-    if unknown:
-        raise ValueError(f"unknown hyperparameter(s) {', '.join(unknown)} for {algo} on {task}; "
-                         f"accepted (controllers/hyperparams/{algo}.yml): {', '.join(sorted(hp))}")
+    _check_hyperparams(override, hp, algo, task)
     hp.update(override)
     used_hp = dict(hp)
     default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
-    timesteps = int(default_steps if timesteps is None else timesteps)
-    if timesteps < 1:
-        raise ValueError(f"timesteps must be >= 1, got {timesteps}")
-    n_envs = int(default_envs if n_envs is None else n_envs)
+    timesteps = default_steps if timesteps is None else timesteps
+    if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
+            not np.isfinite(timesteps) or int(timesteps) != timesteps or timesteps < 1:
+        raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
+    timesteps = int(timesteps)
+    n_envs = default_envs if n_envs is None else n_envs
+    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or not 1 <= n_envs <= 256:
+        raise ValueError(f"n_envs must be an integer in [1, 256], got {n_envs!r}")
+    n_envs = int(n_envs)
+    for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
+            raise ValueError(f"{name} must be None or an integer >= 1, got {v!r}")
+    if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, (int, np.integer)) or eval_episodes < 1:
+        raise ValueError(f"eval_episodes must be an integer >= 1, got {eval_episodes!r}")
     normalize = hp.pop("normalize", True)
     policy = hp.pop("policy", "MlpPolicy")
+    if not isinstance(env_kwargs, (dict, type(None))):
+        raise ValueError(f"env_kwargs must be a dict of environment arguments, got {env_kwargs!r}")
     env_kwargs = dict(env_kwargs or {})
-    stem = Path(out) if out is not None else policy_stem(algo, task, estimator)
+    if "task" in env_kwargs or "estimator" in env_kwargs:
+        raise ValueError("env_kwargs must not hold task or estimator (they are arguments of their own)")
+    _check_env_kwargs(task, estimator, env_kwargs)
+    stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
     run_dir = Path(str(stem) + ".run")
     ckpt_dir = run_dir / "checkpoints"
     eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
@@ -326,18 +441,20 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         aside = Path(f"{run_dir}.old-{time.strftime('%Y%m%d-%H%M%S')}")
         os.replace(run_dir, aside)
         log(f"the earlier run directory is now {aside}")
-    if resume:
-        start_ckpt = _latest_checkpoint(ckpt_dir)
-        if start_ckpt is None:
-            raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
+    if resume and not _checkpoints(ckpt_dir):
+        raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
     init = None
-    clone = init_from == TEACHER and start_ckpt is None
+    clone = init_from == TEACHER and not resume
     if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
         raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
-    if init_from is not None and init_from != TEACHER and start_ckpt is None:
+    if init_from is not None and init_from != TEACHER and not resume:
         _, init_zip, init_json, init_vn = _resolve(init_from)
         if not init_zip.is_file():
             raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
+        if not trusted and not _in_package(init_zip):
+            warnings.warn(f"init_from: {init_zip} is outside the package: model files can be crafted to run code; "
+                          f"it is read with pickled entries refused, but start only from files you trust "
+                          f"(trusted=True, --trusted, silences this)", UntrustedPolicyWarning, stacklevel=2)
         init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
         if init_meta.get("algo", algo) != algo:
             raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy; this run trains {algo}")
@@ -348,21 +465,34 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         init = (init_zip, init_vn)
     run_dir.mkdir(parents=True, exist_ok=True)
 
-    venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"))
+    venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
+                        append=resume)
     eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
     cls = _algo_class(algo)
+    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
     try:
-        if start_ckpt is not None:
-            vn_path = Path(str(start_ckpt).replace("ckpt_", "ckpt_vecnormalize_").replace(".zip", ".pkl"))
-            if normalize:
-                venv = VecNormalize.load(str(vn_path), venv)
-            model = cls.load(str(start_ckpt), env=venv, device="cpu")
+        if resume:
+            # the newest checkpoint that loads: a truncated or corrupt one (the machine died
+            # while it was written by an older version) falls back to the one before, with a warning
+            raw_venv = venv
+            for ckpt in _checkpoints(ckpt_dir):
+                try:
+                    venv = vec_normalize(load_normalization(_checkpoint_stats(ckpt)), raw_venv, True) \
+                        if normalize else raw_venv
+                    model = load_model(ckpt, env=venv, algo=algo, extra=extra)
+                    start_ckpt = ckpt
+                    break
+                except PolicyError as e:
+                    warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
+                                  RuntimeWarning, stacklevel=2)
+                    log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
+            if start_ckpt is None:
+                raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
             log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
         elif init is not None:
             if normalize:
-                venv = VecNormalize.load(str(init[1]), venv)
-                venv.training = True
-            model = cls.load(str(init[0]), env=venv, device="cpu")
+                venv = vec_normalize(load_normalization(init[1]), venv, True)
+            model = load_model(init[0], env=venv, algo=algo, extra=extra)
             model.set_random_seed(seed)
             model.num_timesteps = 0
             log(f"starting from the weights of {init[0]}")
@@ -387,13 +517,24 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             # beside the best model: its normalisation statistics and its score, so that a
             # resumed run only replaces it with a better one
             def _on_step(self):
-                if normalize:
-                    model.get_vec_normalize_env().save(str(run_dir / "best_vecnormalize.pkl"))
-                (run_dir / "best.json").write_text(json.dumps(
-                    {"mean_reward": float(self.parent.best_mean_reward), "timesteps": int(model.num_timesteps)}))
+                save_best(float(self.parent.best_mean_reward))
                 return True
 
-        ckpt = CheckpointCallback(checkpoint_freq, str(ckpt_dir), name_prefix="ckpt", save_vecnormalize=normalize)
+        def save_best(mean_reward):
+            # model, statistics, then the score that names them the best: each file atomic
+            save_model(model, run_dir / "best_model.zip")
+            if normalize:
+                save_normalization(model.get_vec_normalize_env(), run_dir / "best_vecnormalize.npz")
+            atomic_write(run_dir / "best.json", lambda f: f.write(json.dumps(
+                {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps)}).encode()))
+
+        class Checkpoint(BaseCallback):
+            def _on_step(self):
+                if self.n_calls % checkpoint_freq == 0:
+                    save_checkpoint()
+                return True
+
+        ckpt = Checkpoint()
         class TimedEval(EvalCallback):
             # the evaluation episodes run inside learn(): time them apart from training
             eval_time = 0.0
@@ -405,18 +546,19 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
                 return ok
 
         ev = TimedEval(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
-                          eval_freq=eval_freq, best_model_save_path=str(run_dir), log_path=str(run_dir),
+                          eval_freq=eval_freq, best_model_save_path=None, log_path=str(run_dir),
                           deterministic=True, verbose=0)
         best_json = run_dir / "best.json"
         if start_ckpt is not None and best_json.is_file() and (run_dir / "best_model.zip").is_file():
             ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
 
         def save_checkpoint():
+            # statistics first, then the zip: a checkpoint is listed only once both are whole
             ckpt_dir.mkdir(parents=True, exist_ok=True)
             path = ckpt_dir / f"ckpt_{model.num_timesteps}_steps.zip"
-            model.save(str(path))
             if normalize:
-                model.get_vec_normalize_env().save(str(ckpt_dir / f"ckpt_vecnormalize_{model.num_timesteps}_steps.pkl"))
+                save_normalization(model.get_vec_normalize_env(), _checkpoint_stats(path))
+            save_model(model, path)
             return path
 
         if clone or init is not None:
@@ -424,9 +566,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             from stable_baselines3.common.evaluation import evaluate_policy
             eval_env.obs_rms = venv.obs_rms
             mean_reward, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
-            model.save(str(run_dir / "best_model.zip"))
-            venv.save(str(run_dir / "best_vecnormalize.pkl"))
-            best_json.write_text(json.dumps({"mean_reward": float(mean_reward), "timesteps": 0}))
+            save_best(float(mean_reward))
             ev.best_mean_reward = float(mean_reward)
             log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
 
@@ -451,17 +591,17 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         save_checkpoint()
         best = run_dir / "best_model.zip"
         if not best.exists():          # no evaluation ran (very short run): ship the last model
-            model.save(str(best))
+            save_model(model, best)
             if normalize:
-                model.get_vec_normalize_env().save(str(run_dir / "best_vecnormalize.pkl"))
+                save_normalization(model.get_vec_normalize_env(), run_dir / "best_vecnormalize.npz")
     finally:
         venv.close()
         eval_env.close()
 
     stem.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(best, str(stem) + ".zip")
+    _copy(best, str(stem) + ".zip")
     if normalize:
-        shutil.copyfile(run_dir / "best_vecnormalize.pkl", str(stem) + ".vecnormalize.pkl")
+        _copy(run_dir / "best_vecnormalize.npz", str(stem) + NORM_SUFFIX)
     from envs.sphere import OBS_NAMES
     # a resumed run keeps the commands of the runs it continues
     history = []
@@ -481,9 +621,41 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             "eval_time_s": round(TimedEval.eval_time, 1), "obs_size": len(OBS_NAMES),
             "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,
             "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
-    with open(str(stem) + ".json", "w") as f:
-        json.dump(meta, f, indent=2)
+    atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
     return stem
+
+
+def _copy(src, dst):
+    data = Path(src).read_bytes()
+    atomic_write(dst, lambda f: f.write(data))
+
+
+def _check_env_kwargs(task, estimator, env_kwargs):
+    """Build one environment in this process, so that a bad argument is a ValueError naming
+    it here, not a dead worker later."""
+    import gymnasium as gym
+    import envs  # noqa: F401
+    try:
+        env = gym.make(TASK_IDS[task], estimator=estimator, **env_kwargs)
+    except TypeError as e:          # an unknown argument name
+        raise ValueError(f"env_kwargs: {e}") from None
+    except ValueError as e:
+        raise ValueError(f"env_kwargs: {e}") from None
+    env.close()
+
+
+def install_policy(stem, name=None):
+    """Copy the policy ``stem`` (``.zip``, statistics, ``.json``) into the package's policies
+    (``POLICY_DIR``) as ``name`` (default: the stem's name), each file atomically; returns the
+    installed stem."""
+    stem, zip_path, json_path, vn_path = _resolve(stem)
+    if not zip_path.is_file():
+        raise PolicyError(f"policy file {zip_path} does not exist")
+    dest = POLICY_DIR / (name or stem.name)
+    for src, suffix in ((vn_path, NORM_SUFFIX), (json_path, ".json"), (zip_path, ".zip")):
+        if src.is_file():
+            _copy(src, str(dest) + suffix)
+    return dest
 
 
 class PolicyController(Controller):
@@ -516,19 +688,49 @@ class PolicyController(Controller):
 
 
 def _resolve(path):
-    p = Path(path)
+    """(stem, zip, json, statistics) of a policy: a name of ``available_policies()`` (the
+    package's, from any folder) or a path to the stem or the ``.zip``."""
+    if path is None or isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
+        raise PolicyError(f"policy must be a name of controllers.available_policies() or a path "
+                          f"(str or os.PathLike), got {path!r}")
+    text = os.fspath(path)
+    if not text:
+        raise PolicyError("policy must be a name of controllers.available_policies() or a path, got ''")
+    p = Path(text)
+    if p.name == text and not p.suffix == ".zip" and (POLICY_DIR / (text + ".zip")).is_file():
+        p = POLICY_DIR / text          # a bare name: the shipped policy, not the current folder
     stem = p.with_suffix("") if p.suffix == ".zip" else p
-    return stem, Path(str(stem) + ".zip"), Path(str(stem) + ".json"), Path(str(stem) + ".vecnormalize.pkl")
+    return stem, Path(str(stem) + ".zip"), Path(str(stem) + ".json"), Path(str(stem) + NORM_SUFFIX)
 
 
-def load_policy(path, env=None):
-    """Load a policy saved by ``train`` (``path``: the stem or the ``.zip``). With ``env``,
-    also check that the policy was trained for its task and observation space."""
+def _in_package(path):
+    try:
+        return Path(path).resolve().parent == POLICY_DIR.resolve()
+    except OSError:
+        return False
+
+
+def load_policy(path, env=None, trusted=False):
+    """Load a policy: ``path`` a name of ``available_policies()`` (shipped in the package) or
+    the path of a stem or ``.zip`` saved by ``train``. With ``env``, also check that the policy
+    was trained for its task and observation space.
+
+    Nothing in the files is unpickled (``controllers.policy_io``): the zip's pickled entries
+    are refused, the weights read as tensors only, the statistics as plain arrays. A policy
+    from outside the package still warns (``UntrustedPolicyWarning``) that a model file is a
+    program's input to trust: pass ``trusted=True`` for files you made yourself."""
     import torch
     torch.set_num_threads(1)
     stem, zip_path, json_path, vn_path = _resolve(path)
     if not zip_path.is_file():
-        raise PolicyError(f"policy file {zip_path} does not exist")
+        hint = f"; shipped policies: {', '.join(available_policies())}" if Path(os.fspath(path)).name == os.fspath(path) else ""
+        raise PolicyError(f"policy file {zip_path} does not exist{hint}")
+    if not isinstance(trusted, bool):
+        raise ValueError(f"trusted must be True or False, got {trusted!r}")
+    if not trusted and not _in_package(zip_path):
+        warnings.warn(f"loading policy {zip_path} from outside the package: model files can be crafted to run "
+                      f"code; it is read with pickled entries refused, but load only files you trust "
+                      f"(trusted=True silences this)", UntrustedPolicyWarning, stacklevel=2)
     meta = {}
     if json_path.is_file():
         try:
@@ -536,31 +738,16 @@ def load_policy(path, env=None):
                 meta = json.load(f)
         except (OSError, ValueError) as e:
             raise PolicyError(f"policy metadata {json_path} is corrupt: {e}") from None
+        if not isinstance(meta, dict):
+            raise PolicyError(f"policy metadata {json_path} is not a JSON object")
     algo = meta.get("algo")
-    try:
-        if algo in ALGOS:
-            model = _algo_class(algo).load(str(zip_path), device="cpu")
-        else:
-            from stable_baselines3.common.base_class import BaseAlgorithm  # noqa: F401
-            last = None
-            for cls in (_algo_class("ppo"), _algo_class("sac")):
-                try:
-                    model = cls.load(str(zip_path), device="cpu")
-                    break
-                except Exception as e:      # wrong algorithm class: try the next
-                    last = e
-            else:
-                raise last
-    except Exception as e:
-        raise PolicyError(f"policy file {zip_path} is corrupt or not an SB3 PPO/SAC model: {e}") from None
-    obs_rms, clip = None, 10.0
+    model = load_model(zip_path, algo=algo if algo in ALGOS else None)
+    obs_rms, clip, eps = None, 10.0, 1e-8
     if vn_path.is_file():
-        try:
-            with open(vn_path, "rb") as f:
-                vn = pickle.load(f)
-            obs_rms, clip = vn.obs_rms, float(vn.clip_obs)
-        except Exception as e:
-            raise PolicyError(f"normalisation statistics {vn_path} are corrupt: {e}") from None
+        stats = load_normalization(vn_path)
+        if stats["norm_obs"]:
+            obs_rms = _RunningStats(stats["obs_mean"], stats["obs_var"])
+        clip, eps = stats["clip_obs"], stats["epsilon"]
     elif meta.get("normalize", False):
         raise PolicyError(f"policy {zip_path} was trained with normalisation but {vn_path} is missing")
     shape = model.observation_space.shape
@@ -575,4 +762,11 @@ def load_policy(path, env=None):
         if meta.get("task") not in (None, base.task):
             raise PolicyError(f"policy {zip_path} was trained for task {meta.get('task')!r}; "
                               f"this environment's task is {base.task!r}")
-    return PolicyController(model, obs_rms, clip, meta=meta, path=zip_path)
+    return PolicyController(model, obs_rms, clip, epsilon=eps, meta=meta, path=zip_path)
+
+
+class _RunningStats:
+    """The mean and variance a ``PolicyController`` normalises with."""
+
+    def __init__(self, mean, var):
+        self.mean, self.var = mean, var

@@ -38,6 +38,7 @@ _DEFAULT_EPISODE_S = {"track": 30.0, "waypoints": 60.0}
 BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
 RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
 START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
+MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
 
 
 def ESTIMATORS():
@@ -50,6 +51,8 @@ def _wrap(a):
 
 
 def _number(name, value, lo, hi, lo_open=False, allow_zero=False):
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
+        value = value.item()        # a 0-d real array counts as its number
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not math.isfinite(value):
         raise ValueError(f"{name} must be a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {value!r}")
     v = float(value)
@@ -78,8 +81,9 @@ class SphereRobotEnv(gym.Env):
     estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters).
     imu: a preset of ``fusion.imu.available()`` (default "mpu9250") or an ``IMUSpec``.
     imu_calibrated: use the preset's residuals after a power-on calibration (default True).
-    imu_hz: IMU output rate (Hz, default 200); physics_hz: physics rate, a whole multiple
-        of imu_hz and of control_hz (default 400); control_hz: agent rate (default 50).
+    imu_hz: IMU output rate (Hz, default 200, in [1, 10000]); physics_hz: physics rate, a
+        whole multiple of imu_hz and of control_hz (default 400, in [100, 20000]); control_hz:
+        agent rate (default 50, in [0.1, 1000], <= imu_hz, >= physics_hz / MAX_SUBSTEPS).
     imu_offset: (m) the IMU's position on the inner frame, from the axle centre.
     episode_s: episode length (s), default 30 (track) or 60 (waypoints).
     robot: ``RobotParams``, or a dict of overrides of its fields.
@@ -111,6 +115,8 @@ class SphereRobotEnv(gym.Env):
             raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")
         if estimator not in ESTIMATORS():
             raise ValueError(f"unknown estimator {estimator!r}; accepted: {', '.join(ESTIMATORS())}")
+        if not isinstance(imu_calibrated, (bool, np.bool_)):
+            raise ValueError(f"imu_calibrated must be True or False, got {imu_calibrated!r}")
         if isinstance(imu, fimu.IMUSpec):
             spec = imu
         elif isinstance(imu, str) and imu in fimu.available():
@@ -124,9 +130,18 @@ class SphereRobotEnv(gym.Env):
         self.task = task
         self.estimator_name = estimator
         self.render_mode = render_mode
-        self.imu_hz = _number("imu_hz", imu_hz, 0.0, 10000.0, lo_open=True)
+        # lower bounds: the estimator's fs range starts at 1 Hz here (slower is no IMU), and one
+        # step() runs at most MAX_SUBSTEPS physics steps (~50 us each: about half a second)
+        self.imu_hz = _number("imu_hz", imu_hz, 1.0, 10000.0)
         self.physics_hz = _number("physics_hz", physics_hz, 0.0, 20000.0, lo_open=True)
-        self.control_hz = _number("control_hz", control_hz, 0.0, 1000.0, lo_open=True)
+        self.control_hz = _number("control_hz", control_hz, 0.1, 1000.0)
+        if self.control_hz > self.imu_hz:
+            raise ValueError(f"control_hz must be <= imu_hz = {self.imu_hz:g} Hz (one IMU sample or more per "
+                             f"action), got {control_hz!r}")
+        if self.physics_hz / self.control_hz > MAX_SUBSTEPS:
+            raise ValueError(f"control_hz must be >= physics_hz / {MAX_SUBSTEPS} = "
+                             f"{self.physics_hz / MAX_SUBSTEPS:g} Hz (at most {MAX_SUBSTEPS} physics steps "
+                             f"per step()), got {control_hz!r}")
         if not _multiple(self.physics_hz, self.imu_hz):
             raise ValueError(f"physics_hz must be a whole multiple of imu_hz = {self.imu_hz:g} Hz "
                              f"(range: k * {self.imu_hz:g}, k = 1, 2, ...), got {physics_hz!r}")

@@ -49,7 +49,10 @@ PARAM_RANGES = {
 
 def check_positive(name, value, upper=None, allow_zero=False, lower=None):
     """Return value as float if it is a finite real number > 0 (>= 0 with allow_zero), and
-    (if given) >= lower (zero, where allowed, excepted) and <= upper."""
+    (if given) >= lower (zero, where allowed, excepted) and <= upper. A 0-d real array
+    (what indexing or reducing an array gives) counts as its number."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
+        value = value.item()
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number, got {value!r}")
     v = float(value)

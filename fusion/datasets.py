@@ -93,10 +93,27 @@ def _float(d, key, path):
     """``d[key]`` as a float array; ValueError naming the file and key where it is not
     numeric (strings, pickled objects)."""
     arr = _get(d, key, path)
+    if np.iscomplexobj(arr):       # float() would drop the imaginary part without a word
+        raise ValueError(f"{path}: {key!r} must be real, {EXPECTED[key]} (got complex dtype {arr.dtype})")
     try:
         return np.asarray(arr, dtype=float)
     except (ValueError, TypeError) as e:
         raise ValueError(f"{path}: {key!r} must be numeric, {EXPECTED[key]} ({e})") from None
+
+
+def _text(d, key, path):
+    """A scalar string array (str or bytes, decoded as UTF-8) as a str: ``str()`` of a bytes
+    array would give "b'ok'", and the trial would silently not be 'ok'."""
+    arr = _get(d, key, path)
+    if arr.dtype.kind not in "US" or arr.size != 1:
+        raise ValueError(f"{path}: {key!r} must be a single string, got dtype {arr.dtype} shape {arr.shape}")
+    v = arr.reshape(()).item()
+    if isinstance(v, bytes):
+        try:
+            v = v.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{path}: {key!r} is bytes that are not UTF-8 ({e})") from None
+    return str(v)
 
 
 def _rows(d, n, cols, key, path):
@@ -138,8 +155,8 @@ def load_trial(path):
         if fs.size != 1:
             raise ValueError(f"{path}: 'fs' must be {EXPECTED['fs']}, got shape {fs.shape}")
         fs = float(fs.reshape(()))
-        quality = str(_get(d, "quality", path)) if "quality" in d.files else "ok"
-        notes = str(_get(d, "notes", path)) if "notes" in d.files else ""
+        quality = _text(d, "quality", path) if "quality" in d.files else "ok"
+        notes = _text(d, "notes", path) if "notes" in d.files else ""
         extra = {k: np.asarray(_get(d, k, path)) for k in d.files if k not in _KNOWN}
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
@@ -154,17 +171,25 @@ def load_trial(path):
                  fs=fs, quality=quality, notes=notes, dt=dt, path=path, extra=extra)
 
 
-def load_folder(folder, only_ok=False):
+def load_folder(folder, only_ok=False, unreadable=None):
     """Every ``*.npz`` trial in ``folder`` and its sub-folders (a set folder, or the data root
     with one sub-folder per set), sorted by set and name. ``only_ok`` drops trials whose
     quality is not 'ok'. ValueError with the path when ``folder`` does not exist or is not a
-    folder; ``load_trial``'s errors for a bad file."""
+    folder; ``load_trial``'s errors for a bad file, unless ``unreadable`` is a list: then each
+    bad file is skipped and ``("<set>/<name>", message)`` appended to it."""
     folder = Path(folder)
     if not folder.exists():
         raise ValueError(f"data folder {str(folder)!r} does not exist")
     if not folder.is_dir():
         raise ValueError(f"data folder {str(folder)!r} is not a folder")
-    trials = [load_trial(p) for p in sorted(folder.rglob("*.npz"))]
+    trials = []
+    for p in sorted(folder.rglob("*.npz")):
+        try:
+            trials.append(load_trial(p))
+        except (ValueError, OSError) as e:
+            if unreadable is None:
+                raise
+            unreadable.append((f"{p.parent.name}/{p.stem}", str(e)))
     trials.sort(key=lambda tr: (tr.set, tr.name))
     return [tr for tr in trials if tr.ok] if only_ok else trials
 

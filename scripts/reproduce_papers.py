@@ -1,45 +1,13 @@
 #!/usr/bin/env python
-"""Re-run the four source documents' experiments in simulation, each on its seed scenario and
-IMU preset, and write Markdown + CSV tables (beside the documents' own numbers) and PNG figures.
-
-    python scripts/reproduce_papers.py [--out results/papers] [--sections 000 001 003 004]
-                                       [--seeds N] [--quick]
-
-The sections and what did not reproduce: docs/papers.md. The work lives in fusion.papers.
-"""
-import argparse
+"""Thin wrapper of ``fusion.papers_cli`` (installed as a command: see its --help)."""
 import sys
-import time
 from pathlib import Path
 
-from fusion import papers
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
-
-def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default="results/papers", help="output folder (default: %(default)s)")
-    p.add_argument("--sections", nargs="+", default=list(papers.SECTIONS), choices=list(papers.SECTIONS),
-                   metavar="KEY", help=f"sections to run (default: all of {list(papers.SECTIONS)})")
-    p.add_argument("--seeds", type=int, default=None, metavar="N",
-                   help=f"number of seeds 0..N-1 (default: {len(papers.SEEDS)}, "
-                        f"{len(papers.QUICK_SEEDS)} with --quick)")
-    p.add_argument("--quick", action="store_true", help="fewer seeds (a smoke run, well under a minute)")
-    return p.parse_args(argv)
-
-
-def main(argv=None):
-    args = parse_args(argv)
-    if args.seeds is not None and args.seeds < 1:
-        sys.exit(f"--seeds must be >= 1, got {args.seeds}")
-    t0 = time.perf_counter()
-    seeds = range(args.seeds) if args.seeds is not None else None
-    files = papers.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
-    print(files[0].read_text())
-    print(f"wrote {len(files)} files to {Path(args.out).resolve()}/:")
-    for f in files:
-        print(f"  {f}")
-    print(f"done in {time.perf_counter() - t0:.1f} s")
-
+from fusion.papers_cli import main  # noqa: E402
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

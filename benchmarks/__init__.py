@@ -1,0 +1,1 @@
+"""Speed and accuracy benchmarks against the peer libraries (``spherebot-bench`` runs throughput.py)."""

@@ -1,0 +1,192 @@
+"""``spherebot-train`` (``scripts/train.py``): train a stable-baselines3 policy for the spherical
+robot with an estimator in the loop, with rl-zoo3's flag names.
+
+    spherebot-train --algo ppo --env SphereBotWaypoints-v0 --estimator ekf
+    spherebot-train --algo ppo --env track --estimator truth -n 300000 --seed 0
+    spherebot-train --algo ppo --env track --estimator truth --resume   # after Ctrl-C or a crash
+
+A run goes to ./logs/<algo>/<env-id>_<n>/ (-f/--log-folder; n one more than the last run):
+<algo>-<task>-<estimator>.{zip,vecnormalize.npz,json}, and <stem>.run/ with the checkpoints,
+Monitor logs and the evaluation log. Nothing is written into the package unless
+--install-policy, and then only after the best evaluation is saved. Hyperparameters:
+controllers/hyperparams/<algo>.yml (--hyperparams overrides entries). After training the
+policy is evaluated with controllers.evaluate() (--eval-episodes) and the result goes into
+the JSON. Every option is checked before any work.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+
+from controllers import rl
+
+
+def _value(text):
+    """A number if it reads as one (PyYAML would keep "1e-4" a string), else YAML (lists,
+    dicts, true/false, strings)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    import yaml
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def _pairs(items, option):
+    """rl-zoo3's ``key:value`` items (``key=value`` too) as a dict, values parsed by ``_value``."""
+    out = {}
+    for item in items:
+        eq, colon = item.find("="), item.find(":")
+        cut = eq if eq >= 0 and (colon < 0 or eq < colon) else colon
+        name, value = (item[:cut], item[cut + 1:]) if cut > 0 else ("", "")
+        if not name.isidentifier():
+            raise ValueError(f"{option} takes NAME:VALUE (or NAME=VALUE) items, got {item!r}")
+        out[name] = _value(value)
+    return out
+
+
+def _env_kwargs(items):
+    """One JSON object, or rl-zoo3's ``key:value`` items."""
+    if len(items) == 1 and items[0].lstrip().startswith("{"):
+        try:
+            d = json.loads(items[0])
+        except ValueError as e:
+            raise ValueError(f"--env-kwargs: not a JSON object ({e})") from None
+        if not isinstance(d, dict):
+            raise ValueError(f"--env-kwargs must be a JSON object, got {items[0]!r}")
+        return d
+    return _pairs(items, "--env-kwargs")
+
+
+def _task(env):
+    """--env: an environment id of rl.TASK_IDS or its task name."""
+    ids = {v: k for k, v in rl.TASK_IDS.items()}
+    if env in ids:
+        return ids[env]
+    if env in rl.TASK_IDS:
+        return env
+    raise ValueError(f"--env must be one of {', '.join(list(ids) + list(rl.TASK_IDS))}, got {env!r}")
+
+
+def _int(lo):
+    def parse(text):
+        try:
+            v = int(float(text)) if float(text) == int(float(text)) else None
+        except (ValueError, OverflowError):
+            v = None
+        if v is None or v < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
+        return v
+    return parse
+
+
+def parser():
+    import fusion
+    ap = argparse.ArgumentParser(prog="spherebot-train", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--algo", required=True, choices=rl.ALGOS, help="the RL algorithm")
+    ap.add_argument("--env", "--task", dest="env", required=True, metavar="ENV",
+                    help=f"environment id ({', '.join(rl.TASK_IDS.values())}) or its task name "
+                         f"({', '.join(rl.TASK_IDS)}); --task is an alias")
+    ap.add_argument("--estimator", default="ekf",
+                    help=f"the attitude estimator in the loop: one of {', '.join(fusion.available())} or "
+                         f"'truth' (default: %(default)s)")
+    ap.add_argument("-n", "--n-timesteps", "--timesteps", dest="timesteps", type=_int(1), default=None,
+                    metavar="N", help="total environment steps (default: the YAML file's n_timesteps); "
+                                      "--timesteps is an alias")
+    ap.add_argument("--seed", type=_int(0), default=0, help="random seed, an integer >= 0 (default: %(default)s)")
+    ap.add_argument("--n-envs", type=_int(1), default=None, metavar="N",
+                    help="parallel environments, >= 1 (default: the YAML file's n_envs)")
+    ap.add_argument("--eval-freq", type=_int(1), default=None, metavar="STEPS",
+                    help="evaluate (and keep the best model) every STEPS environment steps "
+                         "(default: max(10000, n / 10))")
+    ap.add_argument("--eval-episodes", type=_int(0), default=10,
+                    help="episodes of the final evaluation written into the JSON (0: none; default: %(default)s)")
+    ap.add_argument("--n-eval-episodes", type=_int(1), default=5, metavar="N",
+                    help="episodes of each periodic evaluation (default: %(default)s)")
+    ap.add_argument("--save-freq", type=_int(1), default=None, metavar="STEPS",
+                    help="write a checkpoint every STEPS environment steps (default: max(20000, n / 10))")
+    ap.add_argument("-f", "--log-folder", default="logs",
+                    help="runs go to LOG_FOLDER/<algo>/<env-id>_<n>/ (default: %(default)s)")
+    ap.add_argument("--out", default=None, metavar="STEM",
+                    help="the policy stem instead (its run folder: STEM.run/)")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue the newest run of this algo/env/estimator in the log folder (or --out) "
+                         "from its newest readable checkpoint, to the same total -n")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="with --out: start over although its run folder holds checkpoints (they are kept aside)")
+    ap.add_argument("--init-from", default=None, metavar="POLICY",
+                    help="start from this policy's weights and statistics (same algo): a shipped name "
+                         "(e.g. ppo-waypoints-truth) or a path; or 'pid': from a behaviour clone of the "
+                         "PID controller (sac: its steps also fill the replay buffer)")
+    ap.add_argument("--trusted", action="store_true",
+                    help="--init-from a path outside the package without the warning that model files can carry code")
+    ap.add_argument("--bc-steps", type=_int(1), default=60_000,
+                    help="with --init-from pid: environment steps of the PID teacher to clone (default: %(default)s)")
+    ap.add_argument("--hyperparams", nargs="+", default=[], metavar="NAME:VALUE",
+                    help="override entries of the YAML file, e.g. learning_rate:1e-4 n_epochs:5 (NAME=VALUE too)")
+    ap.add_argument("--env-kwargs", nargs="+", default=[], metavar="NAME:VALUE",
+                    help="extra environment arguments, e.g. episode_s:20 bumps:3, or one JSON object")
+    ap.add_argument("--install-policy", action="store_true",
+                    help="after training and the final evaluation, copy the policy into the package's "
+                         "controllers/policies/ (replacing the shipped one of that name)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return ap
+
+
+def main(argv=None):
+    ap = parser()
+    a = ap.parse_args(argv)
+    try:
+        task = _task(a.env)
+        env_kwargs = _env_kwargs(a.env_kwargs)
+        override = _pairs(a.hyperparams, "--hyperparams")
+        if a.out is not None:
+            out = Path(a.out)
+        elif a.resume:
+            out = rl.latest_run_stem(a.algo, task, a.estimator, a.log_folder)
+            if out is None:
+                raise FileNotFoundError(f"--resume: no run of {a.algo}-{task}-{a.estimator} with checkpoints "
+                                        f"in {Path(a.log_folder) / a.algo}; train without --resume first")
+        else:
+            out = rl.new_run_stem(a.algo, task, a.estimator, a.log_folder)
+    except (ValueError, FileNotFoundError) as e:
+        ap.error(str(e))
+    command = "spherebot-train " + " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))
+    try:
+        stem = rl.train(a.algo, task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=out,
+                        env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
+                        command=command, init_from=a.init_from, overwrite=a.overwrite, eval_freq=a.eval_freq,
+                        checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes,
+                        bc_steps=a.bc_steps, hyperparams_override=override, trusted=a.trusted)
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"spherebot-train: error: {e}", file=sys.stderr)
+        return 2
+    print(f"policy: {stem}.zip")
+    if a.eval_episodes > 0:
+        from controllers.evaluation import evaluate
+        ctrl = rl.load_policy(stem, trusted=True)      # written by this run
+        res = evaluate(ctrl, dict(env_kwargs, task=task, estimator=a.estimator), episodes=a.eval_episodes,
+                       seed=1_000_000)
+        summary = {k: v["mean"] for k, v in res["summary"].items()}
+        meta_path = Path(str(stem) + ".json")
+        meta = json.loads(meta_path.read_text())
+        meta["final_evaluation"] = {"episodes": a.eval_episodes, "seed": 1_000_000, "mean": summary}
+        rl.atomic_write(meta_path, lambda f: f.write(json.dumps(meta, indent=2).encode()))
+        print("final evaluation:", ", ".join(f"{k} {v:.3g}" for k, v in summary.items()))
+    if a.install_policy:
+        print(f"installed: {rl.install_policy(stem)}.zip")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,44 @@
+"""``spherebot-papers`` (``scripts/reproduce_papers.py``): re-run the four source documents' experiments in simulation, each on its seed scenario and
+IMU preset, and write Markdown + CSV tables (beside the documents' own numbers) and PNG figures.
+
+    spherebot-papers [--out results/papers] [--sections 000 001 003 004] [--seeds N] [--quick]
+
+The sections and what did not reproduce: docs/papers.md. The work lives in fusion.papers.
+"""
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from fusion import papers
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(prog="spherebot-papers", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="results/papers", help="output folder (default: %(default)s)")
+    p.add_argument("--sections", nargs="+", default=list(papers.SECTIONS), choices=list(papers.SECTIONS),
+                   metavar="KEY", help=f"sections to run (default: all of {list(papers.SECTIONS)})")
+    p.add_argument("--seeds", type=int, default=None, metavar="N",
+                   help=f"number of seeds 0..N-1 (default: {len(papers.SEEDS)}, "
+                        f"{len(papers.QUICK_SEEDS)} with --quick)")
+    p.add_argument("--quick", action="store_true", help="fewer seeds (a smoke run, well under a minute)")
+    return p.parse_args(argv)
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    if args.seeds is not None and args.seeds < 1:
+        sys.exit(f"error: --seeds must be >= 1, got {args.seeds}")
+    t0 = time.perf_counter()
+    seeds = range(args.seeds) if args.seeds is not None else None
+    files = papers.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
+    print(files[0].read_text())
+    print(f"wrote {len(files)} files to {Path(args.out).resolve()}/:")
+    for f in files:
+        print(f"  {f}")
+    print(f"done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

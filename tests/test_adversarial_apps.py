@@ -1,0 +1,235 @@
+"""Issue 13, items 7-9: the environment's rates, training runs, the scripts and readers.
+
+Each test is a reproducer that failed before the fix (a hang, a traceback, a silent wrong
+answer); where a hang or a crash is possible it runs in a subprocess with a timeout.
+"""
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fusion
+from fusion import datasets
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def run(code_or_args, timeout=120, cwd=None):
+    args = [PY, "-c", code_or_args] if isinstance(code_or_args, str) else [PY] + list(code_or_args)
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout, env=ENV, cwd=cwd or ROOT)
+
+
+# --- item 7: rates ---------------------------------------------------------------------------
+
+MAKE_AND_STEP = """
+import gymnasium as gym, envs
+try:
+    env = gym.make("SphereBotTrack-v0", {kw})
+except ValueError as e:
+    print("ValueError:", e)
+else:
+    env.reset(seed=0)
+    env.step([0.0, 0.0])
+    print("stepped")
+"""
+
+
+@pytest.mark.parametrize("kw, name", [
+    ("control_hz=1e-9", "control_hz"),          # was: 400 billion substeps, step() never returned
+    ("imu_hz=0.005", "imu_hz"),                  # was: a message about fusion's fs
+    ("control_hz=400.0, imu_hz=200.0, physics_hz=400.0", "control_hz"),   # control above the IMU rate
+    ("control_hz=1.0, imu_hz=1000.0, physics_hz=20000.0", "control_hz"),  # 20,000 substeps per step
+])
+def test_env_rates_refused_with_their_name(kw, name):
+    r = run(MAKE_AND_STEP.format(kw=kw), timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1].startswith(f"ValueError: {name} "), r.stdout
+
+
+def test_slowest_accepted_step_is_bounded():
+    """The most physics steps one step() may take (MAX_SUBSTEPS) run in about a second."""
+    code = """
+import time, gymnasium as gym, envs
+from envs.sphere import MAX_SUBSTEPS
+env = gym.make("SphereBotTrack-v0", physics_hz=20000.0, imu_hz=2.0, control_hz=2.0)
+assert env.unwrapped._n_sub == MAX_SUBSTEPS
+env.reset(seed=0)
+t = time.perf_counter(); env.step([0.0, 0.0]); print(time.perf_counter() - t)
+"""
+    r = run(code, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert float(r.stdout.split()[-1]) < 5.0       # ~0.4 s idle; generous for a loaded machine
+
+
+def test_imu_calibrated_must_be_bool():
+    from envs.sphere import SphereRobotEnv
+    with pytest.raises(ValueError, match="imu_calibrated"):
+        SphereRobotEnv(imu_calibrated="no")       # was: truthy, so calibrated
+
+
+# --- item 9: readers and numbers ---------------------------------------------------------------
+
+def test_zero_d_arrays_are_numbers():
+    est = fusion.make("ekf", fs=np.array(100.0))
+    q = est.update(np.zeros(3), np.array([0.0, 0.0, 9.81]), dt=np.array(0.01))
+    assert np.isfinite(q).all()
+    g, a = np.zeros((5, 3)), np.tile([0.0, 0.0, 9.81], (5, 1))
+    ref = fusion.make("ekf", fs=100.0).run(g, a, dt=0.01)
+    np.testing.assert_array_equal(fusion.make("ekf", fs=np.array(100.0)).run(g, a, dt=np.array(0.01)), ref)
+    fusion.Butterworth(np.array(100.0), np.array(10.0))
+    from envs.sphere import SphereRobotEnv
+    env = SphereRobotEnv(imu_hz=np.array(200.0), estimator="truth")
+    assert env.imu_hz == 200.0
+    env.close()
+    with pytest.raises(ValueError, match="fs"):
+        fusion.make("ekf", fs=np.array(True))
+    with pytest.raises(ValueError, match="fs"):
+        fusion.make("ekf", fs=np.array([100.0]))
+
+
+def _trial(path, **over):
+    n = 20
+    d = dict(t=np.arange(n) / 100.0, gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
+             quat=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), fs=np.array(100.0), quality=np.array("ok"),
+             notes=np.array(""))
+    d.update(over)
+    np.savez(path, **d)
+    return path
+
+
+def test_datasets_refuse_complex(tmp_path):
+    n = 20
+    p = _trial(tmp_path / "c.npz", gyr=np.zeros((n, 3)) + 1j)
+    with pytest.raises(ValueError, match="'gyr' must be real"):
+        datasets.load_trial(p)                   # was: the imaginary part dropped silently
+
+
+def test_datasets_bytes_quality(tmp_path):
+    p = _trial(tmp_path / "b.npz", quality=np.array(b"ok"), notes=np.array(b"n\xc3\xa9"))
+    tr = datasets.load_trial(p)
+    assert tr.ok and tr.quality == "ok" and tr.notes == "n\u00e9"   # was: "b'ok'", not ok
+
+
+def test_load_folder_reports_bad_files(tmp_path):
+    (tmp_path / "s").mkdir()
+    _trial(tmp_path / "s" / "good.npz")
+    (tmp_path / "s" / "bad.npz").write_bytes(b"not an npz")
+    with pytest.raises(ValueError, match="bad.npz"):
+        datasets.load_folder(tmp_path)
+    bad = []
+    trials = datasets.load_folder(tmp_path, unreadable=bad)
+    assert [t.key for t in trials] == ["s/good"] and bad[0][0] == "s/bad"
+
+
+def test_load_policy_none():
+    from controllers import rl
+    with pytest.raises(rl.PolicyError, match="policy must be a name"):
+        rl.load_policy(None)                     # was: TypeError
+
+
+# --- item 9: compare_estimators --------------------------------------------------------------
+
+SCRIPT = str(ROOT / "scripts" / "compare_estimators.py")
+
+
+def test_estimators_unwritable_out(tmp_path):
+    (tmp_path / "file").write_text("x")
+    r = run([SCRIPT, "--out", str(tmp_path / "file" / "sub"), "--quick"], timeout=60)
+    assert r.returncode != 0 and "--out" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("args, word", [(["--seed", "-1"], "--seed"), (["--estimators", ""], "--estimators"),
+                                        (["--estimators", ",,"], "--estimators")])
+def test_estimators_bad_options(tmp_path, args, word):
+    r = run([SCRIPT, "--out", str(tmp_path), "--quick"] + args, timeout=60)
+    assert r.returncode != 0 and word in r.stderr and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    assert not (tmp_path / "report.md").exists()
+
+
+def test_estimators_bad_npz_is_skipped(tmp_path):
+    data = tmp_path / "data" / "s"
+    data.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    _trial(data / "good.npz", gyr=rng.normal(0, 0.01, (20, 3)))
+    (data / "bad.npz").write_bytes(b"PK\x03\x04 truncated")
+    r = run([SCRIPT, "--out", str(tmp_path / "out"), "--quick", "--estimators", "gyro",
+             "--data", str(tmp_path / "data")], timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "s/bad" in r.stdout and "s,good," in (tmp_path / "out" / "trials.csv").read_text()
+    assert "s/bad" in (tmp_path / "out" / "report.md").read_text()
+
+
+# --- item 8: training runs ----------------------------------------------------------------------
+
+def test_atomic_write_keeps_the_old_file(tmp_path):
+    from controllers.policy_io import atomic_write
+    target = tmp_path / "ckpt.zip"
+    target.write_bytes(b"old, whole")
+
+    def interrupted(f):
+        f.write(b"half of the new")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(target, interrupted)
+    assert target.read_bytes() == b"old, whole" and os.listdir(tmp_path) == ["ckpt.zip"]
+
+
+@pytest.mark.parametrize("kw, name", [({"n_envs": 0}, "n_envs"), ({"n_envs": -1}, "n_envs"),
+                                      ({"env_kwargs": {"control_hz": "x"}}, "control_hz"),
+                                      ({"env_kwargs": {"bogus": 1}}, "bogus"),
+                                      ({"hyperparams_override": {"learning_rate": "abc"}}, "learning_rate"),
+                                      ({"hyperparams_override": {"n_steps": 0}}, "n_steps"),
+                                      ({"hyperparams_override": {"gamma": 2.0}}, "gamma")])
+def test_train_bad_options_before_work(tmp_path, kw, name):
+    from controllers import rl
+    with pytest.raises(ValueError, match=name):
+        rl.train("ppo", "track", "truth", timesteps=64, out=tmp_path / "p", progress=False, **kw)
+    assert not (tmp_path / "p.run").exists()     # nothing started
+
+
+@pytest.mark.parametrize("args, word", [(["--n-envs", "0"], "--n-envs"), (["--n-envs", "-1"], "--n-envs"),
+                                        (["--env-kwargs", '{"imu_hz": 0.005}'], "imu_hz"),
+                                        (["--env-kwargs", '{"bogus": 1}'], "bogus"),
+                                        (["--hyperparams", "learning_rate=abc"], "learning_rate")])
+def test_train_cli_bad_options(tmp_path, args, word):
+    # the flags the script had before (--task, --out), so that the old script parses them too
+    r = run([str(ROOT / "scripts" / "train.py"), "--algo", "ppo", "--task", "track", "--estimator", "truth",
+             "--out", str(tmp_path / "p"), "--timesteps", "64", "--eval-episodes", "0", "--no-progress"] + args,
+            timeout=300)
+    assert r.returncode == 2 and word in r.stderr, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr and "unrecognized" not in r.stderr, r.stderr[-2000:]
+    assert not any(tmp_path.iterdir())
+
+
+TINY = dict(seed=1, n_envs=1, progress=False, eval_freq=200, checkpoint_freq=200, eval_episodes=1,
+            env_kwargs={"episode_s": 1.0}, hyperparams_override={"n_steps": 64, "batch_size": 32, "n_epochs": 1})
+
+
+def test_resume_falls_back_and_appends_monitor(tmp_path):
+    from controllers import rl
+    stem = tmp_path / "ppo-track-truth"
+    rl.train("ppo", "track", "truth", timesteps=400, out=stem, log=lambda *a: None, **TINY)
+    ckpts = rl._checkpoints(tmp_path / "ppo-track-truth.run" / "checkpoints")
+    assert len(ckpts) >= 2
+    monitor = tmp_path / "ppo-track-truth.run" / "monitor" / "0.monitor.csv"
+    rows_before = monitor.read_text().splitlines()
+    assert len(rows_before) > 3
+    newest = ckpts[0]
+    newest.write_bytes(newest.read_bytes()[:1000])          # a truncated newest checkpoint
+    with open(monitor, "a") as f:
+        f.write("1.5,50,0.")                               # killed in the middle of a row
+    with pytest.warns(RuntimeWarning, match=newest.name):
+        rl.train("ppo", "track", "truth", timesteps=800, out=stem, resume=True, log=lambda *a: None, **TINY)
+    meta = json.loads((tmp_path / "ppo-track-truth.json").read_text())
+    assert meta["timesteps"] == 800
+    rows_after = monitor.read_text().splitlines()
+    assert rows_after[:len(rows_before)] == rows_before     # the episodes before the interrupt stay
+    assert len(rows_after) > len(rows_before) and all(len(r.split(",")) == 3 for r in rows_after[2:])

@@ -1,0 +1,211 @@
+"""Issue 17: policies by name, loading without running code from the files, rl-zoo3-style
+training runs that never write into the package unless asked."""
+import base64
+import hashlib
+import json
+import os
+import pickle
+import subprocess
+import sys
+import warnings
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+from controllers import rl                       # noqa: E402
+from controllers import policy_io               # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = "ppo-waypoints-truth"
+
+
+class Evil:
+    """Unpickling this creates the marker file: what a crafted model would do."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_available_policies_and_no_pickle_shipped():
+    names = rl.available_policies()
+    assert SHIPPED in names and len(names) >= 18
+    assert not list(rl.POLICY_DIR.glob("*.pkl"))
+    for n in names:
+        assert (rl.POLICY_DIR / f"{n}{rl.NORM_SUFFIX}").is_file()
+
+
+def test_load_by_name_from_any_folder(tmp_path):
+    code = ("import warnings; warnings.simplefilter('error'); import numpy as np; "
+            "from controllers import load_policy, available_policies; "
+            f"p = load_policy({SHIPPED!r}); print(p.act(np.zeros(14, np.float32)).shape, len(available_policies()))")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split()[:2] == ["(2,)", str(len(rl.available_policies()))]
+
+
+def test_path_outside_package_warns(tmp_path):
+    for suffix in (".zip", ".json", rl.NORM_SUFFIX):
+        (tmp_path / f"p{suffix}").write_bytes((rl.POLICY_DIR / f"{SHIPPED}{suffix}").read_bytes())
+    with pytest.warns(rl.UntrustedPolicyWarning, match="outside the package"):
+        a = rl.load_policy(tmp_path / "p")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        b = rl.load_policy(str(tmp_path / "p.zip"), trusted=True)
+        c = rl.load_policy(rl.POLICY_DIR / SHIPPED)     # a path into the package: no warning
+    obs = np.random.default_rng(0).uniform(-1, 1, (20, 14)).astype(np.float32)
+    np.testing.assert_array_equal(a.act(obs), b.act(obs))
+    np.testing.assert_array_equal(a.act(obs), c.act(obs))
+    with pytest.raises(ValueError, match="trusted"):
+        rl.load_policy(SHIPPED, trusted="yes")
+
+
+def _copy_policy(dst_stem, data_edit=None, pth=None):
+    src = rl.POLICY_DIR / f"{SHIPPED}.zip"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(str(dst_stem) + ".zip", "w") as zout:
+        for name in zin.namelist():
+            raw = zin.read(name)
+            if name == "data" and data_edit:
+                d = json.loads(raw)
+                data_edit(d)
+                raw = json.dumps(d).encode()
+            if pth and name == "policy.pth":
+                raw = pth
+            zout.writestr(name, raw)
+    for suffix in (".json", rl.NORM_SUFFIX):
+        Path(str(dst_stem) + suffix).write_bytes((rl.POLICY_DIR / f"{SHIPPED}{suffix}").read_bytes())
+
+
+def _serialized(obj):
+    return {":type:": "<class 'x'>", ":serialized:": base64.b64encode(pickle.dumps(obj)).decode()}
+
+
+@pytest.mark.parametrize("key", ["observation_space", "action_space", "lr_schedule", "clip_range", "evil_entry"])
+def test_crafted_serialized_entry_refused(tmp_path, key):
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, data_edit=lambda d: d.__setitem__(key, _serialized(Evil(marker))))
+    with pytest.raises(rl.PolicyError, match="refused"):
+        rl.load_policy(stem, trusted=True)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("key", ["_last_obs", "ep_info_buffer", "rollout_buffer_class", "policy_class"])
+def test_crafted_entry_never_read(tmp_path, key):
+    """Entries SB3 recreates (run-time buffers) or that the algorithm fixes (its policy class)
+    are replaced without reading them: the policy loads, acts as the shipped one, and the
+    pickled code never runs."""
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, data_edit=lambda d: d.__setitem__(key, _serialized(Evil(marker))))
+    obs = np.random.default_rng(1).uniform(-1, 1, (10, 14)).astype(np.float32)
+    np.testing.assert_array_equal(rl.load_policy(stem, trusted=True).act(obs), rl.load_policy(SHIPPED).act(obs))
+    assert not marker.exists()
+
+
+def test_crafted_weights_refused(tmp_path):
+    import io
+    import torch
+    marker = tmp_path / "marker"
+    buf = io.BytesIO()
+    torch.save({"w": Evil(marker)}, buf)
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, pth=buf.getvalue())
+    with pytest.raises(rl.PolicyError, match="not a plain SB3 model"):
+        rl.load_policy(stem, trusted=True)
+    assert not marker.exists()
+
+
+def test_crafted_statistics_refused(tmp_path):
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem)
+    stats = dict(np.load(rl.POLICY_DIR / f"{SHIPPED}{rl.NORM_SUFFIX}"))
+    stats["obs_mean"] = np.array([Evil(marker)], dtype=object)
+    with open(str(stem) + rl.NORM_SUFFIX, "wb") as f:
+        np.savez(f, **stats)
+    with pytest.raises(rl.PolicyError, match="not plain arrays"):
+        rl.load_policy(stem, trusted=True)
+    # a legacy pickle beside the zip is never opened
+    os.remove(str(stem) + rl.NORM_SUFFIX)
+    with open(str(stem) + ".vecnormalize.pkl", "wb") as f:
+        pickle.dump(Evil(marker), f)
+    with pytest.raises(rl.PolicyError, match="is missing"):
+        rl.load_policy(stem, trusted=True)
+    assert not marker.exists()
+
+
+def test_crafted_init_from_and_resume_refused(tmp_path):
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
+    kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None)
+    with pytest.warns(rl.UntrustedPolicyWarning, match="init_from"), pytest.raises(rl.PolicyError, match="refused"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft", init_from=stem, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rl.UntrustedPolicyWarning)
+        with pytest.raises(rl.PolicyError, match="refused"):
+            rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft2", init_from=stem, trusted=True, **kw)
+    # --resume: every checkpoint crafted -> no readable checkpoint, nothing run
+    ck = tmp_path / "r.run" / "checkpoints"
+    ck.mkdir(parents=True)
+    _copy_policy(ck / "ckpt_64_steps", data_edit=lambda d: d.__setitem__("evil", _serialized(Evil(marker))))
+    os.replace(ck / f"ckpt_64_steps{rl.NORM_SUFFIX}", ck / "ckpt_vecnormalize_64_steps.npz")
+    with pytest.warns(RuntimeWarning, match="ckpt_64_steps"), pytest.raises(FileNotFoundError, match="no readable"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "r", resume=True, **kw)
+    assert not marker.exists()
+
+
+def _tree_hash(folder):
+    h = hashlib.sha256()
+    for p in sorted(Path(folder).iterdir()):
+        h.update(p.name.encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
+    from controllers import train_cli
+    before = _tree_hash(rl.POLICY_DIR)
+    args = ["--algo", "ppo", "--env", "SphereBotTrack-v0", "--estimator", "truth", "-n", "64", "-f", str(tmp_path),
+            "--eval-episodes", "0", "--eval-freq", "1000000", "--no-progress", "--seed", "3",
+            "--hyperparams", "n_steps:64", "batch_size=32", "--env-kwargs", "episode_s:1.0"]
+    assert train_cli.main(args) == 0
+    assert train_cli.main(args) == 0
+    for n in (1, 2):
+        run = tmp_path / "ppo" / f"SphereBotTrack-v0_{n}"
+        assert (run / "ppo-track-truth.zip").is_file() and (run / f"ppo-track-truth{rl.NORM_SUFFIX}").is_file()
+        meta = json.loads((run / "ppo-track-truth.json").read_text())
+        assert meta["seed"] == 3 and meta["hyperparams"]["n_steps"] == 64 and meta["env_kwargs"] == {"episode_s": 1.0}
+    assert _tree_hash(rl.POLICY_DIR) == before          # nothing written into the package
+    installed = tmp_path / "package_policies"
+    installed.mkdir()
+    monkeypatch.setattr(rl, "POLICY_DIR", installed)
+    assert train_cli.main(args + ["--install-policy"]) == 0
+    assert sorted(p.name for p in installed.iterdir()) == ["ppo-track-truth.json", "ppo-track-truth.vecnormalize.npz",
+                                                           "ppo-track-truth.zip"]
+    assert (installed / "ppo-track-truth.zip").read_bytes() == \
+        (tmp_path / "ppo" / "SphereBotTrack-v0_3" / "ppo-track-truth.zip").read_bytes()
+
+
+def test_help_of_every_command():
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for script in ("scripts/train.py", "scripts/compare_estimators.py", "scripts/reproduce_papers.py",
+                   "benchmarks/throughput.py", "benchmarks/peers.py"):
+        r = subprocess.run([sys.executable, str(ROOT / script), "--help"], capture_output=True, text=True,
+                           env=env, timeout=120)
+        assert r.returncode == 0 and "usage" in r.stdout, (script, r.stderr[-1000:])
+        # every option line has help text after it (argparse puts it on the same or the next line)
+        lines = r.stdout.splitlines()
+        for i, line in enumerate(lines):
+            s = line.strip()
+            if s.startswith("-") and not s.startswith("-h"):
+                has_text = len(s.split("  ")) > 1 and s.split("  ")[-1].strip()
+                nxt = lines[i + 1].strip() if i + 1 < len(lines) else ""
+                assert has_text or (nxt and not nxt.startswith("-")), (script, line)
