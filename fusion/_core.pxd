@@ -13,6 +13,7 @@ cdef class Prefilter:
     cdef void apply(self, double* v) noexcept nogil    # in place
     cdef void clear(self) noexcept nogil              # forget the history
     cdef list _state_fields(self)                     # its history, as Estimator._state_fields
+    cdef bint busy                                    # in use: a run, or its estimator's
 
 
 # The base class every estimator kernel derives from: sample validation, initial attitude,
@@ -33,6 +34,10 @@ cdef class Estimator:
     cdef Prefilter pre_gyr, pre_acc, pre_mag
     # rest detection, for the estimators that learn the gyro bias at rest (time 0: off)
     cdef RestDetector rest
+    # set at the end of the kernel's __init__: a subclass that skips it is refused, not run
+    cdef bint configured
+    # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
+    cdef bint busy
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil
