@@ -436,8 +436,8 @@ def test_out_of_range_gyro_is_a_dropped_sample(data, name):
     est = fusion.make(name, FS, on_invalid="skip", gyro_range=0.5)
     q = est.run(gyr, acc, mag, dt=dt)
     other = fusion.make(name, FS, on_invalid="skip", gyro_range=0.5)
-    assert np.array_equal(other.run(dropped, acc, mag, dt=dt), q)
-    assert np.array_equal(other.covariance, est.covariance)
+    assert np.abs(other.run(dropped, acc, mag, dt=dt) - q).max() < 1e-12   # the ekf's batch loop
+    assert np.abs(other.covariance - est.covariance).max() < 1e-15       # inlines its step
     if name == "iir-ekf":       # its reference is the ekf's behind scipy's filter: same step
         return
     r = {"ekf": ref.make, "ukf": rm.make, "aekf": lambda n, fs, **k: ra.RefAEKF(fs, **k)}[name](
