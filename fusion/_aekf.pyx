@@ -8,7 +8,7 @@ cimport numpy as cnp
 from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
 from libc.stdlib cimport realloc, free
 
-from fusion._core cimport Estimator
+from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
 from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT, TIMER, VALUE_MAX
 from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
@@ -266,9 +266,11 @@ cdef class AEKF(EKF):
         starting forgets what was recorded before."""
         if on not in (True, False):
             raise ValueError(f"on must be True or False, got {on!r}")
+        _claim(self)
         self.logging = bool(on)
         if on:
             self.log_n = 0
+        _release(self)
 
     @property
     def decisions(self):
@@ -278,8 +280,10 @@ cdef class AEKF(EKF):
         out = np.empty(self.log_n, dtype=np.uint8)
         cdef unsigned char[::1] o = out
         cdef Py_ssize_t i
-        for i in range(self.log_n):
+        _claim(self)        # a run in another thread may move the log (realloc)
+        for i in range(min(self.log_n, o.shape[0])):
             o[i] = self.log[i]
+        _release(self)
         return out
 
     @property

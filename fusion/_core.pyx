@@ -309,6 +309,8 @@ cdef class Estimator:
     name = None
 
     def __init__(self, fs, frame="ENU", on_invalid="raise"):
+        if self.busy:       # re-configuring under another thread's run would free its prefilters
+            raise RuntimeError("estimator in use by another thread")
         self.fs = check_fs(fs)
         self.dt_nominal = 1.0 / self.fs
         if frame not in FRAMES:

@@ -561,6 +561,8 @@ cdef class IIREKF(EKF):
     PARAMS = dict(EKF.PARAMS, cutoff_hz=40.0, filter_mag=False)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        if self.busy:       # as Estimator.__init__: the prefilter is replaced before it runs
+            raise RuntimeError("estimator in use by another thread")
         own = {k: params.pop(k) for k in ("cutoff_hz", "filter_mag") if k in params}
         fs = check_fs(fs)
         cutoff = own.get("cutoff_hz", min(self.PARAMS["cutoff_hz"], 0.45 * fs))

@@ -156,6 +156,42 @@ def test_refused_calls_leave_no_trace():
     """, timeout=300)
 
 
+def test_aekf_decision_log_counts_every_sample_of_concurrent_runs():
+    """aekf lost decision-log entries with two threads (the log grows by realloc in the
+    loop). Now one run at a time: the log holds one code per sample of every run that
+    completed, and reading it during a run is refused rather than racing the realloc."""
+    run_script("""
+        import threading
+        MSG = "estimator in use by another thread"
+        n = 60_000
+        rng = np.random.default_rng(2)
+        gyr = 0.3 * rng.standard_normal((n, 3))
+        acc = np.array([0.0, 0.0, 9.81]) + 0.5 * rng.standard_normal((n, 3))
+        est = fusion.make("aekf", 100.0)
+        est.record_decisions()
+        done = []
+        def worker():
+            for _ in range(4):
+                try:
+                    est.run(gyr, acc)
+                    done.append(1)
+                except RuntimeError as e:
+                    assert str(e) == MSG
+        threads = [threading.Thread(target=worker) for _ in range(2)]
+        for t in threads:
+            t.start()
+        while any(t.is_alive() for t in threads):
+            try:
+                d = est.decisions
+                assert d.size % n == 0, d.size
+            except RuntimeError as e:
+                assert str(e) == MSG
+        for t in threads:
+            t.join()
+        assert est.decisions.size == len(done) * n, (est.decisions.size, len(done))
+    """, timeout=300)
+
+
 # --- 3. subclasses that skip __init__ ---------------------------------------------------------
 
 def test_unconfigured_estimators_raise():
