@@ -8,10 +8,10 @@ cimport numpy as cnp
 from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
 from libc.stdlib cimport realloc, free
 
-from fusion._core cimport Estimator
+from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
-from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT
-from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated
+from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT, TIMER, VALUE_MAX
+from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
 from fusion._wahba cimport quest2
 
 cnp.import_array()
@@ -117,10 +117,11 @@ cdef class AEKF(EKF):
     cdef list _state_fields(self):
         # the decision log (record_decisions) is a recording, not state
         return EKF._state_fields(self) + [
-            ("t_dir", <double[:1]>&self.t_dir, None), ("n_learned", <long long[:1]>&self.n_learned, COUNT),
+            ("t_dir", <double[:1]>&self.t_dir, TIMER), ("n_learned", <long long[:1]>&self.n_learned, COUNT),
             ("norm_sum", <double[:1]>&self.norm_sum, None), ("dip_sum", <double[:1]>&self.dip_sum, None),
-            ("norm_ref", <double[:1]>&self.norm_ref, None), ("dip_ref", <double[:1]>&self.dip_ref, None),
-            ("ref_field", <double[:3]>self.ref_field, None), ("have_ref", <int[:1]><int*>&self.have_ref, FLAG),
+            ("norm_ref", <double[:1]>&self.norm_ref, (0.0, VALUE_MAX)),
+            ("dip_ref", <double[:1]>&self.dip_ref, (-M_PI / 2, M_PI / 2)),
+            ("ref_field", <double[:3]>self.ref_field, "unit"), ("have_ref", <int[:1]><int*>&self.have_ref, FLAG),
             ("n_acc_tested", <long long[:1]>&self.n_acc_tested, COUNT),
             ("n_acc_rej", <long long[:1]>&self.n_acc_rej, COUNT),
             ("n_mag_tested", <long long[:1]>&self.n_mag_tested, COUNT),
@@ -156,6 +157,8 @@ cdef class AEKF(EKF):
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
+        if gyr != NULL and out_of_range(gyr, self.gyro_range_):
+            gyr = NULL      # not a measurement: held as a dropped sample (ekf_step)
         self.propagate(gyr, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
         self.rest_update(gyr, acc, dt)
         # the tests: measured readings against those the predicted attitude expects
@@ -263,9 +266,11 @@ cdef class AEKF(EKF):
         starting forgets what was recorded before."""
         if on not in (True, False):
             raise ValueError(f"on must be True or False, got {on!r}")
+        _claim(self)
         self.logging = bool(on)
         if on:
             self.log_n = 0
+        _release(self)
 
     @property
     def decisions(self):
@@ -275,8 +280,10 @@ cdef class AEKF(EKF):
         out = np.empty(self.log_n, dtype=np.uint8)
         cdef unsigned char[::1] o = out
         cdef Py_ssize_t i
-        for i in range(self.log_n):
+        _claim(self)        # a run in another thread may move the log (realloc)
+        for i in range(min(self.log_n, o.shape[0])):
             o[i] = self.log[i]
+        _release(self)
         return out
 
     @property

@@ -1,7 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`cf-ekf`: seed 004's fusion (docs/cfekf.md): sliding-mean prefilter, an explicit
 complementary filter (Mahony) whose quaternion is the measurement of the 7-state EKF."""
-import numbers
 
 import numpy as np
 
@@ -9,7 +8,8 @@ from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, FLAG
+from fusion._prefilter import check_window
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, FLAG, TIMER
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
 from libc.math cimport sqrt, fabs
@@ -64,11 +64,7 @@ cdef class CFEKF(EKF):
             ki = 0.0 if self.bias_feedback else MAHONY_KI
         ki = check_param("ki", ki, allow_zero=True)
         w = p["window"]
-        if w is None:
-            w = default_window(self.fs)
-        elif (isinstance(w, (bool, np.bool_)) or not isinstance(w, numbers.Integral) or w < 1):
-            raise ValueError(f"window must be an integer >= 1 (samples) or None "
-                             f"(round(0.02 fs)), got {w!r}")
+        w = check_window(default_window(self.fs) if w is None else w, " or None (round(0.02 fs))")
         self.pre_gyr = SlidingMean(int(w))
         self.pre_acc = SlidingMean(int(w))
         self.pre_mag = SlidingMean(int(w))
@@ -77,13 +73,14 @@ cdef class CFEKF(EKF):
         # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
         self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"])
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
         # the inner complementary filter's whole state, under "cf."
         return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
-                                           ("sat_left", <int[:1]>&self.sat_left, (0, None)),
-                                           ("t_quiet", <double[:1]>&self.t_quiet, None)]
+                                           ("sat_left", <int[:1]>&self.sat_left, (0, self.window)),
+                                           ("t_quiet", <double[:1]>&self.t_quiet, TIMER)]
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
@@ -159,17 +156,19 @@ cdef class CFEKF(EKF):
 
     @property
     def kp(self):
-        return self.cf.kp
+        return None if self.cf is None else self.cf.kp     # None: not configured
 
     @property
     def ki(self):
-        return self.cf.ki
+        return None if self.cf is None else self.cf.ki
 
     @property
     def cf_quaternion(self):
         """The complementary filter's own attitude (the last measurement), in the estimator's
         frame."""
         cdef double out[4]
+        if self.cf is None:
+            raise RuntimeError("CFEKF object was not configured: call the class's __init__ or use fusion.make")
         cdef Estimator e = self.cf
         e.ned = self.ned
         e._output_q(out)

@@ -13,6 +13,7 @@ cdef class Prefilter:
     cdef void apply(self, double* v) noexcept nogil    # in place
     cdef void clear(self) noexcept nogil              # forget the history
     cdef list _state_fields(self)                     # its history, as Estimator._state_fields
+    cdef bint busy                                    # in use: a run, or its estimator's
 
 
 # The base class every estimator kernel derives from: sample validation, initial attitude,
@@ -33,6 +34,10 @@ cdef class Estimator:
     cdef Prefilter pre_gyr, pre_acc, pre_mag
     # rest detection, for the estimators that learn the gyro bias at rest (time 0: off)
     cdef RestDetector rest
+    # set by the kernel's __init__ once configured: a subclass that skips it is refused
+    cdef bint configured
+    # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
+    cdef bint busy
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil
@@ -54,6 +59,12 @@ cdef class Estimator:
     # quaternion. state() / load_state() / pickling are built on it in the base class; a
     # kernel with state of its own extends its parent's list.
     cdef list _state_fields(self)
+
+
+# the in-use flag (docs/estimators.md, "Threads") for a kernel's own entry points: _claim
+# raises RuntimeError if the estimator is unconfigured or in use, else marks it in use
+cdef int _claim(Estimator e) except -1
+cdef void _release(Estimator e) noexcept
 
 
 # --- for a kernel's own _run_batch: its step inlined, no virtual calls per sample ----------

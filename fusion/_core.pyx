@@ -25,6 +25,16 @@ STATE_VERSION = 2     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_qu
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter
+# checks of float fields (_checked_field): (lo, hi) for every element; "unit" a unit vector
+# (the quaternions); "cov" a covariance; None the default magnitude bound VALUE_MAX
+BIAS_MAX = 100.0        # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70)
+BIAS = (-BIAS_MAX, BIAS_MAX)
+TIME_MAX = 1e9          # s (32 years): the timers (rest, unmeasured run, ...)
+TIMER = (0.0, TIME_MAX)
+RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
+VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
+COV = "cov"
+COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 
 # Time steps (given, or 1 / fs) the kernels accept: a longer gap is a restart (reset), a
@@ -147,7 +157,9 @@ cdef int _read_vec3(object v, str name, double* out) except -1:
     cdef Py_ssize_t st
     if type(v) is np.ndarray:
         arr = <cnp.ndarray>v
-        if cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_NDIM(arr) == 1 and cnp.PyArray_DIM(arr, 0) == 3:
+        # native byte order and aligned (ISBEHAVED_RO): a big-endian array goes the slow way
+        if (cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_NDIM(arr) == 1
+                and cnp.PyArray_DIM(arr, 0) == 3 and cnp.PyArray_ISBEHAVED_RO(arr)):
             p = <char*>cnp.PyArray_DATA(arr)
             st = cnp.PyArray_STRIDE(arr, 0)
             out[0] = (<double*>p)[0]
@@ -217,7 +229,13 @@ def _checked_field(name, value, view, check):
         if not np.isfinite(v).all():
             raise ValueError(f"state field {name!r} must be finite, got {value!r}")
         if check == "unit" and abs(float(np.sqrt(v @ v)) - 1.0) > 1e-9:
-            raise ValueError(f"state field {name!r} must be a unit quaternion, got {value!r}")
+            raise ValueError(f"state field {name!r} must be a unit {'quaternion' if n == 4 else 'vector'}, got {value!r}")
+        if check == COV:
+            _check_covariance(name, v.reshape(n), value)
+        elif check != "unit":
+            lo, hi = (-VALUE_MAX, VALUE_MAX) if check is None else check
+            if (v < lo).any() or (v > hi).any():
+                raise ValueError(f"state field {name!r} must be in [{lo:g}, {hi:g}], got {value!r}")
     else:
         lo, hi = check
         hi = np.iinfo(target.dtype).max if hi is None else hi
@@ -226,9 +244,63 @@ def _checked_field(name, value, view, check):
     return v.astype(target.dtype).reshape(n)
 
 
+def _check_covariance(name, v, value):
+    """v (k² values, row-major) a symmetric positive-definite covariance whose variances are at
+    most COV_MAX, or a ValueError: an indefinite P stays indefinite, a huge one overflows."""
+    cdef Py_ssize_t k = int(round(np.sqrt(v.shape[0])))
+    P = v.reshape(k, k)
+    scale = float(np.abs(P).max())
+    if not (np.abs(P - P.T) <= 1e-12 * scale).all():
+        raise ValueError(f"state field {name!r} must be a symmetric covariance, got {value!r}")
+    if np.diag(P).max() > COV_MAX:
+        raise ValueError(f"state field {name!r} must have variances <= {COV_MAX:g}, got {value!r}")
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"state field {name!r} must be positive definite, got {value!r}") from None
+
+
 def _restore(cls, state):
     """Unpickling: rebuild from the state (Estimator.__reduce__)."""
     return cls.from_state(state)
+
+
+cdef int _ready(Estimator e) except -1:
+    """A RuntimeError unless e was configured and no call is using it."""
+    if not e.configured:
+        raise RuntimeError(f"{type(e).__name__} object was not configured: call the class's "
+                           f"__init__ (a subclass's __init__ must call super().__init__) or use fusion.make")
+    if e.busy or _pre_busy(e.pre_gyr) or _pre_busy(e.pre_acc) or _pre_busy(e.pre_mag):
+        raise RuntimeError("estimator in use by another thread")
+    return 0
+
+
+cdef inline bint _pre_busy(Prefilter p) noexcept:
+    return p is not None and p.busy
+
+
+cdef inline void _pre_mark(Prefilter p, bint busy) noexcept:
+    if p is not None:
+        p.busy = busy
+
+
+cdef int _claim(Estimator e) except -1:
+    """_ready, then mark e and its prefilters in use (docs/estimators.md, "Threads"): the test
+    and the set run with the GIL held and call no Python code, so for Python threads they
+    are one step."""
+    _ready(e)
+    e.busy = True
+    _pre_mark(e.pre_gyr, True)
+    _pre_mark(e.pre_acc, True)
+    _pre_mark(e.pre_mag, True)
+    return 0
+
+
+cdef void _release(Estimator e) noexcept:
+    e.busy = False
+    _pre_mark(e.pre_gyr, False)
+    _pre_mark(e.pre_acc, False)
+    _pre_mark(e.pre_mag, False)
 
 
 cdef class Estimator:
@@ -240,6 +312,8 @@ cdef class Estimator:
     name = None
 
     def __init__(self, fs, frame="ENU", on_invalid="raise"):
+        if self.busy:       # re-configuring under another thread's run would free its prefilters
+            raise RuntimeError("estimator in use by another thread")
         self.fs = check_fs(fs)
         self.dt_nominal = 1.0 / self.fs
         if frame not in FRAMES:
@@ -311,7 +385,7 @@ cdef class Estimator:
     cdef list _rest_fields(self):
         """The rest detector's state, for the _state_fields of the estimators that use it."""
         return [("rest_gyr", <double[:3]>self.rest.gyr, None), ("rest_acc", <double[:3]>self.rest.acc, None),
-                ("t_rest", <double[:1]>&self.rest.t, None),
+                ("t_rest", <double[:1]>&self.rest.t, TIMER),
                 ("rest_started", <int[:1]><int*>&self.rest.started, FLAG),
                 ("rest_samples", <long long[:1]>&self.rest.n, COUNT)]
 
@@ -342,6 +416,13 @@ cdef class Estimator:
     def reset(self, q0=None):
         """Forget everything. q0 ([w, x, y, z] in the estimator's frame) fixes the start
         attitude; without it the first valid accelerometer (+ magnetometer) sample sets it."""
+        _claim(self)
+        try:
+            self._reset(q0)
+        finally:
+            _release(self)
+
+    def _reset(self, q0):
         cdef double qin[4]
         if q0 is not None:
             a = np.asarray(q0)
@@ -393,6 +474,9 @@ cdef class Estimator:
             if mag is not None and not vec3_valid(m):
                 raise ValueError(f"mag must be finite and non-zero, got {mag!r} (on_invalid='skip' skips such samples)")
         out = cnp.PyArray_SimpleNew(1, &four, cnp.NPY_DOUBLE)
+        # in use elsewhere? Tested here, after the last Python call: from here on the step
+        # holds the GIL, so no other call can start before it ends (no flag to set)
+        _ready(self)
         # through the batch loop, so that update() and run() run the same compiled code (the
         # compiler may fuse multiply-adds differently in two copies of a step)
         self._run_batch(g, a, m if mag is not None else NULL, NULL, h,
@@ -403,6 +487,13 @@ cdef class Estimator:
         """A batch: gyr, acc, mag as (N, 3) arrays (mag None for 6-axis); dt None (1/fs), a
         scalar, or an (N,) array of time steps in s for uneven time stamps. Returns (N, 4)
         quaternions, the same numbers as N calls of update()."""
+        _claim(self)        # the loop below releases the GIL
+        try:
+            return self._run(gyr, acc, mag, dt)
+        finally:
+            _release(self)
+
+    def _run(self, gyr, acc, mag, dt):
         G = _as_samples(gyr, "gyr")
         cdef Py_ssize_t n = G.shape[0]
         A = _as_samples(acc, "acc", n)
@@ -548,19 +639,32 @@ cdef class Estimator:
         terms, flags, counters, prefilter histories), with the configuration, as a plain dict
         of Python numbers, lists and strings (picklable, JSON-serialisable, exact).
         est.load_state(s) or Estimator.from_state(s) resumes bit-identically."""
-        fields = {}
-        for name, view, check in _fields_of(self):
-            a = np.asarray(view)
-            fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
-        return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
-                "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
-                "fields": fields}
+        _claim(self)
+        try:
+            fields = {}
+            for name, view, check in _fields_of(self):
+                a = np.asarray(view)
+                fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
+            return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
+                    "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
+                    "fields": fields}
+        finally:
+            _release(self)
 
     def load_state(self, state):
         """Restore a state from est.state() of an estimator of the same kind. The dynamic
         state is replaced; this estimator's configuration (fs, frame, parameters) is kept.
         A ValueError (and nothing changed) for another estimator, another state version,
-        missing or extra fields, wrong shapes or types, or non-finite values."""
+        missing or extra fields, wrong shapes or types, or values out of their ranges (each
+        field's in _state_fields: a covariance symmetric positive definite, a bias within
+        BIAS_MAX, timers within TIME_MAX, ...)."""
+        _claim(self)
+        try:
+            self._load_state(state)
+        finally:
+            _release(self)
+
+    def _load_state(self, state):
         _check_header(state)
         if state["estimator"] != self.name:
             raise ValueError(f"state is of estimator {state['estimator']!r}, not {self.name!r}")
@@ -598,5 +702,7 @@ cdef class Estimator:
         return (_restore, (type(self), self.state()))
 
     def __repr__(self):
+        if not self.configured:
+            return f"<{type(self).__name__} object, not configured>"
         extra = "".join(f", {k}={v!r}" for k, v in self.params.items())
         return f"fusion.make({self.name!r}, fs={self.fs!r}, frame={self.frame!r}{extra})"

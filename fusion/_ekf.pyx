@@ -7,10 +7,10 @@ from libc.string cimport memcpy
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_rest_params, REST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
+from fusion._core import check_rest_params, REST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG, BIAS, COV, TIMER
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
-                            jac_up_in_body, unit3, unobserved_variance, saturated)
+                            jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
 cdef double G0 = 9.81
 MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyway
@@ -394,6 +394,8 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
+    if gyr != NULL and out_of_range(gyr, e.gyro_range_):
+        gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
     ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
     if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
@@ -432,12 +434,13 @@ cdef class EKF(Estimator):
         self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
-                                                ("P", <double[:49]>self.P, None),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, None),
+        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
+                                                ("P", <double[:49]>self.P, COV),
+                                                ("t_unmeasured", <double[:1]>&self.t_run, TIMER),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
                 + self._rest_fields())
@@ -558,6 +561,8 @@ cdef class IIREKF(EKF):
     PARAMS = dict(EKF.PARAMS, cutoff_hz=40.0, filter_mag=False)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        if self.busy:       # as Estimator.__init__: the prefilter is replaced before it runs
+            raise RuntimeError("estimator in use by another thread")
         own = {k: params.pop(k) for k in ("cutoff_hz", "filter_mag") if k in params}
         fs = check_fs(fs)
         cutoff = own.get("cutoff_hz", min(self.PARAMS["cutoff_hz"], 0.45 * fs))

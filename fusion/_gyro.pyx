@@ -21,6 +21,7 @@ cdef class Gyro(Estimator):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         self._take_params(params)
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,

@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_gyro_range
+from fusion._core import check_positive, check_param, check_gyro_range, BIAS, RECOVERY
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
@@ -36,11 +36,12 @@ cdef class Madgwick(Estimator):
         self.beta = check_param("beta", p["beta"])
         self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, None),
-                                                 ("t_recover", <double[:1]>&self.t_recover, None)]
+        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0

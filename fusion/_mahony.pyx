@@ -6,7 +6,7 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import check_positive, check_param, check_gyro_range
+from fusion._core import check_positive, check_param, check_gyro_range, BIAS_MAX, RECOVERY
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -215,11 +215,14 @@ cdef class Mahony(Estimator):
         self.kp = check_param("kp", p["kp"], allow_zero=True)
         self.ki = check_param("ki", p["ki"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None),
-                                                 ("t_recover", <double[:1]>&self.t_recover, None)]
+        # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
+        eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
+        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0

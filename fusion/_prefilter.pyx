@@ -1,6 +1,8 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """Prefilter kernels that estimators compose (DESIGN.md): a second-order Butterworth low-pass
 (seed 003) and a sliding-window mean (seed 004), each on one 3-axis sensor stream."""
+import numbers
+
 import numpy as np
 from libc.math cimport tan, sqrt, M_PI
 from libc.stdlib cimport calloc, free
@@ -9,15 +11,46 @@ from fusion._core cimport Prefilter
 from fusion._core import check_positive, _as_samples, FLAG
 
 
+WINDOW_MAX = 100_000     # samples (1000 s at 100 Hz, 0.1 s at 1 MHz; 2.4 MB a stream)
+
+
+def check_window(window, alternative=""):
+    """The sliding mean's window (samples) as an int in [1, WINDOW_MAX], or a ValueError."""
+    if (isinstance(window, (bool, np.bool_)) or not isinstance(window, numbers.Integral)
+            or not 1 <= window <= WINDOW_MAX):
+        raise ValueError(f"window must be an integer in [1, {WINDOW_MAX}] (samples){alternative}, "
+                         f"got {window!r}")
+    return int(window)
+
+
+cdef int _claim(Prefilter f) except -1:
+    """Mark f in use, or a RuntimeError if it is (by another thread, or by its estimator's
+    run): with the GIL held the test and the set are one step for Python threads."""
+    if f.busy:
+        raise RuntimeError("prefilter in use by another thread")
+    f.busy = True
+    return 0
+
+
 def _run(Prefilter f, x):
     """Filter an (N, 3) array sample by sample (the prefilter's state carries over)."""
     X = np.array(_as_samples(x, "x"), dtype=np.float64, order="C", copy=True)
     cdef double[:, ::1] v = X
     cdef Py_ssize_t i
-    with nogil:
-        for i in range(v.shape[0]):
-            f.apply(&v[i, 0])
+    _claim(f)
+    try:
+        with nogil:
+            for i in range(v.shape[0]):
+                f.apply(&v[i, 0])
+    finally:
+        f.busy = False
     return X
+
+
+def _reset(Prefilter f):
+    _claim(f)
+    f.clear()
+    f.busy = False
 
 
 cdef class Butterworth(Prefilter):
@@ -71,10 +104,12 @@ cdef class Butterworth(Prefilter):
             v[k] = y
 
     def reset(self):
-        self.clear()
+        _reset(self)
 
     def run(self, x):
         """Filter an (N, 3) array; returns a new array."""
+        if self.fs == 0.0:      # a subclass that skipped __init__: no coefficients
+            raise RuntimeError("Butterworth object was not configured: call the class's __init__")
         return _run(self, x)
 
     def __repr__(self):
@@ -86,10 +121,8 @@ cdef class SlidingMean(Prefilter):
     has filled, the mean of the samples so far."""
 
     def __cinit__(self, window):
-        if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
-            raise ValueError(f"window must be an integer >= 1, got {window!r}")
-        self.window = int(window)
-        self.buf = <double*>calloc(3 * self.window, sizeof(double))
+        self.window = check_window(window)
+        self.buf = <double*>calloc(<size_t>3 * <size_t>self.window, sizeof(double))
         if self.buf == NULL:
             raise MemoryError("SlidingMean buffer")
         self.clear()
@@ -136,7 +169,7 @@ cdef class SlidingMean(Prefilter):
             v[k] = self.total[k] * inv
 
     def reset(self):
-        self.clear()
+        _reset(self)
 
     def run(self, x):
         """Filter an (N, 3) array; returns a new array."""

@@ -271,6 +271,16 @@ cdef inline bint saturated(const double* gyr, double gyro_range) noexcept nogil:
                                  or gyr[2] >= r or gyr[2] <= -r)
 
 
+cdef inline bint out_of_range(const double* gyr, double gyro_range) noexcept nogil:
+    """A gyro sample beyond the range on some axis by more than saturated's margin mirrored
+    (2 %: a calibrated rail sample lands within it): no sensor of that range reads it, so it
+    is not a measurement; the Kalman filters hold their propagation over it as over a dropped
+    sample (docs/robustness.md, "Recovery"). gyro_range 0: range unknown, never."""
+    cdef double r = 1.02 * gyro_range
+    return gyro_range > 0.0 and (gyr[0] > r or gyr[0] < -r or gyr[1] > r or gyr[1] < -r
+                                 or gyr[2] > r or gyr[2] < -r)
+
+
 cdef inline void quat_measurement_update(double* q, double* b, double* P, const double* z,
                                          double r, const double* v, double rv, bint learn_bias=True) noexcept nogil:
     """Kalman update of the quaternion + gyro-bias state (q, b, P 7x7 row-major) with a

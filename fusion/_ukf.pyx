@@ -6,11 +6,11 @@ from libc.math cimport sqrt
 
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, BIAS, COV, TIMER
 from fusion._ekf import check_recovery_params
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3, unobserved_variance,
-                            saturated)
+                            saturated, out_of_range)
 
 cdef double G0 = 9.81
 # scaled unscented transform, n = 6, alpha = 1, beta = 2, kappa = 0: lambda = 0
@@ -75,12 +75,13 @@ cdef class UKF(Estimator):
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"])
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
+        self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
-                                                ("P", <double[:36]>self.P, None),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, None)]
+        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
+                                                ("P", <double[:36]>self.P, COV),
+                                                ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
                 + self._rest_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -334,10 +335,14 @@ cdef class UKF(Estimator):
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
         # the ekf's time update (EKF.propagate): unmeasured motion grows the attitude error
-        # variance, here directly in rad² (the error p is the angle to first order)
-        cdef bint measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
-        cdef double v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured,
-                                            self.motion_rate)
+        # variance, here directly in rad² (the error p is the angle to first order); a sample
+        # out of range is not a measurement: held as a dropped one (ekf_step)
+        cdef bint measured
+        cdef double v
+        if gyr != NULL and out_of_range(gyr, self.gyro_range_):
+            gyr = NULL
+        measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
+        v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured, self.motion_rate)
         if gyr != NULL:
             self.predict(gyr, dt)
         if v > 0.0:

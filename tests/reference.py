@@ -316,6 +316,13 @@ def is_saturated(gyr, gyro_range):
     return gyr is not None and gyro_range is not None and np.max(np.abs(gyr)) >= 0.98 * gyro_range
 
 
+def measured_gyr(gyr, gyro_range):
+    """docs/robustness.md, "Recovery": a sample with |w_i| > 1.02 gyro_range on some axis is
+    not a measurement; the Kalman filters take it as dropped (None)."""
+    out = gyr is not None and gyro_range is not None and np.max(np.abs(gyr)) > 1.02 * gyro_range
+    return None if out else gyr
+
+
 def recovery_factor(t_left, sat, dt):
     """docs/robustness.md, "Recovery" (complementary filters): (gain factor this step, new
     t_left). A saturated sample (sat) sets 3 s; the factor falls linearly from 20 to 1 over
@@ -523,6 +530,7 @@ class RefEKF(RefEstimator):
         self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
 
     def _step(self, gyr, acc, mag, dt):
+        gyr = measured_gyr(gyr, self.gyro_range)                         # out of range: dropped
         self._propagate(gyr, dt)                                         # 1.
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)

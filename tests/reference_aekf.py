@@ -117,7 +117,8 @@ class RefAEKF(ref.RefEKF):
         self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
 
     def _step(self, gyr, acc, mag, dt):
-        # 1. predict (the ekf's, with its recovery)
+        # 1. predict (the ekf's, with its recovery; out of range: dropped)
+        gyr = ref.measured_gyr(gyr, self.gyro_range)
         self._propagate(gyr, dt)
         self._rest(gyr, acc, dt)
         # 2. the tests, against the readings the predicted attitude expects

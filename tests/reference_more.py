@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
+from reference import (G, I3, I4, measured_gyr, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
                        recovery_factor, is_saturated,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
@@ -228,6 +228,7 @@ class RefUKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         # the ekf's recovery; the error p is the attitude angle (rad) to first order
+        gyr = measured_gyr(gyr, self.gyro_range)
         self.t_run, v = unmeasured_variance(self.t_run, gyr, dt, self.fs,
                                             is_saturated(gyr, self.gyro_range), self.motion_rate)
         if gyr is not None:
