@@ -20,7 +20,8 @@ from gymnasium import spaces
 import fusion
 from fusion import imu as fimu
 
-from envs.robot import DRIVE_JOINT, STEER_JOINT, DCMotor, RobotParams, build_robot, set_steer
+from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
+                        SPIN_EPS, build_robot, spin_torque, set_drive_friction, set_steer)
 
 __all__ = ["SphereRobotEnv", "TASKS", "ESTIMATORS", "OBS_NAMES"]
 
@@ -105,7 +106,7 @@ class SphereRobotEnv(gym.Env):
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
                  mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, n_waypoints=4,
                  waypoint_radius=0.5, position_fix_hz=0.0, position_fix_std=0.5,
-                 render_mode=None, render_size=(320, 240)):
+                 realism="real", render_mode=None, render_size=(320, 240)):
         super().__init__()
         if task not in TASKS:
             raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")
@@ -135,7 +136,13 @@ class SphereRobotEnv(gym.Env):
                              f"(range: k * {self.control_hz:g}, k = 1, 2, ...), got {physics_hz!r}")
         if self.physics_hz < 100.0:
             raise ValueError(f"physics_hz must be >= 100 Hz for stable contact, got {physics_hz!r}")
-        self.robot = RobotParams.from_any(robot)
+        if realism not in REALISM:
+            raise ValueError(f"realism must be one of {', '.join(map(repr, REALISM))}, got {realism!r}")
+        self.realism = realism
+        self.robot = RobotParams.from_any(robot, ideal=realism == "ideal")
+        if self.robot.latency_s > 1.0 / self.control_hz + 1e-12:
+            raise ValueError(f"robot.latency_s must be in [0, 1 / control_hz = {1.0 / self.control_hz:g}] s, "
+                             f"got {self.robot.latency_s!r}")
         self.arena_size = _number("arena_size", arena_size, 2.0, 1000.0)
         eps = _DEFAULT_EPISODE_S[task] if episode_s is None else episode_s
         self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
@@ -205,6 +212,8 @@ class SphereRobotEnv(gym.Env):
             self._est = None
         self._imu = None
         self._motor = DCMotor(self.robot)
+        self._servo = Servo(self.robot) if self.robot.steer_band > 0 else None
+        self._lat_steps = int(round(self.robot.latency_s * self.physics_hz))
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
@@ -417,6 +426,7 @@ class SphereRobotEnv(gym.Env):
             pv = self._v_prev
             ax, ay, az = (vx - pv[0]) * k, (vy - pv[1]) * k, (vz - pv[2]) * k + G   # a - g, g = (0, 0, -G)
         self._v_prev = (vx, vy, vz)
+        self._wb, self._axle = ang, (r01, r11, r21)
         bx, by, bz = self.earth_field
         if self._zones:
             px, py, pz = pos[0] + rx, pos[1] + ry, pos[2] + rz
@@ -451,17 +461,70 @@ class SphereRobotEnv(gym.Env):
             self._gyr_sum_y += g[1]
             self._gyr_n += 1
 
-    def _advance(self, n, voltage):
+    def _shell_loss(self, wd, spin, inv_eps, roll_c):
+        """(N m, world) the floor's losses on the shell: the spinning friction about the
+        vertical, the viscous rolling damping about the horizontal axes."""
+        w, a = self._wb, self._axle
+        sx, sy, sz = w[0] + wd * a[0], w[1] + wd * a[1], w[2] + wd * a[2]    # the shell's rate
+        e = sz * inv_eps
+        return (-roll_c * sx, -roll_c * sy, -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e)))
+
+    def _advance(self, n, voltage, target):
+        """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
+        steering ``target`` (rad); the previous command holds for the first
+        ``latency_s`` of them (actuation latency)."""
         p, c, b = self._p, self._client, self._body
-        torque = self._motor.torque
+        rp = self.robot
+        motor, servo = self._motor, self._servo
+        torque = motor.torque
         torque_mode = p.TORQUE_CONTROL
-        getjs, setm, step, sense = p.getJointState, p.setJointMotorControl2, p.stepSimulation, self._sense
+        step, sense = p.stepSimulation, self._sense
+        v_old, t_old = self._cmd_prev
+        lat = self._lat_steps
+        stiction = rp.drive_stiction
         tau = 0.0
-        for _ in range(n):
-            tau = torque(voltage, getjs(b, DRIVE_JOINT, c)[1])
-            setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
-            step(c)
-            sense()
+        if servo is not None:
+            getjs, setm = p.getJointStates, p.setJointMotorControlArray
+            joints = (DRIVE_JOINT, STEER_JOINT)
+            stort = servo.torque
+            i_servo = SERVO_STALL_CURRENT / rp.steer_torque
+            spin, inv_eps = spin_torque(rp), 1.0 / SPIN_EPS
+            roll_c = rp.rolling_damping
+            ext, world = p.applyExternalTorque, p.WORLD_FRAME
+            for i in range(n):
+                v, tgt = (v_old, t_old) if i < lat else (voltage, target)
+                js = getjs(b, joints, c)
+                wd = js[0][1]
+                tau = torque(v, wd)
+                ts = stort(tgt, js[1][0], js[1][1])
+                motor.i_other = i_servo * abs(ts)
+                setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
+                if spin or roll_c:
+                    ext(b, DRIVE_JOINT, self._shell_loss(wd, spin, inv_eps, roll_c), world, physicsClientId=c)
+                if stiction:
+                    stuck = -0.05 < wd < 0.05
+                    if stuck != self._stuck_gear:
+                        self._stuck_gear = stuck
+                        set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
+                step(c)
+                sense()
+        else:
+            getjs, setm = p.getJointStates, p.setJointMotorControl2
+            spin, inv_eps = spin_torque(rp), 1.0 / SPIN_EPS
+            roll_c = rp.rolling_damping
+            ext, world = p.applyExternalTorque, p.WORLD_FRAME
+            for i in range(n):
+                if i == lat:
+                    set_steer(p, c, b, rp, target)
+                v = v_old if i < lat else voltage
+                wd = getjs(b, (DRIVE_JOINT,), c)[0][1]
+                tau = torque(v, wd)
+                setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
+                if spin or roll_c:
+                    ext(b, DRIVE_JOINT, self._shell_loss(wd, spin, inv_eps, roll_c), world, physicsClientId=c)
+                step(c)
+                sense()
+        self._cmd_prev = (voltage, target)
         self._tau = tau
 
     # ------------------------------------------------------------------------------------
@@ -501,7 +564,10 @@ class SphereRobotEnv(gym.Env):
         self._n_samples = 0
         self._gyr_sum_y, self._gyr_n = 0.0, 0
         self._sense(first=True)
-        self._advance(self._settle_steps, 0.0)
+        self._motor.reset()
+        self._cmd_prev = (0.0, 0.0)
+        self._stuck_gear = False
+        self._advance(self._settle_steps, 0.0, 0.0)
         # episode state
         self._t = 0.0
         self._steps = 0
@@ -541,9 +607,8 @@ class SphereRobotEnv(gym.Env):
             a1 = 1.0 if a1 > 1.0 else (-1.0 if a1 < -1.0 else a1)
         self._action = (a0, a1)
         rp = self.robot
-        set_steer(self._p, self._client, self._body, rp, a1 * rp.steer_max)
         self._gyr_sum_y, self._gyr_n = 0.0, 0
-        self._advance(self._n_sub, a0 * rp.motor_voltage)
+        self._advance(self._n_sub, a0 * rp.motor_voltage, a1 * rp.steer_max)
         self._steps += 1
         self._t = self._steps / self.control_hz
         # Hall encoder: counts over the control period
