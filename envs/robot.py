@@ -106,6 +106,12 @@ class RobotParams:
     latency_s: float = 0.01
     contact_stiffness: float = 1.0e5
     contact_damping: float = 300.0
+    vib_motor: float = 0.5
+    vib_commutation: float = 0.3
+    vib_gear: float = 0.3
+    vib_seam: float = 1.0
+    gear_ratio: float = 34.0
+    gear_teeth: float = 20.0
 
     def __post_init__(self):
         ranges = {
@@ -119,6 +125,8 @@ class RobotParams:
             "battery_resistance": (0.0, 100.0), "steer_band": (0.0, math.radians(45.0)),
             "steer_friction": (0.0, 10.0), "steer_stop": (0.0, math.radians(45.0)), "latency_s": (0.0, 0.1),
             "contact_stiffness": (0.0, 1e9), "contact_damping": (0.0, 1e7),
+            "vib_motor": (0.0, 100.0), "vib_commutation": (0.0, 100.0), "vib_gear": (0.0, 100.0),
+            "vib_seam": (0.0, 100.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
         }
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
@@ -230,7 +238,8 @@ class RobotParams:
 
 #: the fields RobotParams.ideal() sets to 0
 _REAL_FIELDS = ("rolling_damping", "drive_coulomb", "drive_stiction", "motor_deadband", "battery_resistance", "steer_band",
-                "steer_friction", "steer_stop", "latency_s", "contact_stiffness", "contact_damping")
+                "steer_friction", "steer_stop", "latency_s", "contact_stiffness", "contact_damping", "vib_motor", "vib_commutation", "vib_gear",
+                "vib_seam")
 #: accepted values of the environments' ``realism=`` argument
 REALISM = ("real", "ideal")
 

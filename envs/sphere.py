@@ -214,6 +214,10 @@ class SphereRobotEnv(gym.Env):
         self._motor = DCMotor(self.robot)
         self._servo = Servo(self.robot) if self.robot.steer_band > 0 else None
         self._lat_steps = int(round(self.robot.latency_s * self.physics_hz))
+        rp = self.robot
+        self._vib = bool(rp.vib_motor or rp.vib_commutation or rp.vib_gear or rp.vib_seam)
+        self._w_top = rp.motor_voltage / rp.motor_k
+        self._qd = self._wd_last = 0.0
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
@@ -436,6 +440,11 @@ class SphereRobotEnv(gym.Env):
             ax, ay, az = (vx - pv[0]) * k, (vy - pv[1]) * k, (vz - pv[2]) * k + G   # a - g, g = (0, 0, -G)
         self._v_prev = (vx, vy, vz)
         self._wb, self._axle = ang, (r01, r11, r21)
+        if self._vib:
+            vx_, vy_, vz_ = self._vibration()
+            ax += r00 * vx_ + r01 * vy_ + r02 * vz_
+            ay += r10 * vx_ + r11 * vy_ + r12 * vz_
+            az += r20 * vx_ + r21 * vy_ + r22 * vz_
         bx, by, bz = self.earth_field
         if self._zones:
             px, py, pz = pos[0] + rx, pos[1] + ry, pos[2] + rz
@@ -470,6 +479,39 @@ class SphereRobotEnv(gym.Env):
             self._gyr_sum_y += g[1]
             self._gyr_n += 1
 
+    def _vibration(self):
+        """(m/s^2, body frame) the drive's vibration at the IMU, phase-locked to the drive
+        joint's angle (so the same at any physics rate) and scaled with its speed: the motor's
+        imbalance (a vector rotating in the x-z plane at the motor's speed, gear_ratio x the
+        output), its commutation (2x, along z), the output stage's gear mesh (gear_teeth x
+        the output, x-z) and the shell's seam (a raised-cosine pulse along z once per
+        revolution, 0.15 rad of shell rotation wide). Tones above 0.4 physics_hz are left out
+        (they would alias in the physics itself). Amplitudes: docs/envs/robot.md."""
+        rp = self.robot
+        q, w = self._qd, abs(self._wd_last)
+        s = w / self._w_top
+        lim = 0.8 * math.pi * self.physics_hz            # rad/s: 0.4 physics_hz
+        vx = vy = vz = 0.0
+        wm = rp.gear_ratio * w
+        if wm < lim:
+            ph = rp.gear_ratio * q
+            a = rp.vib_motor * s
+            vx += a * math.cos(ph)
+            vz += a * math.sin(ph)
+            vy += 0.3 * a * math.cos(ph + 1.0)
+            if 2.0 * wm < lim:
+                vz += rp.vib_commutation * s * math.cos(2.0 * ph)
+        if rp.gear_teeth * w < lim:
+            ph = rp.gear_teeth * q
+            a = rp.vib_gear * s
+            vx += a * math.sin(ph)
+            vz += a * math.cos(ph)
+        if rp.vib_seam:
+            u = (q % (2.0 * math.pi)) / 0.15
+            if u < 1.0:
+                vz += rp.vib_seam * s * s * 0.5 * (1.0 - math.cos(2.0 * math.pi * u))
+        return vx, vy, vz
+
     def _shell_loss(self, wd, spin, inv_eps, roll_c):
         """(N m, world) the floor's losses on the shell: the spinning friction about the
         vertical, the viscous rolling damping about the horizontal axes."""
@@ -503,7 +545,8 @@ class SphereRobotEnv(gym.Env):
             for i in range(n):
                 v, tgt = (v_old, t_old) if i < lat else (voltage, target)
                 js = getjs(b, joints, c)
-                wd = js[0][1]
+                self._qd, wd = js[0][0], js[0][1]
+                self._wd_last = wd
                 tau = torque(v, wd)
                 ts = stort(tgt, js[1][0], js[1][1])
                 motor.i_other = i_servo * abs(ts)
@@ -526,7 +569,8 @@ class SphereRobotEnv(gym.Env):
                 if i == lat:
                     set_steer(p, c, b, rp, target)
                 v = v_old if i < lat else voltage
-                wd = getjs(b, (DRIVE_JOINT,), c)[0][1]
+                self._qd, wd = getjs(b, (DRIVE_JOINT,), c)[0][:2]
+                self._wd_last = wd
                 tau = torque(v, wd)
                 setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
                 if spin or roll_c:
@@ -572,6 +616,7 @@ class SphereRobotEnv(gym.Env):
         self._last_sample = None
         self._n_samples = 0
         self._gyr_sum_y, self._gyr_n = 0.0, 0
+        self._qd = self._wd_last = 0.0
         self._sense(first=True)
         self._motor.reset()
         self._cmd_prev = (0.0, 0.0)
