@@ -104,8 +104,8 @@ class RobotParams:
     steer_friction: float = 0.02
     steer_stop: float = math.radians(5.0)
     latency_s: float = 0.01
-    contact_stiffness: float = 1.0e5
-    contact_damping: float = 300.0
+    contact_stiffness: float = 3.0e4
+    contact_damping: float = 180.0
     vib_motor: float = 0.5
     vib_commutation: float = 0.3
     vib_gear: float = 0.3
