@@ -110,6 +110,8 @@ class RobotParams:
     vib_commutation: float = 0.3
     vib_gear: float = 0.3
     vib_seam: float = 1.0
+    mag_steer: float = 8.0
+    mag_current: float = 10.0
     gear_ratio: float = 34.0
     gear_teeth: float = 20.0
 
@@ -126,7 +128,7 @@ class RobotParams:
             "steer_friction": (0.0, 10.0), "steer_stop": (0.0, math.radians(45.0)), "latency_s": (0.0, 0.1),
             "contact_stiffness": (0.0, 1e9), "contact_damping": (0.0, 1e7),
             "vib_motor": (0.0, 100.0), "vib_commutation": (0.0, 100.0), "vib_gear": (0.0, 100.0),
-            "vib_seam": (0.0, 100.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
+            "vib_seam": (0.0, 100.0), "mag_steer": (0.0, 1000.0), "mag_current": (0.0, 1000.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
         }
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
@@ -239,7 +241,7 @@ class RobotParams:
 #: the fields RobotParams.ideal() sets to 0
 _REAL_FIELDS = ("rolling_damping", "drive_coulomb", "drive_stiction", "motor_deadband", "battery_resistance", "steer_band",
                 "steer_friction", "steer_stop", "latency_s", "contact_stiffness", "contact_damping", "vib_motor", "vib_commutation", "vib_gear",
-                "vib_seam")
+                "vib_seam", "mag_steer", "mag_current")
 #: accepted values of the environments' ``realism=`` argument
 REALISM = ("real", "ideal")
 
@@ -265,7 +267,7 @@ class DCMotor:
     """
 
     __slots__ = ("k", "r", "b", "limit", "vmax", "_k_over_r", "_k2_over_r", "deadband", "r_bat", "i_prev",
-                 "i_other")
+                 "i_other", "i_signed")
 
     def __init__(self, params: RobotParams):
         self.k = params.motor_k
@@ -277,12 +279,12 @@ class DCMotor:
         self._k2_over_r = self.k * self.k / self.r
         self.deadband = params.motor_deadband * params.motor_voltage
         self.r_bat = params.battery_resistance / params.motor_voltage
-        self.i_prev = 0.0
-        self.i_other = 0.0
+        self.reset()
 
     def reset(self):
         self.i_prev = 0.0
         self.i_other = 0.0
+        self.i_signed = 0.0
 
     def torque(self, voltage, speed):
         if -self.deadband < voltage < self.deadband:
@@ -297,6 +299,7 @@ class DCMotor:
         elif t < -lim:
             t = -lim
         self.i_prev = abs(t) / self.k
+        self.i_signed = t / self.k
         return t - self.b * speed
 
     def current(self, voltage, speed):

@@ -217,7 +217,8 @@ class SphereRobotEnv(gym.Env):
         rp = self.robot
         self._vib = bool(rp.vib_motor or rp.vib_commutation or rp.vib_gear or rp.vib_seam)
         self._w_top = rp.motor_voltage / rp.motor_k
-        self._qd = self._wd_last = 0.0
+        self._qd = self._wd_last = self._qs = 0.0
+        self._self_field = bool(rp.mag_steer or rp.mag_current)
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
@@ -463,6 +464,8 @@ class SphereRobotEnv(gym.Env):
         gyr = (r00 * wx_ + r10 * wy_ + r20 * wz_, r01 * wx_ + r11 * wy_ + r21 * wz_, r02 * wx_ + r12 * wy_ + r22 * wz_)
         acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
         mag = (r00 * bx + r10 * by + r20 * bz, r01 * bx + r11 * by + r21 * bz, r02 * bx + r12 * by + r22 * bz)
+        if self._self_field:
+            mag = self._add_self_field(mag)
         self._true = (pos, orn, lin, gyr, acc, mag)
         s = self._imu.step(gyr, acc, mag)
         if self.signal_log is not None:
@@ -478,6 +481,23 @@ class SphereRobotEnv(gym.Env):
             self._gyr_last = g
             self._gyr_sum_y += g[1]
             self._gyr_n += 1
+
+    def _add_self_field(self, mag):
+        """(uT, body frame) the robot's own field at the IMU on top of ``mag``: what a
+        calibration at rest with the pendulum centred and the motor off leaves. The
+        pendulum's field (steel cans of the cells, the servo's magnet; magnitude
+        ``mag_steer`` at the IMU) turns with the steering angle about the frame's x axis,
+        so its change from the calibrated centred value remains; the drive current's field
+        (unshielded leads and the motor's armature; ``mag_current`` uT per A) lies along the
+        axle and changes sign with the current. docs/envs/robot.md."""
+        rp = self.robot
+        q = self._qs
+        bp = rp.mag_steer
+        c, s_ = math.cos(q), math.sin(q)
+        # R_x(q) (0, 0, -bp) - (0, 0, -bp): the pendulum's field hangs below the axle
+        dy, dz = bp * s_, bp * (1.0 - c)
+        dy += rp.mag_current * self._motor.i_signed
+        return (mag[0], mag[1] + dy, mag[2] + dz)
 
     def _vibration(self):
         """(m/s^2, body frame) the drive's vibration at the IMU, phase-locked to the drive
@@ -548,6 +568,7 @@ class SphereRobotEnv(gym.Env):
                 self._qd, wd = js[0][0], js[0][1]
                 self._wd_last = wd
                 tau = torque(v, wd)
+                self._qs = js[1][0]
                 ts = stort(tgt, js[1][0], js[1][1])
                 motor.i_other = i_servo * abs(ts)
                 setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
@@ -569,7 +590,9 @@ class SphereRobotEnv(gym.Env):
                 if i == lat:
                     set_steer(p, c, b, rp, target)
                 v = v_old if i < lat else voltage
-                self._qd, wd = getjs(b, (DRIVE_JOINT,), c)[0][:2]
+                js = getjs(b, (DRIVE_JOINT, STEER_JOINT), c)
+                self._qd, wd = js[0][0], js[0][1]
+                self._qs = js[1][0]
                 self._wd_last = wd
                 tau = torque(v, wd)
                 setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
@@ -616,9 +639,9 @@ class SphereRobotEnv(gym.Env):
         self._last_sample = None
         self._n_samples = 0
         self._gyr_sum_y, self._gyr_n = 0.0, 0
-        self._qd = self._wd_last = 0.0
-        self._sense(first=True)
+        self._qd = self._wd_last = self._qs = 0.0
         self._motor.reset()
+        self._sense(first=True)
         self._cmd_prev = (0.0, 0.0)
         self._stuck_gear = False
         self._advance(self._settle_steps, 0.0, 0.0)
