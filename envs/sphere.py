@@ -217,6 +217,10 @@ class SphereRobotEnv(gym.Env):
         rp = self.robot
         self._vib = bool(rp.vib_motor or rp.vib_commutation or rp.vib_gear or rp.vib_seam)
         self._w_top = rp.motor_voltage / rp.motor_k
+        # (motor tone's multiple of the drive angle, its amplitude, commutation's, gear mesh's
+        # multiple and amplitude, seam's, 1 / top speed, the highest tone kept (rad/s))
+        self._vib_k = (rp.gear_ratio, rp.vib_motor, rp.vib_commutation, rp.gear_teeth, rp.vib_gear, rp.vib_seam,
+                       1.0 / self._w_top, 0.8 * math.pi * self.physics_hz)
         self._qd = self._wd_last = self._qs = 0.0
         self._self_field = bool(rp.mag_steer or rp.mag_current)
         self._n_sub = int(round(self.physics_hz / self.control_hz))
@@ -507,29 +511,30 @@ class SphereRobotEnv(gym.Env):
         the output, x-z) and the shell's seam (a raised-cosine pulse along z once per
         revolution, 0.15 rad of shell rotation wide). Tones above 0.4 physics_hz are left out
         (they would alias in the physics itself). Amplitudes: docs/envs/robot.md."""
-        rp = self.robot
-        q, w = self._qd, abs(self._wd_last)
-        s = w / self._w_top
-        lim = 0.8 * math.pi * self.physics_hz            # rad/s: 0.4 physics_hz
+        n_m, a_m, a_c, n_g, a_g, a_s, inv_top, lim = self._vib_k
+        q, w = self._qd, self._wd_last
+        if w < 0.0:
+            w = -w
+        s = w * inv_top
         vx = vy = vz = 0.0
-        wm = rp.gear_ratio * w
-        if wm < lim:
-            ph = rp.gear_ratio * q
-            a = rp.vib_motor * s
-            vx += a * math.cos(ph)
-            vz += a * math.sin(ph)
-            vy += 0.3 * a * math.cos(ph + 1.0)
-            if 2.0 * wm < lim:
-                vz += rp.vib_commutation * s * math.cos(2.0 * ph)
-        if rp.gear_teeth * w < lim:
-            ph = rp.gear_teeth * q
-            a = rp.vib_gear * s
+        if n_m * w < lim:
+            ph = n_m * q
+            c, sn = math.cos(ph), math.sin(ph)
+            a = a_m * s
+            vx = a * c
+            vz = a * sn
+            vy = 0.3 * a * (0.5403023058681398 * c - 0.8414709848078965 * sn)      # cos(ph + 1)
+            if 2.0 * n_m * w < lim:
+                vz += a_c * s * (c * c - sn * sn)                                  # cos(2 ph)
+        if n_g * w < lim:
+            ph = n_g * q
+            a = a_g * s
             vx += a * math.sin(ph)
             vz += a * math.cos(ph)
-        if rp.vib_seam:
-            u = (q % (2.0 * math.pi)) / 0.15
+        if a_s:
+            u = (q % 6.283185307179586) * (1.0 / 0.15)
             if u < 1.0:
-                vz += rp.vib_seam * s * s * 0.5 * (1.0 - math.cos(2.0 * math.pi * u))
+                vz += a_s * s * s * 0.5 * (1.0 - math.cos(6.283185307179586 * u))
         return vx, vy, vz
 
     def _shell_loss(self, wd, spin, inv_eps, roll_c):
