@@ -84,6 +84,10 @@ class SphereRobotEnv(gym.Env):
     imu_offset: (m) the IMU's position on the inner frame, from the axle centre.
     episode_s: episode length (s), default 30 (track) or 60 (waypoints).
     robot: ``RobotParams``, or a dict of overrides of its fields.
+    realism: "real" (default: the v1 robot's losses, compliance, latency, deadband, battery
+        sag, vibration and own magnetic field) or "ideal" (``RobotParams.ideal()``: all of
+        them off; a ``robot`` dict then overrides fields of the ideal robot, a
+        ``RobotParams`` is used as it is). docs/envs/robot.md, "Realism".
     arena_size: side of the square arena (m) centred on the origin; leaving it ends the episode.
     bumps: number of low cylindrical bumps (height ``bump_height``) laid on the floor.
     ramps: number of ramps (slope ``ramp_deg``, height ``ramp_height``) on the floor.
