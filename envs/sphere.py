@@ -449,11 +449,6 @@ class SphereRobotEnv(gym.Env):
             ax, ay, az = (vx - pv[0]) * k, (vy - pv[1]) * k, (vz - pv[2]) * k + G   # a - g, g = (0, 0, -G)
         self._v_prev = (vx, vy, vz)
         self._wb, self._axle = ang, (r01, r11, r21)
-        if self._vib:
-            vx_, vy_, vz_ = self._vibration()
-            ax += r00 * vx_ + r01 * vy_ + r02 * vz_
-            ay += r10 * vx_ + r11 * vy_ + r12 * vz_
-            az += r20 * vx_ + r21 * vy_ + r22 * vz_
         bx, by, bz = self.earth_field
         if self._zones:
             px, py, pz = pos[0] + rx, pos[1] + ry, pos[2] + rz
@@ -470,7 +465,12 @@ class SphereRobotEnv(gym.Env):
                     bz += s * (3 * uz * mr - mz)
         # world -> body: R^T v
         gyr = (r00 * wx_ + r10 * wy_ + r20 * wz_, r01 * wx_ + r11 * wy_ + r21 * wz_, r02 * wx_ + r12 * wy_ + r22 * wz_)
-        acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
+        if self._vib:                       # body frame
+            vx_, vy_, vz_ = self._vibration()
+            acc = (r00 * ax + r10 * ay + r20 * az + vx_, r01 * ax + r11 * ay + r21 * az + vy_,
+                   r02 * ax + r12 * ay + r22 * az + vz_)
+        else:
+            acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
         mag = (r00 * bx + r10 * by + r20 * bz, r01 * bx + r11 * by + r21 * bz, r02 * bx + r12 * by + r22 * bz)
         if self._self_field:
             mag = self._add_self_field(mag)
@@ -541,14 +541,6 @@ class SphereRobotEnv(gym.Env):
                 vz += a_s * s * s * 0.5 * (1.0 - math.cos(6.283185307179586 * u))
         return vx, vy, vz
 
-    def _shell_loss(self, wd, spin, inv_eps, roll_c):
-        """(N m, world) the floor's losses on the shell: the spinning friction about the
-        vertical, the viscous rolling damping about the horizontal axes."""
-        w, a = self._wb, self._axle
-        sx, sy, sz = w[0] + wd * a[0], w[1] + wd * a[1], w[2] + wd * a[2]    # the shell's rate
-        e = sz * inv_eps
-        return (-roll_c * sx, -roll_c * sy, -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e)))
-
     def _advance(self, n, voltage, target):
         """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
         steering ``target`` (rad); the previous command holds for the first
@@ -559,56 +551,45 @@ class SphereRobotEnv(gym.Env):
         torque = motor.torque
         torque_mode = p.TORQUE_CONTROL
         step, sense = p.stepSimulation, self._sense
+        getjs, setm = p.getJointStates, p.setJointMotorControlArray
+        ext, world = p.applyExternalTorque, p.WORLD_FRAME
+        joints = (DRIVE_JOINT, STEER_JOINT)
         v_old, t_old = self._cmd_prev
         lat = self._lat_steps
         stiction = rp.drive_stiction
-        tau = 0.0
+        spin, inv_eps, roll_c = spin_torque(rp), 1.0 / SPIN_EPS, rp.rolling_damping
         if servo is not None:
-            getjs, setm = p.getJointStates, p.setJointMotorControlArray
-            joints = (DRIVE_JOINT, STEER_JOINT)
             stort = servo.torque
             i_servo = SERVO_STALL_CURRENT / rp.steer_torque
-            spin, inv_eps = spin_torque(rp), 1.0 / SPIN_EPS
-            roll_c = rp.rolling_damping
-            ext, world = p.applyExternalTorque, p.WORLD_FRAME
-            for i in range(n):
-                v, tgt = (v_old, t_old) if i < lat else (voltage, target)
-                js = getjs(b, joints, c)
-                self._qd, wd = js[0][0], js[0][1]
-                self._wd_last = wd
-                tau = torque(v, wd)
-                self._qs = js[1][0]
+        tau = ts = 0.0
+        for i in range(n):
+            v, tgt = (v_old, t_old) if i < lat else (voltage, target)
+            js = getjs(b, joints, c)
+            self._qd, wd = js[0][0], js[0][1]
+            self._qs = js[1][0]
+            self._wd_last = wd
+            tau = torque(v, wd)
+            if servo is not None:
                 ts = stort(tgt, js[1][0], js[1][1])
                 motor.i_other = i_servo * abs(ts)
-                setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
-                if spin or roll_c:
-                    ext(b, DRIVE_JOINT, self._shell_loss(wd, spin, inv_eps, roll_c), world, physicsClientId=c)
-                if stiction:
-                    stuck = -0.05 < wd < 0.05
-                    if stuck != self._stuck_gear:
-                        self._stuck_gear = stuck
-                        set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
-                step(c)
-                sense()
-        else:
-            getjs, setm = p.getJointStates, p.setJointMotorControl2
-            spin, inv_eps = spin_torque(rp), 1.0 / SPIN_EPS
-            roll_c = rp.rolling_damping
-            ext, world = p.applyExternalTorque, p.WORLD_FRAME
-            for i in range(n):
-                if i == lat:
-                    set_steer(p, c, b, rp, target)
-                v = v_old if i < lat else voltage
-                js = getjs(b, (DRIVE_JOINT, STEER_JOINT), c)
-                self._qd, wd = js[0][0], js[0][1]
-                self._qs = js[1][0]
-                self._wd_last = wd
-                tau = torque(v, wd)
-                setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
-                if spin or roll_c:
-                    ext(b, DRIVE_JOINT, self._shell_loss(wd, spin, inv_eps, roll_c), world, physicsClientId=c)
-                step(c)
-                sense()
+            elif i == lat:
+                set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
+            setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
+            if spin or roll_c:
+                # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
+                # rolling damping about x and y, spinning friction about z
+                w, a = self._wb, self._axle
+                e = (w[2] + wd * a[2]) * inv_eps
+                ext(b, DRIVE_JOINT, (-roll_c * (w[0] + wd * a[0]), -roll_c * (w[1] + wd * a[1]),
+                                     -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
+                    world, physicsClientId=c)
+            if stiction:
+                stuck = -0.05 < wd < 0.05
+                if stuck != self._stuck_gear:
+                    self._stuck_gear = stuck
+                    set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
+            step(c)
+            sense()
         self._cmd_prev = (voltage, target)
         self._tau = tau
 
