@@ -310,8 +310,8 @@ class Servo:
     """The steering servo as a DC motor behind a proportional position loop (hobby servo):
     torque = stall * (clip((target - angle) / band, -1, 1) - speed / no_load_speed), i.e.
     full torque beyond ``steer_band`` of error, the motor's back-EMF line (stall at rest,
-    zero at ``steer_speed``) as its damping. Compliant: holding the pendulum at 30 deg
-    (0.15 N m) deflects it by 0.3 band. Its gear friction (``steer_friction``) acts in
+    zero at ``steer_speed``) as its damping. Compliant: holding the pendulum at 30 deg from
+    the vertical (0.15 N m) deflects it by 0.3 band. Its gear friction (``steer_friction``) acts in
     PyBullet as a velocity motor held at 0; the end stops are PyBullet joint limits at
     +-(steer_max + steer_stop)."""
 

@@ -115,3 +115,27 @@ def test_ideal_params_are_all_zero_and_v0_ids_use_them():
     env = gym.make("SphereBotTrack-v1", estimator="truth")
     assert env.unwrapped.robot == RobotParams()
     env.close()
+
+
+def test_top_speed_matches_the_hand_calculation():
+    """Steady rolling at full voltage: the drive's torque (current-limited motor line minus
+    viscous and Coulomb gearbox friction, the pack sagging under the motor's and the
+    electronics' current) equals the floor's loss on the shell (rolling damping c w plus the
+    rolling resistance Crr N r). Solved by hand for w; the env must roll at w r within 1 %."""
+    from envs.robot import IDLE_CURRENT
+    for realism in ("real", "ideal"):
+        rp = RobotParams() if realism == "real" else RobotParams.ideal()
+        k, R, b = rp.motor_k, rp.motor_resistance, rp.motor_friction
+        t_rr = rp.rolling_resistance * rp.total_mass * 9.81 * rp.shell_radius
+        w = 0.0
+        for _ in range(50):                                   # fixed point in the sag
+            i = (0.0 if w == 0 else (t_rr + rp.rolling_damping * w + b * w + rp.drive_coulomb) / k)
+            v = rp.motor_voltage * (1 - rp.battery_resistance * (i + IDLE_CURRENT) / rp.motor_voltage)
+            w = (k / R * v - rp.drive_coulomb - t_rr) / (k * k / R + b + rp.rolling_damping)
+        env = SphereRobotEnv(estimator="truth", imu="ideal", arena_size=60.0, realism=realism)
+        env.reset(seed=0, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
+        for _ in range(400):
+            env.step((1.0, 0.0))
+        v_env = float(np.hypot(*env.true_state()["velocity"][:2]))
+        env.close()
+        assert v_env == pytest.approx(w * rp.shell_radius, rel=0.01), (realism, v_env, w * rp.shell_radius)
