@@ -12,8 +12,8 @@ Prints, in one run on one core:
   - resident memory before and after N resets in one process, and whether physics clients
     leak (1,000 environments created and closed, 100 with --quick: the client slot must be
     reused and memory must not grow);
-  - the physics-rate convergence check behind the 400 Hz default (a 10 s drive with a turn
-    at 200, 400, 800 and 1600 Hz).
+  - the physics-rate convergence check behind the 400 Hz default (``envs.convergence``: the
+    hardest inputs of the action space at 400 and 1600 Hz; also ``tests/test_env_convergence.py``).
 """
 import argparse
 import gc
@@ -28,7 +28,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import pybullet as p  # noqa: E402
 
-from envs.robot import DCMotor, RobotParams, build_robot, set_steer  # noqa: E402
+from envs import convergence  # noqa: E402
+from envs.robot import DCMotor, RobotParams, Servo, build_robot  # noqa: E402
 from envs.sphere import SphereRobotEnv  # noqa: E402
 
 
@@ -95,8 +96,11 @@ def env_rates(estimators, steps, repeats=5):
 
 
 def raw_pybullet_rate(steps=20000):
-    params, motor = RobotParams(), None
-    motor = DCMotor(params)
+    """stepSimulation alone, and with the environment's per-step PyBullet calls: one joint
+    read (both joints), one torque command (drive and servo), one external torque (the
+    floor's spinning and rolling losses)."""
+    params = RobotParams()
+    motor, servo = DCMotor(params), Servo(params)
     c = p.connect(p.DIRECT)
     p.resetSimulation(physicsClientId=c)
     p.setGravity(0, 0, -9.81, physicsClientId=c)
@@ -104,15 +108,18 @@ def raw_pybullet_rate(steps=20000):
     floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
     p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
     b = build_robot(p, c, params, (0, 0), 0.0)
-    set_steer(p, c, b, params, 0.2)
     t = time.perf_counter()
     for _ in range(steps):
         p.stepSimulation(c)
     plain = steps / (time.perf_counter() - t)
+    joints = (0, 1)
     t = time.perf_counter()
     for _ in range(steps):
-        tau = motor.torque(3.0, p.getJointState(b, 0, c)[1])
-        p.setJointMotorControl2(b, 0, p.TORQUE_CONTROL, force=tau, physicsClientId=c)
+        js = p.getJointStates(b, joints, c)
+        tau = motor.torque(3.0, js[0][1])
+        ts = servo.torque(0.2, js[1][0], js[1][1])
+        p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+        p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
         p.stepSimulation(c)
     with_motor = steps / (time.perf_counter() - t)
     p.disconnect(c)
@@ -163,32 +170,6 @@ def reset_memory(n, n_cycles):
     return before, after, el / n * 1e3, max(ids), len(set(ids)), cyc_before, cyc_after
 
 
-def convergence():
-    params = RobotParams()
-    motor = DCMotor(params)
-    rows = []
-    for hz in (200, 400, 800, 1600):
-        c = p.connect(p.DIRECT)
-        p.resetSimulation(physicsClientId=c)
-        p.setGravity(0, 0, -9.81, physicsClientId=c)
-        p.setPhysicsEngineParameter(fixedTimeStep=1.0 / hz, deterministicOverlappingPairs=1, physicsClientId=c)
-        floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
-        p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
-        b = build_robot(p, c, params, (0, 0), 0.0)
-        for k in range(int(10 * hz)):
-            if k == 3 * hz:
-                set_steer(p, c, b, params, 0.3)
-            tau = motor.torque(5.0, p.getJointState(b, 0, c)[1])
-            p.setJointMotorControl2(b, 0, p.TORQUE_CONTROL, force=tau, physicsClientId=c)
-            p.stepSimulation(c)
-        pos, orn = p.getBasePositionAndOrientation(b, c)
-        lin, _ = p.getBaseVelocity(b, c)
-        yaw = math.degrees(p.getEulerFromQuaternion(orn)[2])
-        rows.append((hz, pos[0], pos[1], yaw, math.hypot(lin[0], lin[1])))
-        p.disconnect(c)
-    return rows
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
@@ -198,8 +179,8 @@ def main():
     print(f"one core: {'pinned' if pinned else 'not pinned'}; python {sys.version.split()[0]}")
 
     plain, with_motor = raw_pybullet_rate()
-    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the motor's joint read and "
-          f"torque command: {with_motor:,.0f}/s  (= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
+    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the env's joint read, "
+          f"torque command and floor-loss torque: {with_motor:,.0f}/s  (= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
 
     rates, update_us = env_rates(["ekf", "truth"], args.steps)
     r_ekf, r_truth = rates["ekf"], rates["truth"]
@@ -225,10 +206,7 @@ def main():
     print(f"{n_cycles:,} environments created, reset and closed: {distinct} client slot(s) used "
           f"(highest id {max_id}); RSS {cb:.1f} MB -> {ca:.1f} MB (growth {ca - cb:+.1f} MB)")
 
-    print("physics-rate convergence (10 s at 5 V, 17 deg steering from 3 s):")
-    print("  physics Hz    x (m)    y (m)   yaw (deg)   speed (m/s)")
-    for hz, x, y, yaw, v in convergence():
-        print(f"  {hz:10d} {x:8.3f} {y:8.3f} {yaw:10.2f} {v:12.3f}")
+    convergence.main(400.0)
 
 
 if __name__ == "__main__":

@@ -2,22 +2,28 @@
 
     import gymnasium as gym
     import envs                                  # registers the ids below
-    env = gym.make("SphereBotTrack-v0", estimator="ekf", imu="mpu9250")
+    env = gym.make("SphereBotTrack-v1", estimator="ekf", imu="mpu9250")
 
-Ids: ``SphereBotTrack-v0`` (follow a commanded speed and heading) and
-``SphereBotWaypoints-v0`` (drive through waypoints by dead reckoning). Importing this
-package registers them; it imports neither PyBullet nor creates a physics client (the
-environment connects at its first ``reset``). Docs: docs/envs/.
+Ids: ``SphereBotTrack-v1`` (follow a commanded speed and heading) and
+``SphereBotWaypoints-v1`` (drive through waypoints by dead reckoning): the real robot
+(damping, compliant servo and contact, friction, deadband, latency, battery sag, drive
+vibration). ``-v0`` ids: the same environments with ``realism="ideal"`` (none of those;
+not bit-identical to the environments that were called v0 before v1: docs/envs/robot.md,
+"Version history"). Importing this package registers them; it imports neither PyBullet
+nor creates a physics client (the environment connects at its first ``reset``).
+Docs: docs/envs/.
 """
 import gymnasium as _gym
 
 __all__ = ["SphereRobotEnv", "RobotParams", "ENV_IDS"]
 
-ENV_IDS = ("SphereBotTrack-v0", "SphereBotWaypoints-v0")
+ENV_IDS = ("SphereBotTrack-v1", "SphereBotWaypoints-v1", "SphereBotTrack-v0", "SphereBotWaypoints-v0")
 
 _SPECS = {
-    "SphereBotTrack-v0": dict(kwargs={"task": "track"}, max_episode_steps=1500),       # 30 s at 50 Hz
-    "SphereBotWaypoints-v0": dict(kwargs={"task": "waypoints"}, max_episode_steps=3000),  # 60 s at 50 Hz
+    "SphereBotTrack-v1": dict(kwargs={"task": "track"}, max_episode_steps=1500),       # 30 s at 50 Hz
+    "SphereBotWaypoints-v1": dict(kwargs={"task": "waypoints"}, max_episode_steps=3000),  # 60 s at 50 Hz
+    "SphereBotTrack-v0": dict(kwargs={"task": "track", "realism": "ideal"}, max_episode_steps=1500),
+    "SphereBotWaypoints-v0": dict(kwargs={"task": "waypoints", "realism": "ideal"}, max_episode_steps=3000),
 }
 
 for _id, _spec in _SPECS.items():

@@ -25,7 +25,7 @@ import math
 import numbers
 from dataclasses import dataclass, fields, replace
 
-__all__ = ["RobotParams", "DCMotor", "build_robot", "DRIVE_JOINT", "STEER_JOINT"]
+__all__ = ["RobotParams", "DCMotor", "Servo", "build_robot", "spin_torque", "DRIVE_JOINT", "STEER_JOINT", "REALISM"]
 
 DRIVE_JOINT = 0
 STEER_JOINT = 1
@@ -92,7 +92,28 @@ class RobotParams:
     steer_speed: float = 6.2
     lateral_friction: float = 0.6
     rolling_resistance: float = 0.004
-    spinning_friction: float = 1e-3
+    spinning_friction: float = 2e-4
+    rolling_damping: float = 5e-3
+    # --- the real robot's losses and imperfections (docs/envs/robot.md, "Realism"); every
+    # one of them 0 in RobotParams.ideal()
+    drive_coulomb: float = 0.02
+    drive_stiction: float = 0.03
+    motor_deadband: float = 0.02
+    battery_resistance: float = 0.2
+    steer_band: float = math.radians(4.0)
+    steer_friction: float = 0.02
+    steer_stop: float = math.radians(5.0)
+    latency_s: float = 0.01
+    contact_stiffness: float = 3.0e4
+    contact_damping: float = 180.0
+    vib_motor: float = 0.5
+    vib_commutation: float = 0.3
+    vib_gear: float = 0.3
+    vib_seam: float = 1.0
+    mag_steer: float = 8.0
+    mag_current: float = 10.0
+    gear_ratio: float = 34.0
+    gear_teeth: float = 20.0
 
     def __post_init__(self):
         ranges = {
@@ -102,6 +123,12 @@ class RobotParams:
             "motor_friction": (0.0, 100.0), "motor_torque_limit": (1e-6, 1e4),
             "steer_max": (0.0, math.radians(80.0)), "steer_torque": (1e-6, 1e4), "steer_speed": (1e-3, 1e3),
             "lateral_friction": (0.0, 10.0), "rolling_resistance": (0.0, 1.0), "spinning_friction": (0.0, 1.0),
+            "rolling_damping": (0.0, 1.0), "drive_coulomb": (0.0, 10.0), "drive_stiction": (0.0, 10.0), "motor_deadband": (0.0, 0.5),
+            "battery_resistance": (0.0, 100.0), "steer_band": (0.0, math.radians(45.0)),
+            "steer_friction": (0.0, 10.0), "steer_stop": (0.0, math.radians(45.0)), "latency_s": (0.0, 0.1),
+            "contact_stiffness": (0.0, 1e9), "contact_damping": (0.0, 1e7),
+            "vib_motor": (0.0, 100.0), "vib_commutation": (0.0, 100.0), "vib_gear": (0.0, 100.0),
+            "vib_seam": (0.0, 100.0), "mag_steer": (0.0, 1000.0), "mag_current": (0.0, 1000.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
         }
         for name, (lo, hi) in ranges.items():
             v = getattr(self, name)
@@ -114,6 +141,16 @@ class RobotParams:
                 hi = 0.9 * self.shell_radius
             if v < lo or v > hi:
                 raise ValueError(f"robot.{name} must be in [{lo:g}, {hi:g}], got {v!r}")
+        if self.drive_stiction and self.drive_stiction < self.drive_coulomb:
+            raise ValueError(f"robot.drive_stiction must be 0 or >= robot.drive_coulomb = {self.drive_coulomb:g} N m, "
+                             f"got {self.drive_stiction!r}")
+        if (self.contact_stiffness > 0) != (self.contact_damping > 0):
+            raise ValueError("robot.contact_stiffness and robot.contact_damping must both be > 0 (compliant "
+                             f"contact) or both 0 (PyBullet's rigid contact), got {self.contact_stiffness!r} "
+                             f"and {self.contact_damping!r}")
+        if math.degrees(self.steer_max + self.steer_stop) > 85.0:
+            raise ValueError(f"robot.steer_max + robot.steer_stop must be <= 85 deg, got "
+                             f"{math.degrees(self.steer_max + self.steer_stop):g} deg")
         c = self.encoder_cpr
         if isinstance(c, bool) or not isinstance(c, numbers.Integral) or not 1 <= c <= 10 ** 7:
             raise ValueError(f"robot.encoder_cpr must be an integer in [1, 10000000], got {c!r}")
@@ -142,10 +179,18 @@ class RobotParams:
         return replace(self, **changes)
 
     @classmethod
-    def from_any(cls, value):
-        """None (defaults), a RobotParams, or a dict of field overrides."""
+    def ideal(cls, **changes):
+        """The idealised robot of the v0 environments: no gearbox or servo friction, no
+        deadband, no battery sag, a stiff servo without end stops (steer_band 0: PyBullet's
+        position servo), no latency, rigid contact."""
+        return cls(**{**{name: 0.0 for name in _REAL_FIELDS}, **changes})
+
+    @classmethod
+    def from_any(cls, value, ideal=False):
+        """None (defaults), a RobotParams (used as it is), or a dict of field overrides
+        (of ``RobotParams.ideal()`` if ``ideal``)."""
         if value is None:
-            return cls()
+            return cls.ideal() if ideal else cls()
         if isinstance(value, cls):
             return value
         if isinstance(value, dict):
@@ -153,10 +198,14 @@ class RobotParams:
             bad = sorted(set(value) - names)
             if bad:
                 raise ValueError(f"unknown robot parameter(s) {', '.join(bad)}; accepted: {', '.join(sorted(names))}")
-            return cls(**value)
+            return cls.ideal(**value) if ideal else cls(**value)
         raise ValueError(f"robot must be None, a RobotParams or a dict, got {type(value).__name__}")
 
     # derived quantities
+    @property
+    def is_ideal(self):
+        return all(getattr(self, name) == 0.0 for name in _REAL_FIELDS)
+
     @property
     def total_mass(self):
         return self.shell_mass + self.frame_mass + self.pendulum_mass
@@ -189,15 +238,36 @@ class RobotParams:
         return self.motor_voltage / self.motor_k * self.shell_radius
 
 
+#: the fields RobotParams.ideal() sets to 0
+_REAL_FIELDS = ("rolling_damping", "drive_coulomb", "drive_stiction", "motor_deadband", "battery_resistance", "steer_band",
+                "steer_friction", "steer_stop", "latency_s", "contact_stiffness", "contact_damping", "vib_motor", "vib_commutation", "vib_gear",
+                "vib_seam", "mag_steer", "mag_current")
+#: accepted values of the environments' ``realism=`` argument
+REALISM = ("real", "ideal")
+
+
+#: (A) the battery's other loads, for the sag: STM32 board, Bluetooth and IMU (idle), and
+#: the servo's draw at stall (a micro servo at about 5 V draws about 0.7 A at stall; through
+#: the regulator from the 7.4 V pack about 0.5 A)
+IDLE_CURRENT = 0.1
+SERVO_STALL_CURRENT = 0.5
+
+
 class DCMotor:
     """Permanent-magnet DC motor with gearbox, referred to the output shaft; the armature
     inductance is neglected (L/R of about 1 ms, below the 2.5 ms physics step).
 
-    ``torque(voltage, speed)``: current i = (V - k w) / R (back-EMF k w), motor torque k i
+    ``torque(voltage, speed)``: the commanded voltage (at the nominal pack voltage) is zero
+    inside the driver's deadband (``motor_deadband`` of full voltage) and scaled by the
+    pack's sag (``battery_resistance`` times the current drawn at the previous step:
+    motor, servo, electronics); current i = (V - k w) / R (back-EMF k w), motor torque k i
     limited to +-torque_limit (the driver's current limit), minus viscous gearbox friction.
+    The gearbox's Coulomb friction and stiction act in PyBullet (a velocity motor held at 0,
+    see ``build_robot``): they are constraints, so a stuck gearbox really sticks.
     """
 
-    __slots__ = ("k", "r", "b", "limit", "vmax", "_k_over_r", "_k2_over_r")
+    __slots__ = ("k", "r", "b", "limit", "vmax", "_k_over_r", "_k2_over_r", "deadband", "r_bat", "i_prev",
+                 "i_other", "i_signed")
 
     def __init__(self, params: RobotParams):
         self.k = params.motor_k
@@ -207,18 +277,58 @@ class DCMotor:
         self.vmax = params.motor_voltage
         self._k_over_r = self.k / self.r
         self._k2_over_r = self.k * self.k / self.r
+        self.deadband = params.motor_deadband * params.motor_voltage
+        self.r_bat = params.battery_resistance / params.motor_voltage
+        self.reset()
+
+    def reset(self):
+        self.i_prev = 0.0
+        self.i_other = 0.0
+        self.i_signed = 0.0
 
     def torque(self, voltage, speed):
+        if -self.deadband < voltage < self.deadband:
+            voltage = 0.0
+        elif self.r_bat:
+            # the pack sags under the previous step's load (explicit: R_bat i << V)
+            voltage *= 1.0 - self.r_bat * (self.i_prev + self.i_other + IDLE_CURRENT)
         t = self._k_over_r * voltage - self._k2_over_r * speed
         lim = self.limit
         if t > lim:
             t = lim
         elif t < -lim:
             t = -lim
+        self.i_prev = abs(t) / self.k
+        self.i_signed = t / self.k
         return t - self.b * speed
 
     def current(self, voltage, speed):
         return (voltage - self.k * speed) / self.r
+
+
+class Servo:
+    """The steering servo as a DC motor behind a proportional position loop (hobby servo):
+    torque = stall * (clip((target - angle) / band, -1, 1) - speed / no_load_speed), i.e.
+    full torque beyond ``steer_band`` of error, the motor's back-EMF line (stall at rest,
+    zero at ``steer_speed``) as its damping. Compliant: holding the pendulum at 30 deg from
+    the vertical (0.15 N m) deflects it by 0.3 band. Its gear friction (``steer_friction``) acts in
+    PyBullet as a velocity motor held at 0; the end stops are PyBullet joint limits at
+    +-(steer_max + steer_stop)."""
+
+    __slots__ = ("stall", "inv_band", "kd", "max")
+
+    def __init__(self, params: RobotParams):
+        self.stall = params.steer_torque
+        self.inv_band = 1.0 / params.steer_band if params.steer_band > 0 else 0.0
+        self.kd = params.steer_torque / params.steer_speed
+        self.max = params.steer_max
+
+    def torque(self, target, angle, speed):
+        e = (target - angle) * self.inv_band
+        e = 1.0 if e > 1.0 else (-1.0 if e < -1.0 else e)
+        t = self.stall * e - self.kd * speed
+        s = self.stall
+        return s if t > s else (-s if t < -s else t)
 
 
 def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
@@ -250,9 +360,11 @@ def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
                                        physicsClientId=client)
     half = 0.5 * yaw
     orn = [0.0, 0.0, math.sin(half), math.cos(half)]
+    # a compliant contact carries the weight at its static compression: start there
+    sink = params.total_mass * 9.81 / params.contact_stiffness if params.contact_stiffness > 0 else 0.0
     body = p.createMultiBody(
         baseMass=params.frame_mass, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vis_frame,
-        basePosition=[float(position[0]), float(position[1]), r], baseOrientation=orn,
+        basePosition=[float(position[0]), float(position[1]), r - sink], baseOrientation=orn,
         baseInertialFramePosition=[0, 0, 0], baseInertialFrameOrientation=[0, 0, 0, 1],
         linkMasses=[params.shell_mass, params.pendulum_mass],
         linkCollisionShapeIndices=[col, -1], linkVisualShapeIndices=[vis_shell, vis_pend],
@@ -266,25 +378,60 @@ def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
                      angularDamping=0.0, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
                      physicsClientId=client)
     ishell = params.shell_inertia
+    contact = {}
+    if params.contact_stiffness > 0:
+        # compliant contact: a spring-damper normal force instead of PyBullet's rigid
+        # constraint, so that an impact lasts several physics steps (docs/envs/robot.md)
+        contact = dict(contactStiffness=params.contact_stiffness, contactDamping=params.contact_damping)
     p.changeDynamics(body, DRIVE_JOINT, localInertiaDiagonal=[ishell] * 3, jointDamping=0.0,
                      lateralFriction=params.lateral_friction,
                      rollingFriction=params.rolling_resistance * r,
-                     spinningFriction=params.spinning_friction, restitution=0.0,
-                     linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
+                     spinningFriction=0.0, restitution=0.0,
+                     linearDamping=0.0, angularDamping=0.0, physicsClientId=client, **contact)
     p.changeDynamics(body, STEER_JOINT, localInertiaDiagonal=list(params.pendulum_inertia), jointDamping=0.0,
                      linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
-    # the drive joint: free (torque from the motor model); the steering joint: servo
-    p.setJointMotorControl2(body, DRIVE_JOINT, p.VELOCITY_CONTROL, targetVelocity=0.0, force=0.0,
-                            physicsClientId=client)
-    set_steer(p, client, body, params, 0.0)
+    # the drive joint: torque from the motor model, plus the gearbox's Coulomb friction as a
+    # velocity motor held at 0 (PyBullet's joint friction: a constraint, so it sticks)
+    set_drive_friction(p, client, body, params.drive_coulomb)
+    if params.steer_band > 0:
+        # compliant servo (Servo, torque-controlled by the caller), gear friction, end stops
+        p.setJointMotorControl2(body, STEER_JOINT, p.VELOCITY_CONTROL, targetVelocity=0.0,
+                                force=params.steer_friction, physicsClientId=client)
+        if params.steer_stop > 0:
+            lim = params.steer_max + params.steer_stop
+            p.changeDynamics(body, STEER_JOINT, jointLowerLimit=-lim, jointUpperLimit=lim, physicsClientId=client)
+    else:
+        set_steer(p, client, body, params, 0.0)
     if visual:
         tex = p.loadTexture(data + "/checker_grid.jpg", physicsClientId=client)
         p.changeVisualShape(body, DRIVE_JOINT, textureUniqueId=tex, physicsClientId=client)
     return body
 
 
+def spin_torque(params):
+    """(N m) the spinning friction's torque, applied by the caller as an explicit torque on
+    the shell about the vertical: PyBullet's own spinningFriction constraint pumps the
+    sideways rocking in a turn (roll peak to peak grows to 60-80 deg with 3e-4 m even at
+    1600 Hz; with none it decays). Normal force: the robot's weight."""
+    return params.spinning_friction * params.total_mass * 9.81
+
+
+#: (rad/s) the spin rate over which the spinning friction ramps to its full value. A rolling
+#: contact's spin moment is linear in the spin creepage and saturates at full slip (Kalker,
+#: "Three-Dimensional Elastic Bodies in Rolling Contact"); with a sharp (0.05 rad/s) Coulomb
+#: law the sideways rocking after a turn grew instead of decaying (measured: 17 deg peak to
+#: peak sustained after 20 s; with 1 rad/s it decays to 2.4 deg)
+SPIN_EPS = 1.0
+
+
+def set_drive_friction(p, client, body, force):
+    """The gearbox's friction torque (N m) on the drive joint: a velocity motor held at 0."""
+    p.setJointMotorControl2(body, DRIVE_JOINT, p.VELOCITY_CONTROL, targetVelocity=0.0, force=force,
+                            physicsClientId=client)
+
+
 def set_steer(p, client, body, params, target):
-    """Command the steering servo to ``target`` rad (clipped to +-steer_max): a position
+    """The ideal robot's (steer_band = 0) servo: command the steering servo to ``target`` rad (clipped to +-steer_max): a position
     servo with torque limit ``steer_torque`` and slew limit ``steer_speed``."""
     m = params.steer_max
     target = m if target > m else (-m if target < -m else target)

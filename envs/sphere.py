@@ -20,7 +20,8 @@ from gymnasium import spaces
 import fusion
 from fusion import imu as fimu
 
-from envs.robot import DRIVE_JOINT, STEER_JOINT, DCMotor, RobotParams, build_robot, set_steer
+from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
+                        SPIN_EPS, build_robot, spin_torque, set_drive_friction, set_steer)
 
 __all__ = ["SphereRobotEnv", "TASKS", "ESTIMATORS", "OBS_NAMES"]
 
@@ -87,6 +88,10 @@ class SphereRobotEnv(gym.Env):
     imu_offset: (m) the IMU's position on the inner frame, from the axle centre.
     episode_s: episode length (s), default 30 (track) or 60 (waypoints).
     robot: ``RobotParams``, or a dict of overrides of its fields.
+    realism: "real" (default: the v1 robot's losses, compliance, latency, deadband, battery
+        sag, vibration and own magnetic field) or "ideal" (``RobotParams.ideal()``: all of
+        them off; a ``robot`` dict then overrides fields of the ideal robot, a
+        ``RobotParams`` is used as it is). docs/envs/robot.md, "Realism".
     arena_size: side of the square arena (m) centred on the origin; leaving it ends the episode.
     bumps: number of low cylindrical bumps (height ``bump_height``) laid on the floor.
     ramps: number of ramps (slope ``ramp_deg``, height ``ramp_height``) on the floor.
@@ -109,7 +114,7 @@ class SphereRobotEnv(gym.Env):
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
                  mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, n_waypoints=4,
                  waypoint_radius=0.5, position_fix_hz=0.0, position_fix_std=0.5,
-                 render_mode=None, render_size=(320, 240)):
+                 realism="real", render_mode=None, render_size=(320, 240)):
         super().__init__()
         if task not in TASKS:
             raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")
@@ -150,7 +155,13 @@ class SphereRobotEnv(gym.Env):
                              f"(range: k * {self.control_hz:g}, k = 1, 2, ...), got {physics_hz!r}")
         if self.physics_hz < 100.0:
             raise ValueError(f"physics_hz must be >= 100 Hz for stable contact, got {physics_hz!r}")
-        self.robot = RobotParams.from_any(robot)
+        if realism not in REALISM:
+            raise ValueError(f"realism must be one of {', '.join(map(repr, REALISM))}, got {realism!r}")
+        self.realism = realism
+        self.robot = RobotParams.from_any(robot, ideal=realism == "ideal")
+        if self.robot.latency_s > 1.0 / self.control_hz + 1e-12:
+            raise ValueError(f"robot.latency_s must be in [0, 1 / control_hz = {1.0 / self.control_hz:g}] s, "
+                             f"got {self.robot.latency_s!r}")
         self.arena_size = _number("arena_size", arena_size, 2.0, 1000.0)
         eps = _DEFAULT_EPISODE_S[task] if episode_s is None else episode_s
         self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
@@ -220,6 +231,17 @@ class SphereRobotEnv(gym.Env):
             self._est = None
         self._imu = None
         self._motor = DCMotor(self.robot)
+        self._servo = Servo(self.robot) if self.robot.steer_band > 0 else None
+        self._lat_steps = int(round(self.robot.latency_s * self.physics_hz))
+        rp = self.robot
+        self._vib = bool(rp.vib_motor or rp.vib_commutation or rp.vib_gear or rp.vib_seam)
+        self._w_top = rp.motor_voltage / rp.motor_k
+        # (motor tone's multiple of the drive angle, its amplitude, commutation's, gear mesh's
+        # multiple and amplitude, seam's, 1 / top speed, the highest tone kept (rad/s))
+        self._vib_k = (rp.gear_ratio, rp.vib_motor, rp.vib_commutation, rp.gear_teeth, rp.vib_gear, rp.vib_seam,
+                       1.0 / self._w_top, 0.8 * math.pi * self.physics_hz)
+        self._qd = self._wd_last = self._qs = 0.0
+        self._self_field = bool(rp.mag_steer or rp.mag_current)
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
@@ -259,6 +281,21 @@ class SphereRobotEnv(gym.Env):
         """(m) the horizontal length of a ramp's slope."""
         return self.ramp_height / math.tan(math.radians(self.ramp_deg))
 
+    @property
+    def _ramp_verts(self):
+        """The ramp's mesh vertices, one list built once: PyBullet keeps every new vertex list
+        passed to createCollisionShape (memory grew 10 MB per 1,000 resets with ramps)."""
+        v = getattr(self, "_ramp_verts_cache", None)
+        if v is None:
+            h, run = self.ramp_height, self._ramp_run()
+            top, w = RAMP_TOP, RAMP_WIDTH
+            xs = (-(top / 2 + run), -top / 2, top / 2, top / 2 + run)
+            v = []
+            for yy in (-w / 2, w / 2):
+                v += [[xs[0], yy, 0.0], [xs[1], yy, h], [xs[2], yy, h], [xs[3], yy, 0.0]]
+            self._ramp_verts_cache = v
+        return v
+
     def _build_world(self, start_xy, start_yaw, bumps, ramps):
         p, c = self._p, self._client
         p.resetSimulation(physicsClientId=c)
@@ -280,13 +317,7 @@ class SphereRobotEnv(gym.Env):
             orn = p.multiplyTransforms([0, 0, 0], qy, [0, 0, 0], qa)[1]
             statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
         for (x, y, yaw) in ramps:
-            h = self.ramp_height
-            run = self._ramp_run()
-            top, w = RAMP_TOP, RAMP_WIDTH
-            xs = (-(top / 2 + run), -top / 2, top / 2, top / 2 + run)
-            verts = []
-            for yy in (-w / 2, w / 2):
-                verts += [[xs[0], yy, 0.0], [xs[1], yy, h], [xs[2], yy, h], [xs[3], yy, 0.0]]
+            verts = self._ramp_verts
             col = p.createCollisionShape(p.GEOM_MESH, vertices=verts, physicsClientId=c)
             vis = -1
             if visual:
@@ -432,6 +463,7 @@ class SphereRobotEnv(gym.Env):
             pv = self._v_prev
             ax, ay, az = (vx - pv[0]) * k, (vy - pv[1]) * k, (vz - pv[2]) * k + G   # a - g, g = (0, 0, -G)
         self._v_prev = (vx, vy, vz)
+        self._wb, self._axle = ang, (r01, r11, r21)
         bx, by, bz = self.earth_field
         if self._zones:
             px, py, pz = pos[0] + rx, pos[1] + ry, pos[2] + rz
@@ -448,8 +480,15 @@ class SphereRobotEnv(gym.Env):
                     bz += s * (3 * uz * mr - mz)
         # world -> body: R^T v
         gyr = (r00 * wx_ + r10 * wy_ + r20 * wz_, r01 * wx_ + r11 * wy_ + r21 * wz_, r02 * wx_ + r12 * wy_ + r22 * wz_)
-        acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
+        if self._vib:                       # body frame
+            vx_, vy_, vz_ = self._vibration()
+            acc = (r00 * ax + r10 * ay + r20 * az + vx_, r01 * ax + r11 * ay + r21 * az + vy_,
+                   r02 * ax + r12 * ay + r22 * az + vz_)
+        else:
+            acc = (r00 * ax + r10 * ay + r20 * az, r01 * ax + r11 * ay + r21 * az, r02 * ax + r12 * ay + r22 * az)
         mag = (r00 * bx + r10 * by + r20 * bz, r01 * bx + r11 * by + r21 * bz, r02 * bx + r12 * by + r22 * bz)
+        if self._self_field:
+            mag = self._add_self_field(mag)
         self._true = (pos, orn, lin, gyr, acc, mag)
         s = self._imu.step(gyr, acc, mag)
         if self.signal_log is not None:
@@ -466,17 +505,107 @@ class SphereRobotEnv(gym.Env):
             self._gyr_sum_y += g[1]
             self._gyr_n += 1
 
-    def _advance(self, n, voltage):
+    def _add_self_field(self, mag):
+        """(uT, body frame) the robot's own field at the IMU on top of ``mag``: what a
+        calibration at rest with the pendulum centred and the motor off leaves. The
+        pendulum's field (steel cans of the cells, the servo's magnet; magnitude
+        ``mag_steer`` at the IMU) turns with the steering angle about the frame's x axis,
+        so its change from the calibrated centred value remains; the drive current's field
+        (unshielded leads and the motor's armature; ``mag_current`` uT per A) lies along the
+        axle and changes sign with the current. docs/envs/robot.md."""
+        rp = self.robot
+        q = self._qs
+        bp = rp.mag_steer
+        c, s_ = math.cos(q), math.sin(q)
+        # R_x(q) (0, 0, -bp) - (0, 0, -bp): the pendulum's field hangs below the axle
+        dy, dz = bp * s_, bp * (1.0 - c)
+        dy += rp.mag_current * self._motor.i_signed
+        return (mag[0], mag[1] + dy, mag[2] + dz)
+
+    def _vibration(self):
+        """(m/s^2, body frame) the drive's vibration at the IMU, phase-locked to the drive
+        joint's angle (so the same at any physics rate) and scaled with its speed: the motor's
+        imbalance (a vector rotating in the x-z plane at the motor's speed, gear_ratio x the
+        output), its commutation (2x, along z), the output stage's gear mesh (gear_teeth x
+        the output, x-z) and the shell's seam (a raised-cosine pulse along z once per
+        revolution, 0.15 rad of shell rotation wide). Tones above 0.4 physics_hz are left out
+        (they would alias in the physics itself). Amplitudes: docs/envs/robot.md."""
+        n_m, a_m, a_c, n_g, a_g, a_s, inv_top, lim = self._vib_k
+        q, w = self._qd, self._wd_last
+        if w < 0.0:
+            w = -w
+        s = w * inv_top
+        vx = vy = vz = 0.0
+        if n_m * w < lim:
+            ph = n_m * q
+            c, sn = math.cos(ph), math.sin(ph)
+            a = a_m * s
+            vx = a * c
+            vz = a * sn
+            vy = 0.3 * a * (0.5403023058681398 * c - 0.8414709848078965 * sn)      # cos(ph + 1)
+            if 2.0 * n_m * w < lim:
+                vz += a_c * s * (c * c - sn * sn)                                  # cos(2 ph)
+        if n_g * w < lim:
+            ph = n_g * q
+            a = a_g * s
+            vx += a * math.sin(ph)
+            vz += a * math.cos(ph)
+        if a_s:
+            u = (q % 6.283185307179586) * (1.0 / 0.15)
+            if u < 1.0:
+                vz += a_s * s * s * 0.5 * (1.0 - math.cos(6.283185307179586 * u))
+        return vx, vy, vz
+
+    def _advance(self, n, voltage, target):
+        """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
+        steering ``target`` (rad); the previous command holds for the first
+        ``latency_s`` of them (actuation latency)."""
         p, c, b = self._p, self._client, self._body
-        torque = self._motor.torque
+        rp = self.robot
+        motor, servo = self._motor, self._servo
+        torque = motor.torque
         torque_mode = p.TORQUE_CONTROL
-        getjs, setm, step, sense = p.getJointState, p.setJointMotorControl2, p.stepSimulation, self._sense
-        tau = 0.0
-        for _ in range(n):
-            tau = torque(voltage, getjs(b, DRIVE_JOINT, c)[1])
-            setm(b, DRIVE_JOINT, torque_mode, force=tau, physicsClientId=c)
+        step, sense = p.stepSimulation, self._sense
+        getjs, setm = p.getJointStates, p.setJointMotorControlArray
+        ext, world = p.applyExternalTorque, p.WORLD_FRAME
+        joints = (DRIVE_JOINT, STEER_JOINT)
+        v_old, t_old = self._cmd_prev
+        lat = self._lat_steps
+        stiction = rp.drive_stiction
+        spin, inv_eps, roll_c = spin_torque(rp), 1.0 / SPIN_EPS, rp.rolling_damping
+        if servo is not None:
+            stort = servo.torque
+            i_servo = SERVO_STALL_CURRENT / rp.steer_torque
+        tau = ts = 0.0
+        for i in range(n):
+            v, tgt = (v_old, t_old) if i < lat else (voltage, target)
+            js = getjs(b, joints, c)
+            self._qd, wd = js[0][0], js[0][1]
+            self._qs = js[1][0]
+            self._wd_last = wd
+            tau = torque(v, wd)
+            if servo is not None:
+                ts = stort(tgt, js[1][0], js[1][1])
+                motor.i_other = i_servo * abs(ts)
+            elif i == lat:
+                set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
+            setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
+            if spin or roll_c:
+                # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
+                # rolling damping about x and y, spinning friction about z
+                w, a = self._wb, self._axle
+                e = (w[2] + wd * a[2]) * inv_eps
+                ext(b, DRIVE_JOINT, (-roll_c * (w[0] + wd * a[0]), -roll_c * (w[1] + wd * a[1]),
+                                     -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
+                    world, physicsClientId=c)
+            if stiction:
+                stuck = -0.05 < wd < 0.05
+                if stuck != self._stuck_gear:
+                    self._stuck_gear = stuck
+                    set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
             step(c)
             sense()
+        self._cmd_prev = (voltage, target)
         self._tau = tau
 
     # ------------------------------------------------------------------------------------
@@ -515,8 +644,12 @@ class SphereRobotEnv(gym.Env):
         self._last_sample = None
         self._n_samples = 0
         self._gyr_sum_y, self._gyr_n = 0.0, 0
+        self._qd = self._wd_last = self._qs = 0.0
+        self._motor.reset()
         self._sense(first=True)
-        self._advance(self._settle_steps, 0.0)
+        self._cmd_prev = (0.0, 0.0)
+        self._stuck_gear = False
+        self._advance(self._settle_steps, 0.0, 0.0)
         # episode state
         self._t = 0.0
         self._steps = 0
@@ -556,9 +689,8 @@ class SphereRobotEnv(gym.Env):
             a1 = 1.0 if a1 > 1.0 else (-1.0 if a1 < -1.0 else a1)
         self._action = (a0, a1)
         rp = self.robot
-        set_steer(self._p, self._client, self._body, rp, a1 * rp.steer_max)
         self._gyr_sum_y, self._gyr_n = 0.0, 0
-        self._advance(self._n_sub, a0 * rp.motor_voltage)
+        self._advance(self._n_sub, a0 * rp.motor_voltage, a1 * rp.steer_max)
         self._steps += 1
         self._t = self._steps / self.control_hz
         # Hall encoder: counts over the control period

@@ -122,6 +122,15 @@ class SensorSpec:
         None: symmetric limit at the largest whole LSB within the range.
     lpf_hz: Hz, -3 dB bandwidth of the first-order output low-pass (the chip's DLPF),
         applied at the physics rate before sampling; None: no low-pass.
+    noise_bw_hz: Hz, the datasheet's noise bandwidth (NBW) of that DLPF setting, or None.
+        Given, the white noise is that of a continuous process of density
+        ``noise_density`` and bandwidth NBW point-sampled at the output rate, as the chip's
+        output register is: per-sample standard deviation ``noise_density * sqrt(NBW)``,
+        correlation exp(-4 NBW / rate_hz) between samples; an NBW above rate_hz / 2
+        aliases, and the output's density (``density_at``) exceeds ``noise_density``.
+        None: the noise is shaped as if anti-aliased (density ``noise_density`` at any rate).
+    scale_error_calibrated, misalignment_calibrated: the residual scale and cross-axis
+        errors after a calibration (used by ``IMUSpec.calibrated()``); None: unchanged.
     """
 
     noise_density: float = 0.0
@@ -136,9 +145,16 @@ class SensorSpec:
     lsb: float = 0.0
     adc_bits: Optional[int] = None
     lpf_hz: Optional[float] = None
+    noise_bw_hz: Optional[float] = None
+    scale_error_calibrated: Optional[float] = None
+    misalignment_calibrated: Optional[float] = None
 
     def __post_init__(self):
         own = type(self).__name__
+        object.__setattr__(self, "noise_bw_hz", _check_number(own, "noise_bw_hz", self.noise_bw_hz, positive=True,
+                                                              allow_none=True))
+        for name in ("scale_error_calibrated", "misalignment_calibrated"):
+            object.__setattr__(self, name, _check_number(own, name, getattr(self, name), allow_none=True))
         for name in ("noise_density", "bias_instability", "bias_random_walk", "scale_error",
                      "misalignment", "lsb"):
             object.__setattr__(self, name, _check_number(own, name, getattr(self, name)))
@@ -159,6 +175,15 @@ class SensorSpec:
         the Allan deviation of the white noise at tau = 1 s, ``noise_density / sqrt(2)``."""
         return self.noise_density / math.sqrt(2.0)
 
+    def density_at(self, rate_hz):
+        """u/sqrt(Hz): the one-sided white-noise density of the output at ``rate_hz``
+        (``noise_density`` unless an NBW above about rate_hz / 4 aliases into it)."""
+        if self.noise_bw_hz is None:
+            return self.noise_density
+        b = self.noise_bw_hz
+        rho = math.exp(-4.0 * b / rate_hz)
+        return self.noise_density * math.sqrt(2.0 * b / rate_hz * (1.0 + rho) / (1.0 - rho))
+
     @property
     def allan_floor(self):
         """u: the Allan-deviation floor of the bias instability, 0.664 * bias_instability."""
@@ -178,13 +203,14 @@ class SensorSpec:
     def allan(self, tau, rate_hz=None):
         """Model Allan deviation (u) at averaging times ``tau`` (s) of a static record.
 
-        White noise, bias instability and bias random walk; with ``rate_hz`` also the
-        quantisation error as white noise (LSB^2/12 per sample, valid when the noise
+        White noise, bias instability and bias random walk; with ``rate_hz`` the white noise
+        at that rate (``density_at``, aliasing included) and the quantisation error as white noise (LSB^2/12 per sample, valid when the noise
         dithers it, i.e. per-sample noise above about LSB/2). The low-pass colouring of the
         white noise (tau of a few samples) is left out.
         """
         tau = np.asarray(tau, dtype=float)
-        av = self.arw ** 2 / tau + self.bias_random_walk ** 2 * tau / 3.0
+        arw = self.arw if rate_hz is None else self.density_at(rate_hz) / math.sqrt(2.0)
+        av = arw ** 2 / tau + self.bias_random_walk ** 2 * tau / 3.0
         floor = self.allan_floor
         if floor > 0:
             for frac, w in zip(_GM_FRACTIONS, _GM_WEIGHTS):
@@ -325,10 +351,17 @@ class IMUSpec:
     def calibrated(self):
         """A copy with the residuals of a power-on calibration in place of the raw part's
         turn-on biases (gyro static average, accelerometer six-position calibration) and of
-        the magnetometer's hard and soft iron (ellipsoid fit). Scale and misalignment are the
-        factory-trimmed tolerances already and stay."""
-        g = replace(self.gyro, bias_turn_on=self.gyro.bias_turn_on_calibrated)
-        a = replace(self.acc, bias_turn_on=self.acc.bias_turn_on_calibrated)
+        the magnetometer's hard and soft iron (ellipsoid fit), and the scale and cross-axis
+        residuals where the spec gives them (``scale_error_calibrated``,
+        ``misalignment_calibrated``; else the factory tolerances stay)."""
+        def cal(sp):
+            ch = {"bias_turn_on": sp.bias_turn_on_calibrated}
+            if sp.scale_error_calibrated is not None:
+                ch["scale_error"] = sp.scale_error_calibrated
+            if sp.misalignment_calibrated is not None:
+                ch["misalignment"] = sp.misalignment_calibrated
+            return replace(sp, **ch)
+        g, a = cal(self.gyro), cal(self.acc)
         m = self.mag
         if m is not None:
             m = replace(m, hard_iron=m.hard_iron_calibrated, soft_iron=m.soft_iron_calibrated)
@@ -348,6 +381,18 @@ def _rrw(bias_instability, corr_time_s):
 
 _INV_GYRO_BI = 10.0 * DPH       # assumed bias instability of InvenSense consumer gyros
 _INV_ACC_BI = 0.1 * MG          # assumed bias instability of InvenSense consumer accelerometers
+# Noise bandwidths of the register-default DLPF (gyro DLPF_CFG = 0: 250 Hz 3-dB, accelerometer
+# A_DLPF_CFG = 0: 218.1 Hz 3-dB): ICM-20602 data sheet's DLPF tables (NBW 306.6 Hz and
+# 235.0 Hz); the MPU-9250's register map gives the same 3-dB bandwidths and delays, no NBW.
+_INV_GYRO_NBW = 306.6
+_INV_ACC_NBW = 235.0
+# Residual scale and cross-axis errors after a user calibration of a consumer MEMS IMU
+# (accelerometer: multi-position fit of gains and non-orthogonality; gyro: rotations against
+# the calibrated accelerometer), after Tedaldi, Pretto and Menegatti, "A robust and easy to
+# implement method for IMU calibration without external equipments" (ICRA 2014): a few
+# 0.1 % of scale and about 0.1 deg of axis error remain. docs/imu.md.
+_CAL_ACC = dict(scale_error_calibrated=0.003, misalignment_calibrated=0.002)
+_CAL_GYRO = dict(scale_error_calibrated=0.005, misalignment_calibrated=0.003)
 
 PRESETS = {
     # A perfect sensor: returns the true signals sampled at the IMU rate.
@@ -360,11 +405,12 @@ PRESETS = {
         gyro=SensorSpec(noise_density=0.005 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
                         bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=20.0 * DEG,
                         bias_turn_on_calibrated=0.8 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=5.0),
+                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=5.0, **_CAL_GYRO),
         acc=SensorSpec(noise_density=400.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
                        bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
                        bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
-                       misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=5.0),
+                       misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=5.0,
+                       **_CAL_ACC),
         mag=MagSpec(noise_rms=0.25, range=1000.0, lsb=0.1, adc_bits=16, rate_hz=80.0, hard_iron=100.0,
                     soft_iron=0.02, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=10.0, jitter_s=20e-6),
@@ -394,11 +440,13 @@ PRESETS = {
         gyro=SensorSpec(noise_density=0.004 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
                         bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=1.0 * DEG,
                         bias_turn_on_calibrated=0.05 * DEG, scale_error=0.01, misalignment=0.02,
-                        range=2000.0 * DEG, lsb=DEG / 16.4, adc_bits=16, lpf_hz=250.0),
+                        range=2000.0 * DEG, lsb=DEG / 16.4, adc_bits=16, lpf_hz=250.0,
+                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
         acc=SensorSpec(noise_density=100.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
                        bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=40.0 * MG,
                        bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
-                       misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, adc_bits=16, lpf_hz=218.1),
+                       misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, adc_bits=16, lpf_hz=218.1,
+                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
         mag=MagSpec(noise_rms=0.2, range=8.0 * GAUSS, lsb=GAUSS / 3000.0, adc_bits=16, rate_hz=200.0,
                     hard_iron=10.0, soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=200.0, jitter_s=20e-6),
@@ -410,12 +458,14 @@ PRESETS = {
         "mpu9250",
         gyro=SensorSpec(noise_density=0.01 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
                         bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=5.0 * DEG,
-                        bias_turn_on_calibrated=1.2 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=250.0),
+                        bias_turn_on_calibrated=0.3 * DEG, scale_error=0.03, misalignment=0.02,
+                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=250.0,
+                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
         acc=SensorSpec(noise_density=300.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
                        bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
-                       bias_turn_on_calibrated=7.5 * MG, scale_error=0.03, misalignment=0.02,
-                       range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=218.1),
+                       bias_turn_on_calibrated=3.0 * MG, scale_error=0.03, misalignment=0.02,
+                       range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=218.1,
+                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
         mag=MagSpec(noise_rms=0.6, range=4800.0, lsb=0.6, adc_bits=14, rate_hz=100.0, hard_iron=75.0,
                     soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=500.0, jitter_s=20e-6),
@@ -541,8 +591,13 @@ def _channel_params(spec, fs):
     # White noise: one-sided density noise_density at the output whatever the rate; a low-pass
     # of (equivalent noise) bandwidth B shapes it as an AR(1) with rho = exp(-4 B / fs), the
     # sampled first-order process whose noise bandwidth is B (docs/imu.md).
-    wn_rho = math.exp(-4.0 * spec.lpf_hz / fs) if spec.lpf_hz is not None else 0.0
-    wn_sig = spec.noise_density * math.sqrt(0.5 * fs * (1.0 - wn_rho) / (1.0 + wn_rho))
+    if spec.noise_bw_hz is not None:
+        # the datasheet's NBW: the point-sampled first-order process (aliasing included)
+        wn_rho = math.exp(-4.0 * spec.noise_bw_hz / fs)
+        wn_sig = spec.noise_density * math.sqrt(spec.noise_bw_hz)
+    else:
+        wn_rho = math.exp(-4.0 * spec.lpf_hz / fs) if spec.lpf_hz is not None else 0.0
+        wn_sig = spec.noise_density * math.sqrt(0.5 * fs * (1.0 - wn_rho) / (1.0 + wn_rho))
     return dict(gm_rho=gm_rho, gm_sig=gm_sig, gm_c=gm_c, rw_c=spec.bias_random_walk * math.sqrt(dt),
                 wn_rho=wn_rho, wn_sig=wn_sig, wn_c=wn_sig * math.sqrt(1.0 - wn_rho * wn_rho))
 

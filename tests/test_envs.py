@@ -33,7 +33,9 @@ def rot(orn_xyzw):
 
 @pytest.fixture(scope="module")
 def ideal():
-    env = SphereRobotEnv(estimator="truth", imu="ideal")
+    # the clean paths (exact specific force, field, rolling) are checked on the ideal robot:
+    # the real one (v1 default) adds vibration and its own field (tests/test_env_realism.py)
+    env = SphereRobotEnv(estimator="truth", imu="ideal", realism="ideal")
     yield env
     env.close()
 
@@ -43,7 +45,8 @@ def ideal():
 
 
 def test_registered_ids_and_limits():
-    for env_id, steps in (("SphereBotTrack-v0", 1500), ("SphereBotWaypoints-v0", 3000)):
+    for env_id, steps in (("SphereBotTrack-v1", 1500), ("SphereBotWaypoints-v1", 3000),
+                          ("SphereBotTrack-v0", 1500), ("SphereBotWaypoints-v0", 3000)):
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == steps
     env = gym.make("SphereBotWaypoints-v0", estimator="mahony")
@@ -137,7 +140,7 @@ def test_specific_force_from_velocity_differences(ideal):
 
 
 def test_magnetometer_is_earth_field_in_body_frame_outside_zones():
-    env = SphereRobotEnv(estimator="truth", imu="ideal", mag_zones=[(0.0, 0.0, 40.0)])
+    env = SphereRobotEnv(estimator="truth", imu="ideal", mag_zones=[(0.0, 0.0, 40.0)], realism="ideal")
     env.reset(seed=7, options={"start_xy": (0.0, 0.0)})
     log = env.enable_signal_log()
     for i in range(200):                              # start in the zone, drive out of it

@@ -126,9 +126,12 @@ def test_allan_static_gyro_icm20602_matches_preset():
     rec = imu.IMU(spec, np.random.default_rng(3)).simulate(t, *static_inputs(n)[:2])
     taus, ad = imu.allan_deviation(rec.gyr, fs, taus=[0.01, 0.02, 0.05, 0.1, 1.0])
     g = spec.gyro
+    # its DLPF's noise bandwidth (306.6 Hz) exceeds the 100 Hz Nyquist rate: the output's
+    # white noise is aliased, 1.75x the datasheet density (changed with the NBW model)
+    assert g.density_at(fs) == pytest.approx(1.755 * g.noise_density, rel=0.01)
     for ax in range(3):
         sm = imu.allan_summary(taus, ad[:, ax], fs)
-        assert sm["arw"] == pytest.approx(g.arw, rel=0.2)
+        assert sm["arw"] == pytest.approx(g.density_at(fs) / np.sqrt(2.0), rel=0.2)
         assert sm["adev_1s"] == pytest.approx(float(g.allan(1.0, fs)), rel=0.1)
     assert g.allan(1.0, fs) > 1.05 * g.arw                          # the LSB term is visible
 
@@ -471,3 +474,32 @@ def test_bad_input_names_the_argument():
         imu.allan_deviation(np.zeros(100), 10.0, taus=[100.0])
     with pytest.raises(ValueError, match="center must have shape"):
         imu.dipole_field([0, 0, 0], [0, 0], [0, 0, 1])
+
+
+def test_per_sample_noise_from_the_dlpf_noise_bandwidth():
+    """MPU-9250 at 200 Hz, register-default DLPF: the per-sample noise is density x
+    sqrt(NBW) (235 Hz accelerometer, 306.6 Hz gyro), not density x sqrt(fs / 2): the
+    output register point-samples the filtered signal, so the bandwidth above 100 Hz aliases."""
+    base = imu.preset("mpu9250")
+    quiet = dict(bias_instability=0.0, bias_random_walk=0.0, bias_turn_on=0.0, scale_error=0.0,
+                 misalignment=0.0, lsb=0.0, adc_bits=None)
+    from dataclasses import replace
+    spec = base.replace(gyro=replace(base.gyro, **quiet), acc=replace(base.acc, **quiet), mag=None,
+                        rate_hz=200.0, jitter_s=0.0)
+    n = 40_000
+    t = np.arange(n) / 200.0
+    rec = imu.IMU(spec, np.random.default_rng(5)).simulate(t, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)))
+    acc_sd = (rec.acc - [0.0, 0.0, 9.81]).std(axis=0)
+    gyr_sd = rec.gyr.std(axis=0)
+    np.testing.assert_allclose(acc_sd, base.acc.noise_density * np.sqrt(235.0), rtol=0.03)
+    np.testing.assert_allclose(gyr_sd, base.gyro.noise_density * np.sqrt(306.6), rtol=0.03)
+    assert acc_sd.min() > 1.4 * base.acc.noise_density * np.sqrt(100.0)
+
+
+def test_calibration_removes_most_of_scale_and_cross_axis():
+    for name in ("mpu9250", "icm20602+qmc5883l", "mpu6050+mag3110"):
+        raw, cal = imu.preset(name), imu.preset(name, calibrated=True)
+        for a, b in ((raw.gyro, cal.gyro), (raw.acc, cal.acc)):
+            assert b.scale_error <= 0.5 * a.scale_error and b.misalignment <= 0.25 * a.misalignment
+        m = imu.IMU(cal, np.random.default_rng(0)).constants["acc_matrix"]
+        assert np.abs(m - np.eye(3)).max() < 0.02          # 3 % / 2 % raw: 5 sigma of 0.3 %

@@ -1,0 +1,63 @@
+"""The default physics rate (400 Hz) against 4x (1600 Hz) under the hardest inputs of the
+action space (envs/convergence.py; the measured table is in docs/envs/robot.md, "Rates"),
+and the sideways rocking after a hard turn decaying."""
+import math
+
+import numpy as np
+import pytest
+
+from envs.convergence import SCENARIOS, compare
+from envs.sphere import SphereRobotEnv
+
+
+def _rel(p):
+    return abs(p[0] - p[1]) / abs(p[1])
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_default_rate_matches_4x(name):
+    c = compare(name, 400.0)
+    bumps = name.startswith("bumps")
+    # trajectory: 10 s at up to 1 m/s (bumps: four crossings cost speed, hence 0.2 m)
+    assert c["dpos_m"] < (0.2 if bumps else 0.05), c
+    assert c["dheading_deg"] < 1.0, c
+    assert abs(c["roll_pp"][0] - c["roll_pp"][1]) < 3.0, c
+    # IMU statistics (ideal IMU): 5 % smooth, 20 % through impacts
+    assert _rel(c["acc_std"]) < (0.2 if bumps else 0.05), c
+    assert _rel(c["gyr_std"]) < 0.05, c
+    if bumps:
+        assert c["acc_peak"][1] > 20.0, c           # the bumps were hit
+        assert _rel(c["mpu_peak"]) < 0.2, c          # the chip's (DLPF) peak reading
+        assert _rel(c["acc_peak"]) < 0.25, c         # point samples of the ideal IMU
+
+
+def test_rocking_after_hard_turn_decays():
+    env = SphereRobotEnv(estimator="truth", imu="ideal", arena_size=60.0, episode_s=20.0)
+    env.reset(seed=1, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
+    roll = []
+    for k in range(15 * 50):
+        t = k / 50
+        env.step((1.0, 1.0 if 1.0 < t < 4.0 else 0.0))
+        R = env.true_state()["rotation"]
+        roll.append(math.degrees(math.asin(max(-1.0, min(1.0, R[2, 1])))))
+    env.close()
+    r = np.array(roll)
+    early, late = np.ptp(r[5 * 50:7 * 50]), np.ptp(r[13 * 50:15 * 50])
+    assert early > 10.0                     # the turn did excite the rocking
+    assert late < 0.5 * early, (early, late)
+
+
+def test_ideal_robot_is_undamped():
+    """realism='ideal' really switches the losses off: the same release rocks on."""
+    out = []
+    for realism in ("real", "ideal"):
+        env = SphereRobotEnv(estimator="truth", imu="ideal", arena_size=60.0, episode_s=20.0, realism=realism)
+        env.reset(seed=1, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
+        roll = []
+        for k in range(12 * 50):
+            env.step((1.0, 1.0 if 1.0 < k / 50 < 4.0 else 0.0))
+            R = env.true_state()["rotation"]
+            roll.append(math.degrees(math.asin(max(-1.0, min(1.0, R[2, 1])))))
+        env.close()
+        out.append(np.ptp(np.array(roll)[10 * 50:]))
+    assert out[1] > 2 * out[0], out
