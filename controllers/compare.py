@@ -190,13 +190,15 @@ def run_job(job):
 
 
 def runtime_env(policy_dir=None):
-    """The Ray ``runtime_env`` of a run: the package directories by content (``py_modules``:
-    sources, compiled kernels, shipped policies), and a custom policy directory as the
-    ``working_dir`` (the workers' current directory); nothing by a path on the driver."""
-    env = {"py_modules": [str(PACKAGE_ROOT / p) for p in PACKAGES], "excludes": list(RAY_EXCLUDES)}
-    if policy_dir is not None:
-        env["working_dir"] = str(policy_dir)
-    return env
+    """The Ray ``runtime_env`` of the grid's tasks: the package directories by content
+    (``py_modules``: sources and compiled kernels) and the policy directory (default the
+    package's shipped policies) as the ``working_dir``, the tasks' current directory; no
+    path on the driver is used by a worker."""
+    from controllers.rl import POLICY_DIR
+    return {"py_modules": [str(PACKAGE_ROOT / p) for p in PACKAGES],
+            "working_dir": str(policy_dir or POLICY_DIR),
+            # the policies travel once, as the working_dir
+            "excludes": list(RAY_EXCLUDES) + ["controllers/policies/", "policies/"]}
 
 
 def _custom_policy_dir(jobs):
@@ -209,8 +211,10 @@ def _custom_policy_dir(jobs):
 @contextlib.contextmanager
 def ray_session(address=None, workers=None, policy_dir=None):
     """One Ray session for a whole run: joins the cluster at ``address`` (or starts a local
-    one of ``workers`` CPUs) with ``runtime_env(policy_dir)``; shuts it down at the end. If
-    Ray is already initialised (by the caller), it is used as it is."""
+    one of ``workers`` CPUs) with ``runtime_env(policy_dir)`` (Ray uploads local directories
+    only for a whole session, not per task) and shuts it down at the end. If Ray is already
+    initialised, it is used as it is: then the caller's ``ray.init`` must pass
+    ``runtime_env=compare.runtime_env()``."""
     import ray
     if ray.is_initialized():
         yield ray
@@ -302,7 +306,8 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
     elif todo:
         with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
             remote = ray.remote(num_cpus=1)(run_job)
-            ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy_dir") else jobs[i]) for i in todo}
+            # the policies are in the task's working directory
+            ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
             refs = {remote.remote(ray_jobs[i]): i for i in todo}
             pending = list(refs)
             while pending:
