@@ -25,9 +25,11 @@ import hashlib
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
 import textwrap
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -299,10 +301,20 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
             for i in todo:
                 done(i, run_job(jobs[i]))
         else:
-            with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver")) as pool:
+            pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
+            try:
                 futs = {pool.submit(run_job, jobs[i]): i for i in todo}
                 for f in as_completed(futs):
                     done(futs[f], f.result())
+            except BaseException:
+                # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
+                # are cached) instead of waiting for the queued ones
+                procs = list((pool._processes or {}).values())   # shutdown() forgets them
+                for proc in procs:
+                    proc.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+            pool.shutdown()
     elif todo:
         with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
             remote = ray.remote(num_cpus=1)(run_job)
@@ -644,6 +656,9 @@ def main(argv=None):
     """The command line (``spherebot-compare``); returns the exit status."""
     ap = _parser()
     a = ap.parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     import fusion
     t0 = time.perf_counter()
     if a.quick and a.full:
