@@ -486,8 +486,10 @@ def _plot_headline(summary, path):
     """One panel per task and floor: the estimators ranked by the paired difference of the
     main metric against truth, one point with its 95 % interval per controller. Returns
     None, or why there is no figure (nothing is written then)."""
+    order = {name: i for i, name in enumerate(SCENARIOS)}
     panels = sorted({(r["task"], r["scenario"]) for r in summary
-                     if r["estimator"] != "truth" and math.isfinite(r["delta_" + r["main_metric"]])})
+                     if r["estimator"] != "truth" and math.isfinite(r["delta_" + r["main_metric"]])},
+                    key=lambda p: (p[0], order.get(p[1], len(order)), p[1]))
     if not panels:
         if not any(r["estimator"] == "truth" for r in summary):
             return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
@@ -518,15 +520,23 @@ def _plot_headline(summary, path):
                              r["delta_" + main + "_hi"] * pct)
                 yk = yy + (k - (len(ctrls) - 1) / 2) * off
                 ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]], fmt="o", color=_COLOR[c], ms=5, capsize=3,
-                            label=c if e == ests[0] or not ax.get_legend_handles_labels()[1].count(c) else None)
+                            label=c)
+                # the cell's own value beside its interval (success as an absolute rate)
+                ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
+                            (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
+                            color=_COLOR[c])
         ax.axvline(0, color="k", lw=0.8)
         ax.set_yticks(y, ests)
         ax.set_ylim(-0.6, len(ests) - 0.4)
         truth = {r["controller"]: r for r in summary
                  if r["task"] == task and r["scenario"] == sc and r["estimator"] == "truth"}
-        ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}" for c in ctrls if c in truth)
+        unit = "" if main in BINARY_METRICS else f" {UNITS[main]}"
+        ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}{unit}"
+                            for c in ctrls if c in truth)
         worse = "left" if higher else "right"
-        ax.set_title(f"{task}, {sc} floor — truth: {ref_txt}   ({worse} = worse)", fontsize=10)
+        ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}   ({worse} = worse; labels: the cell's own value)",
+                     fontsize=9)
+        ax.margins(x=0.12)
         ax.set_xlabel(_LABEL.get(main, f"Δ {main} vs truth"))
         ax.grid(axis="x", alpha=0.3)
         handles, labels = ax.get_legend_handles_labels()
