@@ -360,7 +360,9 @@ def summarise(rows, seed=0):
             row[m], row[m + "_lo"], row[m + "_hi"] = st["mean"], st["lo"], st["hi"]
             if m not in BINARY_METRICS:
                 row[m + "_iqm"], row[m + "_iqm_lo"], row[m + "_iqm_hi"] = st["iqm"], st["iqm_lo"], st["iqm_hi"]
-            if seeds:
+            if est == "truth" and truth is not None:
+                d = {"delta": 0.0, "lo": 0.0, "hi": 0.0}       # the reference itself
+            elif seeds:
                 d = paired_difference([eps[s][m] for s in seeds], [truth[s][m] for s in seeds], m, seed=seed)
             else:
                 d = {"delta": float("nan"), "lo": float("nan"), "hi": float("nan")}
