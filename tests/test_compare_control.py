@@ -90,8 +90,9 @@ def test_cache_resume_and_code_version(tmp_path, monkeypatch):
     assert again == first
 
 
-def test_ray_two_node_cluster_equals_local():
-    """Two nodes of one CPU each on this machine, two cells of PID and one of PPO."""
+def test_ray_two_node_cluster_equals_local(tmp_path, monkeypatch):
+    """Two nodes of one CPU each on this machine, two cells of PID and one of PPO; the cells
+    the Ray run cached are resumed without running them again."""
     ray = pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
     jobs = _jobs()
@@ -106,7 +107,7 @@ def test_ray_two_node_cluster_equals_local():
         cluster.wait_for_nodes()
         with compare.ray_session(address=cluster.address):
             assert len(ray.nodes()) == 2
-            via_ray = compare.run_grid(jobs, backend="ray", progress=False)
+            via_ray = compare.run_grid(jobs, backend="ray", progress=False, cache_dir=tmp_path, log=lambda *a: None)
 
             @ray.remote
             def where():
@@ -118,6 +119,11 @@ def test_ray_two_node_cluster_equals_local():
     finally:
         cluster.shutdown()
     assert via_ray == local
+
+    def no_work(job):
+        raise AssertionError("a cached cell was run again")
+    monkeypatch.setattr(compare, "run_job", no_work)
+    assert compare.run_grid(jobs, progress=False, cache_dir=tmp_path, resume=True, log=lambda *a: None) == local
 
 
 def test_outputs(tmp_path):
