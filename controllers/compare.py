@@ -4,24 +4,46 @@
 
 where controller is ``pid`` (the same gains everywhere), ``ppo`` (the PPO policy trained
 with that estimator in the loop) or ``ppo-truth`` (the PPO policy trained on the true
-attitude, run with that estimator), and the ``truth`` estimator row is the reference.
-Every cell is an independent job (``run_job``), so the grid runs in a local process pool
-or as Ray tasks with the same results for the same seeds.
+attitude, run with that estimator), and the ``truth`` estimator row is the reference: every
+cell is compared with the ``truth`` cell of the same task, scenario and controller over the
+same episode seeds (paired differences, ``controllers.evaluation.paired_difference``).
+
+Every cell is an independent job (``run_job``), run in a local process pool or as Ray
+tasks with the same results for the same seeds. Finished cells are cached under the output
+folder (``cells/<key>.json``, written atomically), keyed by the cell and by the code version
+(a hash of the package sources and of the cell's policy files), so that ``--resume``
+continues an interrupted grid and a cache from other code is never reused.
+
+The command line is ``main`` (``spherebot-compare``, ``scripts/compare_control.py``).
 """
 from __future__ import annotations
 
+import argparse
+import contextlib
 import csv
+import hashlib
+import json
 import math
 import os
+import signal
+import sys
+import tempfile
+import textwrap
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
-from controllers.evaluation import EPISODE_METRICS, MAIN_METRIC, aggregate, evaluate
+from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, SETTLE_BAND_DEG, SETTLE_WINDOW_S,
+                                    interval, newcombe_paired, paired_difference)
 
-__all__ = ["SCENARIOS", "CONTROLLERS", "plan", "run_job", "run_grid", "summarise", "write_outputs"]
+__all__ = ["SCENARIOS", "CONTROLLERS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
+           "write_outputs", "code_version", "cell_key", "ray_session", "runtime_env", "min_detectable_success",
+           "main"]
 
+TASKS = ("track", "waypoints")
 #: environment arguments of each scenario (on top of the task's defaults)
 SCENARIOS = {
     "flat": {},
@@ -30,43 +52,111 @@ SCENARIOS = {
     "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16},
 }
 CONTROLLERS = ("pid", "ppo", "ppo-truth")
-#: metrics shown in the summary table per task (the first is the main one)
-SHOWN = {"track": ("heading_rmse", "speed_rmse", "attitude_error", "heading_est_error"),
-         "waypoints": ("success", "cross_track", "time_to_goal", "attitude_error", "heading_est_error")}
+#: metrics of the summary per task (the first is the main one, MAIN_METRIC)
+SHOWN = {"track": ("heading_ss", "speed_ss", "settle_time", "attitude_error", "heading_est_error"),
+         "waypoints": ("success", "time_to_goal", "cross_track", "attitude_error", "heading_est_error")}
+UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_error": "deg",
+         "heading_est_error": "deg", "success": "", "time_to_goal": "s", "cross_track": "m"}
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("fusion", "envs", "controllers")
+#: what the Ray runtime_env does not upload (build products, training work directories)
+RAY_EXCLUDES = [".venv", "results", ".git", "build", "__pycache__", "*.c", "*.html", "*.run", "*.run.old-*",
+                "*.egg-info"]
+CACHE_DIR = "cells"
 
 
-def _policy_stem(controller, task, estimator, policy_dir):
-    from controllers.rl import policy_stem
-    trained_with = "truth" if controller == "ppo-truth" else estimator
-    return policy_stem("ppo", task, trained_with, policy_dir)
+# ----------------------------------------------------------------------------------------
+# planning
+
+def _check_names(kind, names, accepted):
+    names = list(names)
+    bad = [n for n in names if n not in accepted]
+    if bad or not names:
+        what = f"unknown {kind}(s) {', '.join(map(repr, bad))}" if bad else f"no {kind} given"
+        raise ValueError(f"{what}; accepted: {', '.join(accepted)}")
+    return names
+
+
+def _file_hash(paths):
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(Path(p).name.encode())
+        h.update(Path(p).read_bytes())
+    return h.hexdigest()
+
+
+def code_version():
+    """A hash of every source file of the packages (Python, Cython, hyperparameters): a
+    change anywhere gives a new version, so no cached cell of other code is reused."""
+    files = []
+    for pkg in PACKAGES:
+        d = PACKAGE_ROOT / pkg
+        for pat in ("*.py", "*.pyx", "*.pxd", "hyperparams/*.yml"):
+            files += sorted(d.glob(pat))
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(PACKAGE_ROOT)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _policy_files(stem):
+    return [Path(str(stem) + s) for s in (".zip", ".vecnormalize.pkl")]
 
 
 def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=None, log=print):
-    """The list of jobs (dicts); cells whose policy file is missing are left out with a message."""
-    from controllers.rl import POLICY_DIR
-    policy_dir = Path(policy_dir or POLICY_DIR)
+    """The list of jobs (dicts); unknown names raise ValueError listing the accepted ones;
+    cells whose policy file is missing are left out with a message. A job names its policy
+    by file name (``policy``), directory (``policy_dir``: None for the package's shipped
+    policies) and content hash (``policy_sha``)."""
+    from envs.sphere import ESTIMATORS
+    from controllers.rl import POLICY_DIR, policy_stem
+    tasks = _check_names("task", tasks, TASKS)
+    scenarios = _check_names("scenario", scenarios, tuple(SCENARIOS))
+    estimators = _check_names("estimator", estimators, tuple(ESTIMATORS()))
+    controllers = _check_names("controller", controllers, CONTROLLERS)
+    for name, v in (("episodes", episodes), ("seed", seed)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "episodes" else 0):
+            raise ValueError(f"{name} must be an integer >= {1 if name == 'episodes' else 0}, got {v!r}")
+    pdir = Path(policy_dir) if policy_dir is not None else POLICY_DIR
+    custom = None if pdir.resolve() == POLICY_DIR.resolve() else str(pdir.resolve())
     jobs, missing = [], set()
     for task in tasks:
         for sc in scenarios:
-            if sc not in SCENARIOS:
-                raise ValueError(f"unknown scenario {sc!r}; accepted: {', '.join(SCENARIOS)}")
             for est in estimators:
                 for ctrl in controllers:
-                    if ctrl not in CONTROLLERS:
-                        raise ValueError(f"unknown controller {ctrl!r}; accepted: {', '.join(CONTROLLERS)}")
-                    stem = None
+                    name = sha = None
                     if ctrl != "pid":
-                        stem = _policy_stem(ctrl, task, est, policy_dir)
-                        if not Path(str(stem) + ".zip").is_file():
+                        stem = policy_stem("ppo", task, "truth" if ctrl == "ppo-truth" else est, pdir)
+                        files = _policy_files(stem)
+                        if not all(f.is_file() for f in files):
                             missing.add(str(stem))
                             continue
+                        name, sha = stem.name, _file_hash(files)[:16]
                     jobs.append(dict(task=task, scenario=sc, estimator=est, controller=ctrl, episodes=episodes,
-                                     seed=seed, policy=None if stem is None else str(stem),
+                                     seed=seed, policy=name, policy_dir=custom if name else None, policy_sha=sha,
                                      env_kwargs=dict(SCENARIOS[sc], task=task, estimator=est)))
     for m in sorted(missing):
-        log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
+        log(f"no policy {m}.zip (+ .vecnormalize.pkl): its cells are skipped (train it with scripts/train.py)")
     return jobs
 
+
+def cell_key(job, version):
+    """The cache key of a job: its cell, episodes, seeds, environment, policy content and
+    the code version (not where the policy lies on disk)."""
+    keep = {k: v for k, v in job.items() if k not in ("policy_dir", "record_path")}
+    blob = json.dumps(keep, sort_keys=True, default=str) + version
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+def _work_id(job):
+    """What a job computes, without its controller's label."""
+    return json.dumps({k: v for k, v in job.items() if k not in ("controller", "policy_dir")}, sort_keys=True,
+                      default=str)
+
+
+# ----------------------------------------------------------------------------------------
+# running
 
 def run_job(job):
     """Evaluate one cell; returns one row per episode (dicts of plain values; with
@@ -75,14 +165,17 @@ def run_job(job):
     import torch
     torch.set_num_threads(1)
     from controllers.pid import PID
-    from controllers.rl import load_policy
+    from controllers.rl import POLICY_DIR, load_policy
     from envs.sphere import SphereRobotEnv
     env = SphereRobotEnv(**job["env_kwargs"])
     try:
         if job["controller"] == "pid":
             ctrl = PID.for_env(env)
         else:
-            ctrl = load_policy(job["policy"], env=env)
+            # None: the policies shipped inside this (possibly Ray-uploaded) package
+            pdir = Path(job["policy_dir"]) if job.get("policy_dir") else POLICY_DIR
+            ctrl = load_policy(pdir / job["policy"], env=env)
+        from controllers.evaluation import evaluate
         res = evaluate(ctrl, episodes=job["episodes"], seed=job["seed"], record_path=record_path, env=env)
     finally:
         env.close()
@@ -98,160 +191,366 @@ def run_job(job):
     return rows
 
 
-def run_grid(jobs, backend="local", workers=None, address=None, progress=True):
+def runtime_env(policy_dir=None):
+    """The Ray ``runtime_env`` of the grid's tasks: the package directories by content
+    (``py_modules``: sources and compiled kernels) and the policy directory (default the
+    package's shipped policies) as the ``working_dir``, the tasks' current directory; no
+    path on the driver is used by a worker."""
+    from controllers.rl import POLICY_DIR
+    return {"py_modules": [str(PACKAGE_ROOT / p) for p in PACKAGES],
+            "working_dir": str(policy_dir or POLICY_DIR),
+            # the policies travel once, as the working_dir
+            "excludes": list(RAY_EXCLUDES) + ["controllers/policies/", "policies/"]}
+
+
+def _custom_policy_dir(jobs):
+    dirs = {j["policy_dir"] for j in jobs if j.get("policy_dir")}
+    if len(dirs) > 1:
+        raise ValueError(f"the jobs of one Ray run must share one policy directory, got {sorted(dirs)}")
+    return next(iter(dirs), None)
+
+
+@contextlib.contextmanager
+def ray_session(address=None, workers=None, policy_dir=None):
+    """One Ray session for a whole run: joins the cluster at ``address`` (or starts a local
+    one of ``workers`` CPUs) with ``runtime_env(policy_dir)`` (Ray uploads local directories
+    only for a whole session, not per task) and shuts it down at the end. If Ray is already
+    initialised, it is used as it is: then the caller's ``ray.init`` must pass
+    ``runtime_env=compare.runtime_env()``."""
+    import ray
+    if ray.is_initialized():
+        yield ray
+        return
+    ray.init(address=address, num_cpus=None if address else (workers or os.cpu_count()),
+             runtime_env=runtime_env(policy_dir), include_dashboard=False, log_to_driver=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def _write_atomic(path, text):
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _load_cached(path, key):
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(d, dict) or d.get("key") != key or not isinstance(d.get("rows"), list):
+        return None
+    return d["rows"]
+
+
+def run_grid(jobs, backend="local", workers=None, address=None, progress=True, cache_dir=None, resume=False,
+             log=print):
     """Run the jobs; returns the rows in job order. backend: "local" (process pool of
-    ``workers``, default the CPU count) or "ray" (``address``: an existing cluster, or None
-    to start a local one)."""
+    ``workers``, default the CPU count) or "ray" (inside ``ray_session`` when Ray is not
+    initialised yet: ``address`` joins an existing cluster). With ``cache_dir`` every
+    finished cell is written there (atomically); with ``resume`` the cells already there
+    for this code version are not run again."""
     from tqdm.auto import tqdm
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; accepted: local, ray")
     results = [None] * len(jobs)
-    bar = tqdm(total=len(jobs), desc="control grid", unit="cell", disable=not progress)
+    cache = keys = None
+    if cache_dir is not None and not any(j.get("record_path") for j in jobs):
+        cache = Path(cache_dir)
+        cache.mkdir(parents=True, exist_ok=True)
+        version = code_version()
+        keys = [cell_key(j, version) for j in jobs]
+        if resume:
+            for i, k in enumerate(keys):
+                results[i] = _load_cached(cache / f"{k}.json", k)
+            n = sum(r is not None for r in results)
+            log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
+    # cells that run the same thing (ppo and ppo-truth under truth: one policy) run once
+    same = {}
+    for i, j in enumerate(jobs):
+        if results[i] is None:
+            same.setdefault(_work_id(j), []).append(i)
+    todo = [ids[0] for ids in same.values()]
+    copies = {ids[0]: ids[1:] for ids in same.values()}
+    bar = tqdm(total=len(jobs), initial=sum(r is not None for r in results), desc="control grid", unit="cell",
+               disable=not progress)
+
+    def done(i, rows):
+        for k in [i] + copies[i]:
+            results[k] = [dict(r, controller=jobs[k]["controller"]) for r in rows]
+            if cache is not None:
+                _write_atomic(cache / f"{keys[k]}.json",
+                              json.dumps({"key": keys[k], "job": jobs[k], "rows": results[k]}, default=str))
+            bar.update()
+
     if backend == "local":
         import multiprocessing as mp
         n = workers or os.cpu_count() or 1
-        if n == 1:
-            for i, j in enumerate(jobs):
-                results[i] = run_job(j)
-                bar.update()
+        if n == 1 or len(todo) <= 1:
+            for i in todo:
+                done(i, run_job(jobs[i]))
         else:
-            with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver")) as pool:
-                futs = {pool.submit(run_job, j): i for i, j in enumerate(jobs)}
+            pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
+            try:
+                futs = {pool.submit(run_job, jobs[i]): i for i in todo}
                 for f in as_completed(futs):
-                    results[futs[f]] = f.result()
-                    bar.update()
-    elif backend == "ray":
-        import ray
-        started = False
-        if not ray.is_initialized():
-            ray.init(address=address, num_cpus=None if address else (workers or os.cpu_count()),
-                     include_dashboard=False, log_to_driver=False)
-            started = True
-        try:
+                    done(futs[f], f.result())
+            except BaseException:
+                # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
+                # are cached) instead of waiting for the queued ones
+                procs = list((pool._processes or {}).values())   # shutdown() forgets them
+                for proc in procs:
+                    proc.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+            pool.shutdown()
+    elif todo:
+        with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
             remote = ray.remote(num_cpus=1)(run_job)
-            refs = [remote.remote(j) for j in jobs]
-            index = {r: i for i, r in enumerate(refs)}
+            # the policies are in the task's working directory
+            ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
+            refs = {remote.remote(ray_jobs[i]): i for i in todo}
             pending = list(refs)
             while pending:
-                done, pending = ray.wait(pending, num_returns=1)
-                for r in done:
-                    results[index[r]] = ray.get(r)
-                    bar.update()
-        finally:
-            if started:
-                ray.shutdown()
-    else:
-        raise ValueError(f"unknown backend {backend!r}; accepted: local, ray")
+                ready, pending = ray.wait(pending, num_returns=1)
+                for r in ready:
+                    done(refs[r], ray.get(r))
     bar.close()
     return [row for rows in results for row in rows]
 
 
-def summarise(rows):
-    """One summary row per (task, scenario, estimator, controller): mean, 95 % CI half-width
-    of each shown metric, and the degradation of the main metric against the ``truth`` row
-    of the same controller (in %, positive = worse than truth)."""
+# ----------------------------------------------------------------------------------------
+# statistics
+
+def _cell_key(r):
+    return r["task"], r["scenario"], r["estimator"], r["controller"]
+
+
+def summarise(rows, seed=0):
+    """One summary row per (task, scenario, estimator, controller): for each metric of
+    ``SHOWN[task]`` its mean with a 95 % interval (``<m>``, ``<m>_lo``, ``<m>_hi``; 0/1
+    metrics Wilson, others bootstrap) and for continuous metrics the interquartile mean
+    (``<m>_iqm``, ``_iqm_lo``, ``_iqm_hi``); against the ``truth`` cell of the same task,
+    scenario and controller, the paired difference over the shared episode seeds
+    (``delta_<m>``, ``delta_<m>_lo``, ``delta_<m>_hi``; NaN without a truth cell) and
+    ``separated``: whether the main metric's difference interval excludes 0."""
     groups = {}
     for r in rows:
-        groups.setdefault((r["task"], r["scenario"], r["estimator"], r["controller"]), []).append(r)
+        groups.setdefault(_cell_key(r), {})[r["episode_seed"]] = r
     out = []
     for (task, sc, est, ctrl), eps in groups.items():
-        agg = aggregate(eps, task)
-        row = {"task": task, "scenario": sc, "estimator": est, "controller": ctrl, "episodes": len(eps)}
+        row = {"task": task, "scenario": sc, "estimator": est, "controller": ctrl, "episodes": len(eps),
+               "main_metric": MAIN_METRIC[task][0]}
+        truth = groups.get((task, sc, "truth", ctrl))
+        seeds = sorted(set(eps) & set(truth)) if truth else []
         for m in SHOWN[task]:
-            row[m] = agg[m]["mean"]
-            row[m + "_ci95"] = agg[m]["ci95"]
-        out.append(row)
-    ref = {(r["task"], r["scenario"], r["controller"]): r for r in out if r["estimator"] == "truth"}
-    for r in out:
-        main, higher_better = MAIN_METRIC[r["task"]]
-        t = ref.get((r["task"], r["scenario"], r["controller"]))
-        deg = float("nan")
-        if t is not None and math.isfinite(t[main]) and math.isfinite(r[main]):
-            if higher_better:
-                deg = 100.0 * (t[main] - r[main]) / t[main] if t[main] > 0 else float("nan")
+            v = np.array([eps[s][m] for s in sorted(eps)], dtype=float)
+            st = interval(v[np.isfinite(v)], m, seed=seed)
+            row[m], row[m + "_lo"], row[m + "_hi"] = st["mean"], st["lo"], st["hi"]
+            if m not in BINARY_METRICS:
+                row[m + "_iqm"], row[m + "_iqm_lo"], row[m + "_iqm_hi"] = st["iqm"], st["iqm_lo"], st["iqm_hi"]
+            if est == "truth" and truth is not None:
+                d = {"delta": 0.0, "lo": 0.0, "hi": 0.0}       # the reference itself
+            elif seeds:
+                d = paired_difference([eps[s][m] for s in seeds], [truth[s][m] for s in seeds], m, seed=seed)
             else:
-                deg = 100.0 * (r[main] - t[main]) / t[main] if t[main] > 0 else float("nan")
-        r["main_metric"] = main
-        r["degradation_pct"] = deg
-    order = {"truth": -1}
-    out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], order.get(r["estimator"], 0), r["estimator"]))
+                d = {"delta": float("nan"), "lo": float("nan"), "hi": float("nan")}
+            row["delta_" + m], row["delta_" + m + "_lo"], row["delta_" + m + "_hi"] = d["delta"], d["lo"], d["hi"]
+        main = MAIN_METRIC[task][0]
+        lo, hi = row["delta_" + main + "_lo"], row["delta_" + main + "_hi"]
+        row["separated"] = bool(math.isfinite(lo) and (lo > 0 or hi < 0))
+        out.append(row)
+    out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], _rank_key(r)))
     return out
 
 
-def _fmt(v, ci=None):
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+def _rank_key(r):
+    """truth first, then the estimators from the least to the most harm to the main metric."""
+    if r["estimator"] == "truth":
+        return (0, 0.0, "")
+    d = r["delta_" + r["main_metric"]]
+    harm = -d if MAIN_METRIC[r["task"]][1] else d
+    return (1, harm if math.isfinite(harm) else math.inf, r["estimator"])
+
+
+def min_detectable_success(n):
+    """The smallest number of failed runs out of ``n`` (against a truth that succeeds in
+    all ``n``) whose paired interval excludes 0; None if even ``n`` failures do not."""
+    for k in range(1, n + 1):
+        x = np.r_[np.zeros(k), np.ones(n - k)]
+        if newcombe_paired(x, np.ones(n))[2] < 0:
+            return k
+    return None
+
+
+# ----------------------------------------------------------------------------------------
+# outputs
+
+def _fmt(v, lo=None, hi=None, pct=False, unit=" %"):
+    if v is None or not math.isfinite(v):
         return "-"
-    s = f"{v:.3g}"
-    if ci is not None and isinstance(ci, float) and math.isfinite(ci):
-        s += f" ± {ci:.2g}"
+    f = (lambda x: f"{100 * x:.0f}") if pct else (lambda x: f"{x:.3g}")
+    s = f(v) + (unit if pct else "")
+    if lo is not None and math.isfinite(lo):
+        s += f" [{f(lo)}, {f(hi)}]"
     return s
 
 
-def write_outputs(rows, summary, out_dir, path_rows=None, log=print):
-    """Per-episode CSV, summary Markdown + CSV, degradation bar chart, path map (PNG)."""
+def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
+    """Per-episode CSV, summary Markdown + CSV, the headline figure, the path map (PNG)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in ("task", "scenario", "estimator",
-                                                                         "controller", "episode_seed"), k))
+    first = ("task", "scenario", "estimator", "controller", "episode_seed")
+    keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
     with open(out / "episodes.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
         w.writeheader()
         w.writerows(rows)
-    skeys = sorted({k for r in summary for k in r}, key=lambda k: (k not in ("task", "scenario", "estimator",
-                                                                            "controller", "episodes"), k))
+    sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
+    skeys = sorted({k for r in summary for k in r},
+                   key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
     with open(out / "summary.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=skeys)
         w.writeheader()
         w.writerows(summary)
-    lines = ["# Control under each attitude estimator", "",
-             "Mean ± 95 % confidence half-width over episodes (same seeds in every row); "
-             "degradation: the task's main metric against the `truth` row of the same controller "
-             "and scenario (positive = worse). Scored on the true state.", ""]
+    ns = sorted({r["episodes"] for r in summary})
+    lines = ["# Control under each attitude estimator", ""]
+    if command:
+        lines += [f"Command: `{command}`" + (f" ({seconds:.0f} s)" if seconds is not None else ""), ""]
+    lines += [
+        "Each cell: mean [95 % interval] over its episodes (the same seeds in every cell), scored on the "
+        "true state. Success: Wilson interval; the other metrics: percentile bootstrap (2,000 resamples, "
+        "seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
+        "controller and floor over the same seeds (success: Newcombe's paired interval, in percentage "
+        "points; others: paired bootstrap); `*`: its interval excludes 0. Rows ranked by Δ of the main "
+        "metric, from the least harm. Track metrics: steady state = samples at least "
+        f"{SETTLE_WINDOW_S:g} s after each command change; settle = time until the heading error stays "
+        f"within {SETTLE_BAND_DEG:g} deg.", ""]
+    for n in ns:
+        k = min_detectable_success(n)
+        lines.append(f"With {n} episodes per cell, a success difference against a truth that reaches every goal "
+                     f"is detected from {k} failed runs of {n} ({100 * k / n:.0f} percentage points)."
+                     if k else f"With {n} episodes per cell no success difference can be detected.")
+    lines.append("")
     for task in sorted({r["task"] for r in summary}):
+        main = MAIN_METRIC[task][0]
         for sc in sorted({r["scenario"] for r in summary if r["task"] == task}):
             rs = [r for r in summary if r["task"] == task and r["scenario"] == sc]
-            main = MAIN_METRIC[task][0]
             lines += [f"## {task}, {sc} (main metric: {main})", ""]
-            cols = ["controller", "estimator", "episodes"] + list(SHOWN[task]) + ["degradation %"]
+            cols = ["controller", "estimator", "n", f"Δ {main} vs truth"] + \
+                   [f"{m} ({UNITS[m]})" if UNITS[m] else m for m in SHOWN[task]]
+            if main not in BINARY_METRICS:
+                cols.insert(5, f"{main} IQM")
             lines.append("| " + " | ".join(cols) + " |")
             lines.append("|" + "---|" * len(cols))
             for r in rs:
-                cells = [r["controller"], r["estimator"], str(r["episodes"])]
-                cells += [_fmt(r[m], r[m + "_ci95"]) for m in SHOWN[task]]
-                cells.append(_fmt(r["degradation_pct"]))
+                pct = main in BINARY_METRICS
+                dm = "delta_" + main
+                delta = _fmt(r[dm], r[dm + "_lo"], r[dm + "_hi"], pct=pct, unit=" pp") + (" *" if r["separated"] else "")
+                if r["estimator"] == "truth" or not math.isfinite(r[dm]):
+                    delta = "(reference)" if r["estimator"] == "truth" else "- (no truth cell)"
+                cells = [r["controller"], f"`{r['estimator']}`", str(r["episodes"]), delta]
+                for m in SHOWN[task]:
+                    cells.append(_fmt(r[m], r[m + "_lo"], r[m + "_hi"], pct=m in BINARY_METRICS))
+                    if m == main and m not in BINARY_METRICS:
+                        cells.append(_fmt(r[m + "_iqm"], r[m + "_iqm_lo"], r[m + "_iqm_hi"]))
                 lines.append("| " + " | ".join(cells) + " |")
             lines.append("")
+    why = _plot_headline(summary, out / "headline.png")
+    if why:
+        lines += ["## Headline figure", "", why, ""]
+        log(why)
     (out / "summary.md").write_text("\n".join(lines))
-    _plot_degradation(summary, out / "degradation.png")
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
-    log(f"wrote {out}/summary.md, summary.csv, episodes.csv, degradation.png" + (", paths.png" if path_rows else ""))
+    log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + ("" if why else ", headline.png")
+        + (", paths.png" if path_rows else ""))
     return out
 
 
-def _plot_degradation(summary, path):
+_LABEL = {"heading_ss": "Δ steady-state heading error vs truth (deg)",
+          "success": "Δ success rate vs truth (percentage points)"}
+_COLOR = {"pid": "tab:blue", "ppo": "tab:orange", "ppo-truth": "tab:green"}
+
+
+def _plot_headline(summary, path):
+    """One panel per task and floor: the estimators ranked by the paired difference of the
+    main metric against truth, one point with its 95 % interval per controller. Returns
+    None, or why there is no figure (nothing is written then)."""
+    order = {name: i for i, name in enumerate(SCENARIOS)}
+    panels = sorted({(r["task"], r["scenario"]) for r in summary
+                     if r["estimator"] != "truth" and math.isfinite(r["delta_" + r["main_metric"]])},
+                    key=lambda p: (p[0], order.get(p[1], len(order)), p[1]))
+    if not panels:
+        if not any(r["estimator"] == "truth" for r in summary):
+            return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
+                    "estimator's paired difference against it (add `truth` to --estimators).")
+        return "No headline figure: the grid has no estimator besides `truth` to compare with it."
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    panels = sorted({(r["task"], r["scenario"]) for r in summary})
-    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.2 * len(panels)), squeeze=False)
+    sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4),
+                             gridspec_kw={"height_ratios": [1.0 + 0.42 * s for s in sizes]}, squeeze=False)
     for ax, (task, sc) in zip(axes[:, 0], panels):
+        main, higher = MAIN_METRIC[task]
+        pct = 100.0 if main in BINARY_METRICS else 1.0
         rs = [r for r in summary if r["task"] == task and r["scenario"] == sc and r["estimator"] != "truth"]
-        ests = sorted({r["estimator"] for r in rs})
         ctrls = [c for c in CONTROLLERS if any(r["controller"] == c for r in rs)]
-        width = 0.8 / max(1, len(ctrls))
-        x = np.arange(len(ests))
+        # rank by the first controller's difference (the least harm at the top)
+        ref = {r["estimator"]: _rank_key(r)[1] for r in rs if r["controller"] == ctrls[0]}
+        ests = sorted({r["estimator"] for r in rs}, key=lambda e: (ref.get(e, math.inf), e))
+        y = np.arange(len(ests))[::-1]
+        off = 0.22
         for k, c in enumerate(ctrls):
-            vals = [next((r["degradation_pct"] for r in rs if r["estimator"] == e and r["controller"] == c),
-                         np.nan) for e in ests]
-            ax.bar(x + (k - (len(ctrls) - 1) / 2) * width, vals, width, label=c)
-        ax.axhline(0, color="k", lw=0.8)
-        ax.set_xticks(x, ests)
-        ax.set_ylabel("degradation vs truth (%)")
-        ax.set_title(f"{task}, {sc}: {MAIN_METRIC[task][0]} (positive = worse than the true attitude)")
-        ax.legend(fontsize=8)
-        ax.grid(axis="y", alpha=0.3)
+            for e, yy in zip(ests, y):
+                r = next((r for r in rs if r["estimator"] == e and r["controller"] == c), None)
+                if r is None:
+                    continue
+                d, lo, hi = (r["delta_" + main] * pct, r["delta_" + main + "_lo"] * pct,
+                             r["delta_" + main + "_hi"] * pct)
+                yk = yy + (k - (len(ctrls) - 1) / 2) * off
+                ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]], fmt="o", color=_COLOR[c], ms=5, capsize=3,
+                            label=c)
+                # the cell's own value beside its interval (success as an absolute rate)
+                ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
+                            (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
+                            color=_COLOR[c])
+        ax.axvline(0, color="k", lw=0.8)
+        ax.set_yticks(y, ests)
+        ax.set_ylim(-0.6, len(ests) - 0.4)
+        truth = {r["controller"]: r for r in summary
+                 if r["task"] == task and r["scenario"] == sc and r["estimator"] == "truth"}
+        unit = "" if main in BINARY_METRICS else f" {UNITS[main]}"
+        ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}{unit}"
+                            for c in ctrls if c in truth)
+        worse = "left" if higher else "right"
+        ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}   ({worse} = worse; labels: the cell's own value)",
+                     fontsize=9)
+        ax.margins(x=0.12)
+        ax.set_xlabel(_LABEL.get(main, f"Δ {main} vs truth"))
+        ax.grid(axis="x", alpha=0.3)
+        handles, labels = ax.get_legend_handles_labels()
+        uniq = dict(zip(labels, handles))
+        ax.legend(uniq.values(), uniq.keys(), fontsize=8, loc="best")
+    n = sorted({r["episodes"] for r in summary})
+    fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
+                 f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return None
 
 
 def _plot_paths(path_rows, path):
@@ -278,3 +577,138 @@ def _plot_paths(path_rows, path):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+# ----------------------------------------------------------------------------------------
+# command line
+
+QUICK = dict(episodes=3, estimators="truth,ekf,mahony,gyro", controllers="pid,ppo")
+FULL_EPISODES = 30
+
+
+def _list(s):
+    return [x.strip() for x in s.split(",") if x.strip()]
+
+
+def _check_writable(out):
+    """Create ``out`` and write a probe file in it, or raise ValueError, before any work."""
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out, prefix=".write-test-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise ValueError(f"--out {str(out)!r} cannot be written ({e.strerror or e}); choose another folder") from None
+
+
+def _parser():
+    import fusion
+    all_est = ["truth"] + fusion.available()
+    ap = argparse.ArgumentParser(
+        prog="spherebot-compare",
+        description=textwrap.fill(
+            "Compare motion control under each attitude estimator: the PID, PPO trained with that estimator "
+            "and PPO trained on the true attitude, every cell against the `truth` cell of the same controller "
+            "and floor over the same episode seeds.", 78),
+        epilog=textwrap.fill(
+            "Writes <out>/summary.md (the table), summary.csv (<metric>, <metric>_lo, <metric>_hi, "
+            "delta_<metric>, ...), episodes.csv, headline.png (estimators ranked by their paired difference "
+            "against truth) and paths.png; finished cells are cached in <out>/cells/. Metrics: "
+            "docs/envs/sphere_bot_track.md and sphere_bot_waypoints.md.", 78) + "\n\n"
+               "  spherebot-compare --quick                       # the demo (make demo), a few minutes\n"
+               "  spherebot-compare --full --backend ray --address auto   # every cell, 30 episodes, on a cluster\n"
+               "  spherebot-compare --full --resume               # continue an interrupted run",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tasks", default=",".join(TASKS), metavar="LIST",
+                    help=f"comma-separated tasks (default: all). Accepted: {', '.join(TASKS)}")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS), metavar="LIST",
+                    help=f"comma-separated floors (default: all). Accepted: {', '.join(SCENARIOS)}: flat = the "
+                         "environment's defaults; disturbed = 16 magnetic dipoles and 16 bumps in a 16 m arena")
+    ap.add_argument("--estimators", default=None, metavar="LIST",
+                    help=f"comma-separated estimators; include truth for the differences and the figure "
+                         f"(default: all; --quick: {QUICK['estimators']}). Accepted: {', '.join(all_est)}")
+    ap.add_argument("--controllers", default=None, metavar="LIST",
+                    help=f"comma-separated controllers (default: all; --quick: {QUICK['controllers']}). Accepted: pid (the same gains everywhere), "
+                         "ppo (the policy trained with that estimator), ppo-truth (the policy trained on the true "
+                         "attitude, run with that estimator)")
+    ap.add_argument("--episodes", type=int, default=None, metavar="N",
+                    help=f"episodes per cell, seeds SEED .. SEED+N-1 (default 10; --quick {QUICK['episodes']}; "
+                         f"--full {FULL_EPISODES})")
+    ap.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
+    ap.add_argument("--quick", action="store_true",
+                    help=f"the demo: {QUICK['episodes']} episodes per cell, estimators {QUICK['estimators']}, "
+                         f"controllers {QUICK['controllers']} (under 5 minutes on 2 cores)")
+    ap.add_argument("--full", action="store_true",
+                    help=f"the full grid: every estimator, {FULL_EPISODES} episodes per cell (hours on 2 cores; "
+                         "use --backend ray on a cluster, and --resume after an interruption)")
+    ap.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="local: a process pool on this machine; ray: Ray tasks (one session per run; the "
+                         "package and policies travel in the runtime_env) (default local)")
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="local processes, or the CPUs of a Ray cluster started here (default: all cores)")
+    ap.add_argument("--address", default=None,
+                    help="address of an existing Ray cluster to join, e.g. auto or ray://host:10001 "
+                         "(default: start a local one); implies --backend ray")
+    ap.add_argument("--policy-dir", default=None, metavar="DIR",
+                    help="where the ppo-<task>-<estimator>.zip policies are (default: the package's "
+                         "controllers/policies)")
+    ap.add_argument("--out", default="results/control", metavar="DIR",
+                    help="output folder, also holding the cell cache (default results/control)")
+    ap.add_argument("--resume", action="store_true",
+                    help="reuse the cells already finished in <out>/cells/ by the same code and policies "
+                         "(cells of other code versions are never reused)")
+    ap.add_argument("--no-paths", action="store_true",
+                    help="skip paths.png (one extra waypoints episode per estimator)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv=None):
+    """The command line (``spherebot-compare``); returns the exit status."""
+    ap = _parser()
+    a = ap.parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    import fusion
+    t0 = time.perf_counter()
+    if a.quick and a.full:
+        ap.error("--quick and --full exclude each other")
+    episodes = a.episodes if a.episodes is not None else (
+        QUICK["episodes"] if a.quick else FULL_EPISODES if a.full else 10)
+    estimators = a.estimators or (QUICK["estimators"] if a.quick else ",".join(["truth"] + fusion.available()))
+    controllers = a.controllers or (QUICK["controllers"] if a.quick else ",".join(CONTROLLERS))
+    backend = "ray" if a.address else a.backend
+    try:
+        if a.workers is not None and a.workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {a.workers}")
+        jobs = plan(_list(a.tasks), _list(a.scenarios), _list(estimators), _list(controllers),
+                    episodes, a.seed, policy_dir=a.policy_dir)
+        _check_writable(a.out)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            print("error: --backend ray needs Ray (pip install 'spherebot-fusion[ray]')", file=sys.stderr)
+            return 2
+    print(f"{len(jobs)} cells x {episodes} episodes on backend {backend}")
+    # one waypoints episode per estimator, PID, first scenario: the map of true paths
+    path_jobs = [] if a.no_paths else [
+        dict(j, episodes=1, record_path=True) for j in jobs
+        if j["task"] == "waypoints" and j["controller"] == "pid" and j["scenario"] == jobs[0]["scenario"]]
+    kw = dict(backend=backend, workers=a.workers, address=a.address)
+    with (ray_session(a.address, a.workers, _custom_policy_dir(jobs)) if backend == "ray"
+          else contextlib.nullcontext()):
+        rows = run_grid(jobs, progress=not a.no_progress, cache_dir=Path(a.out) / CACHE_DIR, resume=a.resume, **kw)
+        path_rows = run_grid(path_jobs, progress=False, **kw) if path_jobs else None
+    summary = summarise(rows)
+    seconds = time.perf_counter() - t0
+    command = "spherebot-compare " + " ".join(sys.argv[1:] if argv is None else argv)
+    write_outputs(rows, summary, a.out, path_rows=path_rows, command=command.strip(), seconds=seconds)
+    print((Path(a.out) / "summary.md").read_text())
+    print(f"done in {time.perf_counter() - t0:.0f} s")
+    return 0

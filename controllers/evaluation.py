@@ -1,23 +1,32 @@
-"""Closed-loop evaluation of a controller in the spherical-robot environment.
+"""Closed-loop evaluation of a controller in the spherical-robot environment, and the
+statistics of the comparison.
 
 ``evaluate(controller, env_kwargs, episodes, seed)`` runs ``episodes`` episodes (episode
 ``i`` reset with ``seed + i``) and scores them on the *true* state, whatever the controller
-saw. Metrics per episode (``EPISODE_METRICS``):
+saw. Metrics per episode (``EPISODE_METRICS``; defined in docs/envs/sphere_bot_track.md and
+sphere_bot_waypoints.md, "Metrics"):
 
 - ``return``: the environment's reward summed over the episode;
-- ``speed_rmse`` (m/s, track): true forward speed against the commanded speed;
-- ``heading_rmse`` (deg, track): true heading against the commanded heading;
-- ``success`` (0/1, waypoints): every waypoint reached before the time-out;
-- ``time_to_goal`` (s, waypoints): NaN when not reached;
-- ``waypoints_reached`` (waypoints);
-- ``cross_track`` (m, waypoints): rms distance of the true position from the target path
-  (the straight segment from the previous waypoint, or the start, to the current one);
+- track: ``heading_ss`` and ``speed_ss`` (deg, m/s): rms of the true heading's and forward
+  speed's error against the command, over the samples at least ``SETTLE_WINDOW_S`` after
+  each command change (steady state: what a heading or tilt bias of the estimator moves);
+  ``settle_time`` (s): per command, the time after which the heading error stays within
+  ``SETTLE_BAND_DEG``, averaged over the commands held to their end (a command that never
+  settles counts its whole duration); ``heading_rmse`` and ``speed_rmse``: over every sample
+  after the first 2 s (turn transients included);
+- waypoints: ``success`` (0/1: every waypoint reached before the time-out),
+  ``time_to_goal`` (s; NaN when not reached), ``waypoints_reached``, ``cross_track`` (m: rms
+  distance of the true position from the target path, the straight segment from the
+  previous waypoint, or the start, to the current one);
 - ``effort``: mean of drive^2 + steer^2 (action units);
 - ``attitude_error`` (deg): rms of the estimator's total attitude error during the run;
 - ``heading_est_error`` (deg): rms of the estimated heading's error during the run.
 
-The first ``settle_s`` seconds of a track episode (2 s: the robot starting from rest) are
-left out of the track RMSEs, the same for every controller.
+Statistics (``interval``, ``paired_difference``): success rates with Wilson score intervals
+and paired differences by Newcombe's method 10 for paired proportions; continuous metrics
+with percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
+and of the interquartile mean (the robust aggregate of "Deep reinforcement learning at the
+edge of the statistical precipice"), paired differences by bootstrap over the shared seeds.
 """
 from __future__ import annotations
 
@@ -26,15 +35,27 @@ import numbers
 
 import numpy as np
 
-__all__ = ["evaluate", "run_episode", "aggregate", "EPISODE_METRICS", "MAIN_METRIC"]
+__all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
+           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MAIN_METRIC", "BINARY_METRICS",
+           "SETTLE_WINDOW_S", "SETTLE_BAND_DEG"]
 
 EPISODE_METRICS = {
-    "track": ("return", "speed_rmse", "heading_rmse", "effort", "attitude_error", "heading_est_error"),
+    "track": ("return", "heading_ss", "speed_ss", "settle_time", "heading_rmse", "speed_rmse", "effort",
+              "attitude_error", "heading_est_error"),
     "waypoints": ("return", "success", "time_to_goal", "waypoints_reached", "cross_track", "effort",
                   "attitude_error", "heading_est_error"),
 }
 #: the metric each task is judged on, and whether larger is better
-MAIN_METRIC = {"track": ("heading_rmse", False), "waypoints": ("success", True)}
+MAIN_METRIC = {"track": ("heading_ss", False), "waypoints": ("success", True)}
+#: 0/1 metrics (Wilson / Newcombe intervals); the others are continuous (bootstrap)
+BINARY_METRICS = ("success",)
+#: (s) steady state: samples at least this long after a command change. The largest turn
+#: (180 deg at the start) takes the PID about 3.2 s under truth, a 90 deg turn 2.4-2.8 s.
+SETTLE_WINDOW_S = 3.0
+#: (deg) the heading error band of the settling time
+SETTLE_BAND_DEG = 10.0
+Z95 = 1.959963984540054
+N_BOOT = 2000
 
 
 def _wrap(a):
@@ -48,18 +69,51 @@ def _segment_distance(p, a, b):
     return float(np.linalg.norm(p - (a + t * ab)))
 
 
+def _rms(v):
+    return float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")
+
+
+def _track_metrics(log, dt):
+    """Steady-state errors and settling time from the per-step (command index, heading
+    error deg, speed error m/s) of a track episode; the last command counts for the
+    settling time only if it was held to its end (commands change every 3-8 s)."""
+    cmd = np.array([r[0] for r in log])
+    he = np.array([r[1] for r in log])
+    se = np.array([r[2] for r in log])
+    starts = np.r_[0, np.nonzero(np.diff(cmd))[0] + 1]
+    ends = np.r_[starts[1:], len(cmd)]
+    ss_h, ss_v, settle = [], [], []
+    window = int(round(SETTLE_WINDOW_S / dt))
+    for i, (a, b) in enumerate(zip(starts, ends)):
+        ss_h.append(he[a + window:b])
+        ss_v.append(se[a + window:b])
+        if i == len(starts) - 1 and (b - a) * dt < 3.0 - 1e-9:
+            continue                       # cut short by the episode's end
+        out = np.nonzero(np.abs(he[a:b]) >= SETTLE_BAND_DEG)[0]
+        if len(out) == 0:
+            settle.append(0.0)
+        elif out[-1] == b - a - 1:
+            settle.append((b - a) * dt)    # never settled: its whole duration
+        else:
+            settle.append((out[-1] + 1) * dt)
+    return {"heading_ss": _rms(np.concatenate(ss_h)), "speed_ss": _rms(np.concatenate(ss_v)),
+            "settle_time": float(np.mean(settle)) if settle else float("nan")}
+
+
 def run_episode(controller, env, seed, settle_s=2.0, record_path=False):
     """One episode of ``controller`` in ``env`` (reset with ``seed``); returns a dict of the
-    metrics of ``EPISODE_METRICS[task]`` (plus ``path`` and ``waypoints`` if asked)."""
+    metrics of ``EPISODE_METRICS[task]`` (plus ``path`` and ``waypoints`` if asked).
+    ``settle_s``: the start from rest left out of ``heading_rmse`` and ``speed_rmse``."""
     base = env.unwrapped
     task = base.task
     obs, info = env.reset(seed=seed)
     controller.reset()
     start = np.array(info["position"][:2])
     ret = 0.0
-    sp, hd, eff, att, hest, xt, path = [], [], [], [], [], [], []
+    sp, hd, eff, att, hest, xt, path, tlog = [], [], [], [], [], [], [], []
     settle = int(round(settle_s * base.control_hz))
     k = 0
+    cmd_i, last_cmd = -1, None
     while True:
         a = np.asarray(controller.act(obs), dtype=np.float64)
         obs, r, terminated, truncated, info = env.step(a)
@@ -73,12 +127,17 @@ def run_episode(controller, env, seed, settle_s=2.0, record_path=False):
         if record_path:
             path.append(pos.copy())
         if task == "track":
+            vc, hc = info["command"]
+            if info["command"] != last_cmd:
+                cmd_i, last_cmd = cmd_i + 1, info["command"]
+            psi = info["heading_true"]
+            v = info["velocity"]
+            e_v = v[0] * math.cos(psi) + v[1] * math.sin(psi) - vc
+            e_h = math.degrees(_wrap(psi - hc))
+            tlog.append((cmd_i, e_h, e_v))
             if k > settle:
-                vc, hc = info["command"]
-                psi = info["heading_true"]
-                v = info["velocity"]
-                sp.append(v[0] * math.cos(psi) + v[1] * math.sin(psi) - vc)
-                hd.append(math.degrees(_wrap(psi - hc)))
+                sp.append(e_v)
+                hd.append(e_h)
         else:
             i = info["waypoint_index"]
             wps = base._waypoints
@@ -86,16 +145,15 @@ def run_episode(controller, env, seed, settle_s=2.0, record_path=False):
             xt.append(_segment_distance(pos, prev, wps[i]))
         if terminated or truncated:
             break
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")   # noqa: E731
-    out = {"return": float(ret), "effort": float(np.mean(eff)), "attitude_error": rms(att),
-           "heading_est_error": rms(hest), "steps": k}
+    out = {"return": float(ret), "effort": float(np.mean(eff)), "attitude_error": _rms(att),
+           "heading_est_error": _rms(hest), "steps": k}
     if task == "track":
-        out.update(speed_rmse=rms(sp), heading_rmse=rms(hd))
+        out.update(speed_rmse=_rms(sp), heading_rmse=_rms(hd), **_track_metrics(tlog, 1.0 / base.control_hz))
     else:
         ok = bool(info.get("goal_reached", False))
         reached = info["waypoint_index"] + (1 if ok else 0)
         out.update(success=float(ok), time_to_goal=float(info["t"]) if ok else float("nan"),
-                   waypoints_reached=float(reached), cross_track=rms(xt))
+                   waypoints_reached=float(reached), cross_track=_rms(xt))
     if record_path:
         out["path"] = np.array(path)
         out["start"] = start
@@ -127,17 +185,125 @@ def evaluate(controller, env_kwargs=None, episodes=10, seed=0, record_path=False
     return {"episodes": eps, "summary": aggregate(eps, env.unwrapped.task)}
 
 
-def aggregate(episodes, task):
-    """Mean, standard deviation, the 95 % confidence half-width of the mean (Student t) and
-    the count of finite values, per metric."""
-    from scipy import stats
+def aggregate(episodes, task, seed=0):
+    """Per metric of ``EPISODE_METRICS[task]``: ``interval`` of its finite values (mean,
+    lo, hi, iqm, iqm_lo, iqm_hi, n) plus the standard deviation ``std``."""
     out = {}
     for m in EPISODE_METRICS[task]:
         v = np.array([e[m] for e in episodes], dtype=float)
         v = v[np.isfinite(v)]
-        n = len(v)
-        mean = float(v.mean()) if n else float("nan")
-        sd = float(v.std(ddof=1)) if n > 1 else float("nan")
-        hw = float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)) if n > 1 else float("nan")
-        out[m] = {"mean": mean, "std": sd, "ci95": hw, "n": n}
+        out[m] = interval(v, m, seed=seed)
+        out[m]["std"] = float(v.std(ddof=1)) if len(v) > 1 else float("nan")
     return out
+
+
+# ----------------------------------------------------------------------------------------
+# statistics
+
+def wilson(k, n, z=Z95):
+    """Wilson score interval of a proportion: (k / n, lo, hi), inside [0, 1]."""
+    if n <= 0:
+        return float("nan"), float("nan"), float("nan")
+    p = k / n
+    den = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return p, max(0.0, centre - half), min(1.0, centre + half)
+
+
+def newcombe_paired(x, y, z=Z95):
+    """Difference mean(x) - mean(y) of paired 0/1 outcomes and its interval by Newcombe's
+    method 10 ("Improved confidence intervals for the difference between binomial
+    proportions based on paired data", 1998; the "square-and-add" interval of Fagerland et
+    al.'s "Statistical analysis of contingency tables"): the Wilson intervals of both
+    proportions combined with the corrected phi correlation of the pairs. Inside [-1, 1]."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = len(x)
+    if n == 0:
+        return float("nan"), float("nan"), float("nan")
+    a = float(np.sum((x == 1) & (y == 1)))
+    b = float(np.sum((x == 1) & (y == 0)))
+    c = float(np.sum((x == 0) & (y == 1)))
+    d = float(n - a - b - c)
+    p1, l1, u1 = wilson(a + b, n, z)
+    p2, l2, u2 = wilson(a + c, n, z)
+    den = (a + b) * (c + d) * (a + c) * (b + d)
+    # the correlation of the pairs, corrected towards 0 when positive (Newcombe's phi)
+    ad_bc = a * d - b * c
+    num = ad_bc - n / 2 if ad_bc > n / 2 else (ad_bc if ad_bc < 0 else 0.0)
+    phi = num / math.sqrt(den) if den > 0 else 0.0
+    D = p1 - p2
+    dl = math.sqrt(max(0.0, (p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2))
+    du = math.sqrt(max(0.0, (u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2))
+    return D, max(-1.0, D - dl), min(1.0, D + du)
+
+
+def iqm(x, axis=-1):
+    """Interquartile mean: the mean of the middle 50 % (scipy's trim_mean, 25 % cut each side)."""
+    from scipy.stats import trim_mean
+    return trim_mean(x, 0.25, axis=axis)
+
+
+def bootstrap_ci(values, stat=np.mean, strata=None, n_boot=N_BOOT, seed=0, level=0.95):
+    """Percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D), resampling
+    with replacement within each stratum (``strata``: a label per value; None: one
+    stratum), seeded. ``stat`` takes an (n_boot, n) array and ``axis=1``. The percentile
+    interval of a mean or an IQM stays within the values' range."""
+    v = np.asarray(values, dtype=float)
+    n = len(v)
+    if n == 0:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    if strata is None:
+        idx = rng.integers(0, n, size=(n_boot, n))
+    else:
+        labels = np.asarray(strata)
+        if labels.shape != (n,):
+            raise ValueError(f"strata must have one label per value ({n}), got shape {labels.shape}")
+        cols = []
+        for lab in sorted(set(labels.tolist()), key=str):
+            members = np.nonzero(labels == lab)[0]
+            cols.append(members[rng.integers(0, len(members), size=(n_boot, len(members)))])
+        idx = np.concatenate(cols, axis=1)
+    boots = stat(v[idx], axis=1)
+    lo, hi = np.quantile(boots, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
+def interval(values, metric, seed=0):
+    """The cell statistics of one metric's finite values: dict of mean, lo, hi (95 %:
+    Wilson for a 0/1 metric, bootstrap otherwise), iqm, iqm_lo, iqm_hi (NaN for 0/1) and n."""
+    v = np.asarray(values, dtype=float)
+    n = len(v)
+    nan = float("nan")
+    if n == 0:
+        return {"mean": nan, "lo": nan, "hi": nan, "iqm": nan, "iqm_lo": nan, "iqm_hi": nan, "n": 0}
+    if metric in BINARY_METRICS:
+        p, lo, hi = wilson(float(v.sum()), n)
+        return {"mean": p, "lo": lo, "hi": hi, "iqm": nan, "iqm_lo": nan, "iqm_hi": nan, "n": n}
+    lo, hi = bootstrap_ci(v, np.mean, seed=seed)
+    ilo, ihi = bootstrap_ci(v, iqm, seed=seed)
+    return {"mean": float(v.mean()), "lo": lo, "hi": hi, "iqm": float(iqm(v)), "iqm_lo": ilo, "iqm_hi": ihi, "n": n}
+
+
+def paired_difference(x, y, metric, seed=0):
+    """mean(x - y) over the pairs where both are finite (the same episode seed under two
+    estimators), with its 95 % interval: Newcombe's paired method for a 0/1 metric, a
+    bootstrap of the pairs otherwise. Returns dict of delta, lo, hi, n."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if x.shape != y.shape:
+        raise ValueError(f"x and y must be paired (same shape), got {x.shape} and {y.shape}")
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    n = len(x)
+    if n == 0:
+        return {"delta": float("nan"), "lo": float("nan"), "hi": float("nan"), "n": 0}
+    if metric in BINARY_METRICS:
+        d, lo, hi = newcombe_paired(x, y)
+    else:
+        diff = x - y
+        d = float(diff.mean())
+        lo, hi = bootstrap_ci(diff, np.mean, seed=seed)
+    return {"delta": d, "lo": lo, "hi": hi, "n": n}

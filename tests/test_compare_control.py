@@ -1,4 +1,6 @@
-"""The control comparison grid: planning, the same results on every backend, outputs."""
+"""The control comparison grid: planning and bad input, the same results on every backend
+(a two-node Ray cluster included), the cell cache and --resume, the outputs."""
+import csv
 import math
 
 import numpy as np
@@ -8,26 +10,40 @@ pytest.importorskip("pybullet")
 
 from controllers import compare
 
-SHORT = {"episode_s": 3.0}
+SHORT = {"episode_s": 4.5}   # the steady-state window starts 3 s after a command
 
 
-def _jobs():
-    jobs = compare.plan(["track"], ["flat"], ["truth", "gyro"], ["pid"], episodes=2, seed=5, log=lambda *a: None)
+def _jobs(estimators=("truth", "gyro"), task="track", episodes=2):
+    jobs = compare.plan([task], ["flat"], list(estimators), ["pid"], episodes=episodes, seed=5, log=lambda *a: None)
     for j in jobs:   # short episodes keep the test fast
         j["env_kwargs"].update(SHORT)
     return jobs
 
 
-def test_plan_skips_missing_policies(tmp_path):
+def test_plan_skips_missing_policies_and_names_bad_input(tmp_path):
     msgs = []
     jobs = compare.plan(["waypoints"], ["flat"], ["ekf"], ["pid", "ppo", "ppo-truth"], 1, 0,
                         policy_dir=tmp_path, log=msgs.append)
     assert [j["controller"] for j in jobs] == ["pid"]
     assert len(msgs) == 2 and all("no policy" in m for m in msgs)
-    with pytest.raises(ValueError, match="scenario"):
-        compare.plan(["track"], ["moon"], ["ekf"], ["pid"], 1, 0)
-    with pytest.raises(ValueError, match="controller"):
-        compare.plan(["track"], ["flat"], ["ekf"], ["lqr"], 1, 0)
+    for args, what in (((["track"], ["moon"], ["ekf"], ["pid"]), "scenario"),
+                       ((["track"], ["flat"], ["ekf"], ["lqr"]), "controller"),
+                       ((["track"], ["flat"], ["kalman"], ["pid"]), "estimator"),
+                       ((["swim"], ["flat"], ["ekf"], ["pid"]), "task")):
+        with pytest.raises(ValueError, match=f"unknown {what}.*accepted: ") as e:
+            compare.plan(*args, 1, 0)
+        assert "flat" in str(e.value) or "pid" in str(e.value) or "ekf" in str(e.value) or "track" in str(e.value)
+
+
+def test_cli_bad_input_before_any_work(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(compare, "run_grid", lambda *a, **k: pytest.fail("work started"))
+    assert compare.main(["--estimators", "truth,kalman"]) == 2
+    err = capsys.readouterr().err
+    assert "kalman" in err and "accepted:" in err and "ekf" in err
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert compare.main(["--out", str(blocker / "sub"), "--estimators", "truth"]) == 2
+    assert "cannot be written" in capsys.readouterr().err
 
 
 def test_local_pool_equals_serial_and_summary():
@@ -40,20 +56,74 @@ def test_local_pool_equals_serial_and_summary():
     s = compare.summarise(serial)
     truth = next(r for r in s if r["estimator"] == "truth")
     gyro = next(r for r in s if r["estimator"] == "gyro")
-    assert truth["degradation_pct"] == 0.0
-    assert math.isfinite(gyro["degradation_pct"])
+    assert truth["delta_heading_ss"] == 0.0 and (truth["delta_heading_ss_lo"], truth["delta_heading_ss_hi"]) == (0, 0)
+    assert math.isfinite(gyro["delta_heading_ss"])
     assert gyro["attitude_error"] > truth["attitude_error"]
+    for r in s:
+        for m in compare.SHOWN["track"]:
+            if math.isfinite(r[m]):
+                assert r[m + "_lo"] <= r[m] <= r[m + "_hi"]
+                assert r[m + "_iqm_lo"] <= r[m + "_iqm"] <= r[m + "_iqm_hi"]
+            assert r["delta_" + m + "_lo"] <= r["delta_" + m] <= r["delta_" + m + "_hi"]
 
 
-def test_ray_backend_same_results():
+def test_cache_resume_and_code_version(tmp_path, monkeypatch):
+    jobs = _jobs(episodes=1)
+    first = compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, log=lambda *a: None)
+    assert len(list(tmp_path.glob("*.json"))) == 2 and not list(tmp_path.glob("*.tmp"))
+
+    def no_work(job):
+        raise AssertionError("a cached cell was run again")
+    monkeypatch.setattr(compare, "run_job", no_work)
+    msgs = []
+    assert compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, resume=True, log=msgs.append) == first
+    assert "2 of 2 cells cached" in msgs[0]
+    # other code: nothing reused
+    monkeypatch.setattr(compare, "code_version", lambda: "another-version")
+    with pytest.raises(AssertionError, match="run again"):
+        compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, resume=True, log=lambda *a: None)
+    # a corrupt cache file is not trusted either
+    monkeypatch.undo()
+    victim = sorted(tmp_path.glob("*.json"))[0]
+    victim.write_text("{not json")
+    again = compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, resume=True, log=lambda *a: None)
+    assert again == first
+
+
+def test_ray_two_node_cluster_equals_local(tmp_path, monkeypatch):
+    """Two nodes of one CPU each on this machine, two cells of PID and one of PPO; the cells
+    the Ray run cached are resumed without running them again."""
     ray = pytest.importorskip("ray")
-    jobs = _jobs()[:1]
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from ray.cluster_utils import Cluster
+    jobs = _jobs()
+    ppo = compare.plan(["track"], ["flat"], ["gyro"], ["ppo"], episodes=1, seed=5, log=lambda *a: None)
+    if ppo:                      # the shipped policy travels in the working_dir
+        ppo[0]["env_kwargs"].update(SHORT)
+        jobs += ppo
+    local = compare.run_grid(jobs, workers=1, progress=False)
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     try:
-        via_ray = compare.run_grid(jobs, backend="ray", progress=False)
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        with compare.ray_session(address=cluster.address):
+            assert len(ray.nodes()) == 2
+            via_ray = compare.run_grid(jobs, backend="ray", progress=False, cache_dir=tmp_path, log=lambda *a: None)
+
+            @ray.remote
+            def where():
+                import controllers
+                return controllers.__file__
+            # the workers import the package the runtime_env uploaded, not the driver's files
+            assert not ray.get(where.remote()).startswith(str(compare.PACKAGE_ROOT))
+        assert not ray.is_initialized()
     finally:
-        ray.shutdown()
-    assert via_ray == compare.run_grid(jobs, workers=1, progress=False)
+        cluster.shutdown()
+    assert via_ray == local
+
+    def no_work(job):
+        raise AssertionError("a cached cell was run again")
+    monkeypatch.setattr(compare, "run_job", no_work)
+    assert compare.run_grid(jobs, progress=False, cache_dir=tmp_path, resume=True, log=lambda *a: None) == local
 
 
 def test_outputs(tmp_path):
@@ -61,6 +131,36 @@ def test_outputs(tmp_path):
     rows = compare.run_grid(jobs, workers=1, progress=False)
     path_rows = compare.run_grid([dict(jobs[0], record_path=True, episodes=1)], workers=1, progress=False)
     out = compare.write_outputs(rows, compare.summarise(rows), tmp_path, path_rows=path_rows, log=lambda *a: None)
-    for f in ("summary.md", "summary.csv", "episodes.csv", "degradation.png", "paths.png"):
+    for f in ("summary.md", "summary.csv", "episodes.csv", "headline.png", "paths.png"):
         assert (out / f).stat().st_size > 100
-    assert "degradation" in (out / "summary.md").read_text()
+    with open(out / "summary.csv") as f:
+        header = next(csv.reader(f))
+    for col in ("heading_ss", "heading_ss_lo", "heading_ss_hi", "delta_heading_ss", "delta_heading_ss_lo",
+                "delta_heading_ss_hi", "heading_ss_iqm"):
+        assert col in header
+    assert "(reference)" in (out / "summary.md").read_text()
+    # without truth: no figure, and the reason written and said
+    msgs = []
+    no_truth = [r for r in rows if r["estimator"] != "truth"]
+    out2 = compare.write_outputs(no_truth, compare.summarise(no_truth), tmp_path / "nt", log=msgs.append)
+    assert not (out2 / "headline.png").exists()
+    assert "no `truth` estimator" in (out2 / "summary.md").read_text() and any("no `truth`" in m for m in msgs)
+
+
+def test_summary_success_intervals_in_range():
+    rows = []
+    for est, outcomes in (("truth", [1, 1, 1, 1]), ("gyro", [0, 1, 0, 0])):
+        for i, s in enumerate(outcomes):
+            rows.append(dict(task="waypoints", scenario="flat", estimator=est, controller="pid", episode_seed=i,
+                             success=float(s), time_to_goal=20.0 + i if s else float("nan"), cross_track=0.2,
+                             attitude_error=1.0, heading_est_error=1.0))
+    s = {r["estimator"]: r for r in compare.summarise(rows)}
+    g = s["gyro"]
+    assert g["success"] == 0.25 and 0.0 <= g["success_lo"] < 0.25 < g["success_hi"] <= 1.0
+    assert g["delta_success"] == -0.75 and -1.0 <= g["delta_success_lo"] < -0.75 < g["delta_success_hi"] <= 1.0
+    assert g["delta_time_to_goal"] == pytest.approx(21.0 - 21.0)       # the one seed both reached
+    k = compare.min_detectable_success(30)
+    assert k is not None
+    from controllers.evaluation import newcombe_paired
+    assert newcombe_paired(np.r_[np.zeros(k), np.ones(30 - k)], np.ones(30))[2] < 0
+    assert newcombe_paired(np.r_[np.zeros(k - 1), np.ones(31 - k)], np.ones(30))[2] >= 0

@@ -61,6 +61,7 @@ def test_pid_tracks_heading_under_truth():
     ep = res["episodes"][0]
     assert ep["speed_rmse"] < 0.1
     assert ep["heading_rmse"] < 45.0          # command steps of up to 90 deg included
+    assert ep["heading_ss"] < 10.0 and ep["speed_ss"] < 0.1 and 0.0 <= ep["settle_time"] < 5.0
     assert ep["attitude_error"] < 1e-3
 
 
@@ -72,12 +73,12 @@ def test_pid_reaches_waypoints_under_truth():
     assert ep["path"].shape[1] == 2 and ep["cross_track"] < 1.0
 
 
-def test_aggregate_ci():
-    eps = [{"return": v, "speed_rmse": v, "heading_rmse": v, "effort": v, "attitude_error": v,
-            "heading_est_error": v} for v in (1.0, 2.0, 3.0)]
+def test_aggregate_intervals():
+    eps = [{m: v for m in ("return", "heading_ss", "speed_ss", "settle_time", "speed_rmse", "heading_rmse", "effort",
+                           "attitude_error", "heading_est_error")} for v in (1.0, 2.0, 3.0, float("nan"))]
     s = aggregate(eps, "track")["return"]
-    assert s["mean"] == pytest.approx(2.0) and s["n"] == 3
-    assert s["ci95"] == pytest.approx(4.302653 * 1.0 / math.sqrt(3), rel=1e-5)
+    assert s["mean"] == pytest.approx(2.0) and s["n"] == 3 and s["std"] == pytest.approx(1.0)
+    assert 1.0 <= s["lo"] < 2.0 < s["hi"] <= 3.0 and s["iqm"] == pytest.approx(2.0)
 
 
 def test_evaluate_bad_input():
