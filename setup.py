@@ -1,5 +1,6 @@
 """Builds the Cython kernels of fusion/ (metadata lives in pyproject.toml)."""
 import os
+import platform
 import sys
 import sysconfig
 from pathlib import Path
@@ -25,6 +26,11 @@ if sys.platform != "win32":
     COMPILE_ARGS.append("-g0")
 if sys.platform.startswith("linux"):
     LINK_ARGS.append("-s")  # stripped at link: the .so files shrink about six-fold
+if platform.machine().lower() in ("aarch64", "arm64") and "gcc" in CC:
+    # Cython's reference counts of memoryviews are atomics: inline ARMv8.0 ones, not libgcc's
+    # outline helpers, whose LSE paths (chosen at run time) a stripped file cannot tell apart
+    # from code beyond the baseline (benchmarks/check_wheel_isa.py)
+    COMPILE_ARGS.append("-mno-outline-atomics")
 # GCC: inline a kernel's step into its batch loop even though the step is large and has a
 # second caller (the per-sample path); a call per sample costs mahony 3 %, ekf 8 %
 if "gcc" in CC:

@@ -6,7 +6,8 @@ the baseline (SSE2) instruction set: no SSE3/SSSE3/SSE4, POPCNT, BMI, AVX, AVX2,
 AVX-512 (no VEX/EVEX-encoded ``v*`` mnemonics, no ymm/zmm/k registers). A ``*_aarch64`` wheel
 must run on every ARMv8.0-A CPU: no SVE (z/p registers), LSE atomics, dot product, complex
 or bfloat16 arithmetic, or the optional CRC32 / crypto instructions; LSE atomics are allowed
-in libgcc's outline-atomic helpers (``__aarch64_*``), which choose them at run time.
+in libgcc's outline-atomic helpers (``__aarch64_*``), which choose them at run time, but a
+stripped file has lost those names: setup.py builds aarch64 with -mno-outline-atomics.
 
 Each ``.so`` is disassembled with ``objdump -d``; every offending instruction is counted per
 mnemonic and printed with its function. The wheel is also checked for what it must not ship
@@ -16,6 +17,7 @@ is printed (the limit: 3 MB). Exit status 0: all clean; 1: a finding.
     python benchmarks/check_wheel_isa.py dist/*.whl     # wheels built by `python -m build`
     python benchmarks/check_wheel_isa.py --build        # build one first (python -m build --wheel)
     python benchmarks/check_wheel_isa.py --installed    # the importable fusion package's .so
+    python benchmarks/check_wheel_isa.py --so aarch64 _ekf.so   # one file (a cross objdump for aarch64)
 """
 import argparse
 import collections
@@ -123,7 +125,8 @@ def check_so(path, arch, objdump="objdump"):
     notes = []
     if ".debug_" in headers:
         notes.append("debug sections present (not built with -g0)")
-    if re.search(r"^SYMBOL TABLE:\n(?!no symbols)", headers, re.M) and " .symtab" in headers:
+    symtab = headers.split("SYMBOL TABLE:", 1)[1].strip() if "SYMBOL TABLE:" in headers else ""
+    if symtab and not symtab.startswith("no symbols"):
         notes.append("symbol table not stripped")
     return found, notes, n
 
@@ -135,10 +138,25 @@ def arch_of_wheel(name):
     raise ValueError(f"{name}: no x86_64 or aarch64 platform tag; this checker knows those two")
 
 
-def check_files(sos, arch, label):
+def objdump_for(arch, override=None):
+    """`override`, or the host's objdump for the host's arch, else a cross objdump
+    (``aarch64-linux-gnu-objdump``) when installed (binutils-aarch64-linux-gnu)."""
+    if override:
+        return override
+    host = platform.machine().lower().replace("amd64", "x86_64").replace("arm64", "aarch64")
+    if arch != host:
+        cross = shutil.which(f"{arch}-linux-gnu-objdump")
+        if cross is None:
+            raise SystemExit(f"{arch} code on a {host} machine: install {arch}-linux-gnu-objdump "
+                             f"(binutils-{arch.replace('_', '-')}-linux-gnu) or give --objdump")
+        return cross
+    return "objdump"
+
+
+def check_files(sos, arch, label, objdump=None):
     bad = False
     for so in sos:
-        found, notes, n = check_so(so, arch)
+        found, notes, n = check_so(so, arch, objdump_for(arch, objdump))
         status = "ok" if not found and not notes else "FAIL"
         print(f"  {status:4} {Path(so).name}: {n} instructions, {Path(so).stat().st_size / 1e3:.0f} kB")
         items = sorted(found.items(), key=lambda kv: -len(kv[1]))
@@ -156,7 +174,7 @@ def check_files(sos, arch, label):
     return bad
 
 
-def check_wheel(wheel):
+def check_wheel(wheel, objdump=None):
     wheel = Path(wheel)
     arch = arch_of_wheel(wheel.name)
     size = wheel.stat().st_size
@@ -171,7 +189,7 @@ def check_wheel(wheel):
             print(f"  FAIL ships sources or build outputs: {', '.join(sources)}")
             bad = True
         sos = [z.extract(n, tmp) for n in names if n.endswith(".so")]
-        bad |= check_files(sos, arch, wheel.name)
+        bad |= check_files(sos, arch, wheel.name, objdump)
     return bad
 
 
@@ -184,20 +202,27 @@ def main(argv=None):
                     help="build a wheel of this source tree first (python -m build --wheel) and check it")
     ap.add_argument("--installed", action="store_true",
                     help="check the .so files of the fusion package that Python imports, for this machine's arch")
+    ap.add_argument("--so", nargs=2, metavar=("ARCH", "FILE"), action="append", default=[],
+                    help="check one shared object for ARCH (x86_64 or aarch64); repeatable")
+    ap.add_argument("--objdump", help="the objdump to use (default: objdump, or a cross objdump "
+                    "such as aarch64-linux-gnu-objdump for another arch)")
     args = ap.parse_args(argv)
-    if shutil.which("objdump") is None:
-        ap.error("objdump not found (binutils)")
-    if not (args.wheels or args.build or args.installed):
-        ap.error("give wheels, --build or --installed")
+    if shutil.which(args.objdump or "objdump") is None:
+        ap.error(f"{args.objdump or 'objdump'} not found (binutils)")
+    if not (args.wheels or args.build or args.installed or args.so):
+        ap.error("give wheels, --build, --installed or --so")
     bad = False
     for w in args.wheels:
-        bad |= check_wheel(w)
+        bad |= check_wheel(w, args.objdump)
+    for arch, so in args.so:
+        print(f"{so} ({arch} baseline)")
+        bad |= check_files([so], arch, so, args.objdump)
     if args.build:
         root = Path(__file__).resolve().parents[1]
         with tempfile.TemporaryDirectory() as out:
             subprocess.run([sys.executable, "-m", "build", "--wheel", "--outdir", out, str(root)], check=True)
             for w in sorted(Path(out).glob("*.whl")):
-                bad |= check_wheel(w)
+                bad |= check_wheel(w, args.objdump)
     if args.installed:
         spec = importlib.util.find_spec("fusion")
         if spec is None or not spec.submodule_search_locations:
@@ -205,7 +230,7 @@ def main(argv=None):
         pkg = Path(list(spec.submodule_search_locations)[0])
         arch = platform.machine().lower().replace("amd64", "x86_64").replace("arm64", "aarch64")
         print(f"{pkg} ({arch} baseline)")
-        bad |= check_files(sorted(pkg.glob("*.so")), arch, str(pkg))
+        bad |= check_files(sorted(pkg.glob("*.so")), arch, str(pkg), args.objdump)
     print("FAIL" if bad else "OK: no instruction beyond the baseline ISA")
     return 1 if bad else 0
 

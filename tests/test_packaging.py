@@ -104,3 +104,28 @@ def test_extras_cover_the_imports():
     assert torch == ["torch>=2.3"]
     base = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
     assert [re.split(r"[<>=]", r)[0] for r in base] == ["numpy"]
+
+
+_KERNEL_C = """
+void axpy(int n, double a, const double *x, double *y) {
+    for (int i = 0; i < n; i++) y[i] = a * x[i] + y[i];
+}
+"""
+
+
+@pytest.mark.parametrize("flags, bad", [
+    (["-O3"], False),                          # the baseline: SSE2
+    (["-O3", "-march=haswell"], True),         # AVX2 + FMA: ymm registers, vfmadd
+    (["-O3", "-g"], True),                     # debug sections and symbols: not a wheel's
+])
+def test_isa_checker_on_compiled_code(tmp_path, flags, bad):
+    """The checker end to end on a shared object the C compiler builds (x86-64 hosts)."""
+    import platform
+    import shutil
+    if platform.machine() != "x86_64" or not shutil.which("gcc") or not shutil.which("objdump"):
+        pytest.skip("needs gcc and objdump on x86-64")
+    (tmp_path / "k.c").write_text(_KERNEL_C)
+    so = tmp_path / "k.so"
+    strip = [] if "-g" in flags else ["-s"]
+    subprocess.run(["gcc", "-shared", "-fPIC", *flags, *strip, str(tmp_path / "k.c"), "-o", str(so)], check=True)
+    assert _checker().main(["--so", "x86_64", str(so)]) == (1 if bad else 0)
