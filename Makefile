@@ -5,7 +5,13 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd)
 
-.PHONY: demo test install bench clean
+# the kernels of the local build are compiled for this machine's CPU (setup.py: FUSION_MARCH);
+# `FUSION_MARCH= make install` builds the portable copy a wheel gets
+FUSION_MARCH ?= native
+# the CPU build of torch, installed before the extras so that `rl`'s torch>=2.3 is met by it
+TORCH ?= torch==2.13.0
+
+.PHONY: demo test install bench docs wheel clean
 
 install: $(STAMP)
 
@@ -13,7 +19,8 @@ install: $(STAMP)
 $(STAMP): $(SOURCES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[all]'
+	$(PY) -m pip install --quiet '$(TORCH)'
+	FUSION_MARCH=$(FUSION_MARCH) $(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)
 
 # the main job: control under every estimator with the shipped policies (quick mode)
@@ -26,5 +33,14 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/throughput.py
 
+# the API reference and the pages of docs/ -> site/ (mkdocs.yml)
+docs: $(STAMP)
+	$(PY) -m mkdocs build --strict
+
+# the portable wheel and sdist -> dist/, the wheel checked for instructions beyond its tag
+wheel: $(STAMP)
+	$(PY) -m build
+	$(PY) benchmarks/check_wheel_isa.py dist/*.whl
+
 clean:
-	rm -rf build *.egg-info fusion/*.c fusion/*.so fusion/*.html
+	rm -rf build dist site *.egg-info fusion/*.c fusion/*.so fusion/*.html

@@ -7,6 +7,7 @@
 Conventions (docs/estimators.md): Hamilton quaternions, scalar first, rotating body vectors
 into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI units.
 """
+from fusion._version import __version__
 from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
@@ -18,9 +19,8 @@ from fusion._aekf import AEKF
 from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
-__all__ = ["make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
+__all__ = ["__version__", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
            "Butterworth", "SlidingMean"]
-__version__ = "0.1.0"
 
 _REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
 

@@ -176,16 +176,23 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     return csv_path, md_path
 
 
+def new_figure(**kwargs):
+    """A matplotlib ``Figure`` (``kwargs``: its arguments) on its own Agg canvas, apart from
+    pyplot: drawing it neither switches the user's backend nor opens a window, and it is
+    freed with its last reference."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
 def plot_errors(panels, path, title, t=None, fs=None):
     """One PNG: a panel per entry of ``panels`` (``{panel title: {label: err or (t, err)}}``),
     total error in degrees over time on a log axis. ``t`` or ``fs`` gives the time axis of
     plain error arrays."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.4 * len(panels)), sharex=True,
-                             squeeze=False)
+    fig = new_figure(figsize=(10, 3.4 * len(panels)))
+    axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)
     for ax, (ptitle, curves) in zip(axes[:, 0], panels.items()):
         for label, c in curves.items():
             tt, e = c if isinstance(c, tuple) else (t if t is not None else np.arange(len(c)) / fs, c)
@@ -201,5 +208,4 @@ def plot_errors(panels, path, title, t=None, fs=None):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

@@ -1,0 +1,131 @@
+"""Packaging: the ISA checker's rules, one version source, plotting that leaves the user's
+matplotlib backend alone, and the sdist's manifest."""
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    tomllib = None
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _checker():
+    spec = importlib.util.spec_from_file_location("_check_wheel_isa", ROOT / "benchmarks" / "check_wheel_isa.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("mnemonic, operands, bad", [
+    ("addsd", "%xmm1,%xmm0", False),             # SSE2: baseline
+    ("mulpd", "0x10(%rsp),%xmm3", False),
+    ("sqrtsd", "%xmm0,%xmm0", False),
+    ("pextrw", "$0x1,%xmm0,%eax", False),         # SSE2's pextrw, unlike SSE4.1's pextrd
+    ("vfmadd231sd", "%xmm2,%xmm1,%xmm0", True),   # FMA
+    ("vaddpd", "%ymm1,%ymm2,%ymm3", True),        # AVX
+    ("vmovapd", "%zmm0,(%rax)", True),            # AVX-512
+    ("movapd", "%xmm17,%xmm0", True),             # EVEX-only register
+    ("pextrd", "$0x1,%xmm0,%eax", True),          # SSE4.1
+    ("roundsd", "$0x9,%xmm0,%xmm0", True),
+    ("pshufb", "%xmm1,%xmm0", True),              # SSSE3
+    ("popcnt", "%rax,%rax", True),
+    ("lock", "cmpxchg %rdx,(%rcx)", False),
+    ("rep", "stos %rax,%es:(%rdi)", False),
+])
+def test_isa_rules_x86_64(mnemonic, operands, bad):
+    assert (_checker().offending("x86_64", mnemonic, operands, "f") is not None) == bad
+
+
+@pytest.mark.parametrize("mnemonic, operands, func, bad", [
+    ("fmadd", "d0, d1, d2, d3", "f", False),      # scalar FMA is ARMv8.0-A
+    ("fmla", "v0.2d, v1.2d, v2.2d", "f", False),  # NEON
+    ("ldaxr", "w1, [x0]", "f", False),
+    ("ldaddal", "w1, w2, [x0]", "f", True),       # LSE atomics (ARMv8.1)
+    ("ldaddal", "w1, w2, [x0]", "__aarch64_ldadd4_acq_rel", False),  # libgcc: chosen at run time
+    ("sdot", "v0.4s, v1.16b, v2.16b", "f", True),
+    ("fadd", "z0.d, z1.d, z2.d", "f", True),      # SVE
+    ("crc32x", "w0, w0, x1", "f", True),
+])
+def test_isa_rules_aarch64(mnemonic, operands, func, bad):
+    assert (_checker().offending("aarch64", mnemonic, operands, func) is not None) == bad
+
+
+def test_isa_rules_unknown_arch():
+    with pytest.raises(ValueError, match="arch"):
+        _checker().offending("riscv64", "add", "a0, a0, a1", "f")
+
+
+def test_one_version_source():
+    if tomllib is None:
+        pytest.skip("tomllib: Python 3.11+")
+    import fusion
+    py = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "version" not in py["project"] and "version" in py["project"]["dynamic"]
+    assert py["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "fusion._version.__version__"}
+    assert re.fullmatch(r"\d+\.\d+\.\d+", fusion.__version__)
+    assert f"version: {fusion.__version__}" in (ROOT / "CITATION.cff").read_text()
+
+
+def test_plotting_keeps_the_users_backend(tmp_path):
+    pytest.importorskip("matplotlib")
+    code = ("import sys, matplotlib, numpy as np; matplotlib.use('svg'); "
+            "from fusion import compare; "
+            f"p = compare.plot_errors({{'a': {{'x': np.ones(50)}}}}, {str(tmp_path / 'e.png')!r}, 't', fs=10.0); "
+            "assert p.stat().st_size > 1000; "
+            "assert matplotlib.get_backend() == 'svg', matplotlib.get_backend(); "
+            "assert 'matplotlib.pyplot' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(ROOT))
+
+
+def test_library_never_switches_the_backend():
+    calls = [f"{p.relative_to(ROOT)}:{i}" for d in ("fusion", "envs") for p in (ROOT / d).rglob("*.py")
+             for i, line in enumerate(p.read_text().splitlines(), 1) if "matplotlib.use(" in line]
+    assert not calls, calls
+
+
+def test_extras_cover_the_imports():
+    """What each extra promises: PID evaluation with [sim] needs scipy (evaluate's
+    confidence intervals) and the simulator; torch is not pinned."""
+    if tomllib is None:
+        pytest.skip("tomllib: Python 3.11+")
+    opt = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    names = lambda extra: {re.split(r"[<>=!\[ ]", r, maxsplit=1)[0] for r in opt[extra]}
+    assert {"gymnasium", "pybullet", "scipy", "spherebot-fusion"} <= names("sim")
+    assert "spherebot-fusion[plot]" in opt["sim"]
+    assert {"matplotlib", "tqdm"} <= names("plot")
+    torch = [r for r in opt["rl"] if r.startswith("torch")]
+    assert torch == ["torch>=2.3"]
+    base = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    assert [re.split(r"[<>=]", r)[0] for r in base] == ["numpy"]
+
+
+_KERNEL_C = """
+void axpy(int n, double a, const double *x, double *y) {
+    for (int i = 0; i < n; i++) y[i] = a * x[i] + y[i];
+}
+"""
+
+
+@pytest.mark.parametrize("flags, bad", [
+    (["-O3"], False),                          # the baseline: SSE2
+    (["-O3", "-march=haswell"], True),         # AVX2 + FMA: ymm registers, vfmadd
+    (["-O3", "-g"], True),                     # debug sections and symbols: not a wheel's
+])
+def test_isa_checker_on_compiled_code(tmp_path, flags, bad):
+    """The checker end to end on a shared object the C compiler builds (x86-64 hosts)."""
+    import platform
+    import shutil
+    if platform.machine() != "x86_64" or not shutil.which("gcc") or not shutil.which("objdump"):
+        pytest.skip("needs gcc and objdump on x86-64")
+    (tmp_path / "k.c").write_text(_KERNEL_C)
+    so = tmp_path / "k.so"
+    strip = [] if "-g" in flags else ["-s"]
+    subprocess.run(["gcc", "-shared", "-fPIC", *flags, *strip, str(tmp_path / "k.c"), "-o", str(so)], check=True)
+    assert _checker().main(["--so", "x86_64", str(so)]) == (1 if bad else 0)
