@@ -162,8 +162,9 @@ def run_job(job):
     """Evaluate one cell; returns one row per episode (dicts of plain values; with
     ``job["record_path"]`` also the true path and the waypoints)."""
     record_path = bool(job.get("record_path", False))
-    import torch
-    torch.set_num_threads(1)
+    if job["controller"] != "pid":        # a PID-only grid needs no torch
+        import torch
+        torch.set_num_threads(1)
     from controllers.pid import PID
     from controllers.rl import POLICY_DIR, load_policy
     from envs.sphere import SphereRobotEnv
@@ -497,11 +498,10 @@ def _plot_headline(summary, path):
             return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
                     "estimator's paired difference against it (add `truth` to --estimators).")
         return "No headline figure: the grid has no estimator besides `truth` to compare with it."
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from fusion.compare import new_figure
     sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4),
+    fig = new_figure(figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4))
+    axes = fig.subplots(len(panels), 1,
                              gridspec_kw={"height_ratios": [1.0 + 0.42 * s for s in sizes]}, squeeze=False)
     for ax, (task, sc) in zip(axes[:, 0], panels):
         main, higher = MAIN_METRIC[task]
@@ -549,21 +549,21 @@ def _plot_headline(summary, path):
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return None
 
 
 def _plot_paths(path_rows, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 7))
+    from matplotlib.patches import Circle
+
+    from fusion.compare import new_figure
+    fig = new_figure(figsize=(7, 7))
+    ax = fig.subplots()
     first = path_rows[0]
     if first.get("waypoints") is not None:
         wp = np.vstack([first["start"][None, :], first["waypoints"]])
         ax.plot(wp[:, 0], wp[:, 1], "k--", lw=1.5, label="target path")
         for x, y in wp[1:]:          # reached when the true position enters the circle
-            ax.add_patch(plt.Circle((x, y), first["waypoint_radius"], fill=False, color="k", lw=0.8))
+            ax.add_patch(Circle((x, y), first["waypoint_radius"], fill=False, color="k", lw=0.8))
     for r in path_rows:
         p = r["path"]
         ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"{r['estimator']} ({r['controller']})")
@@ -576,7 +576,6 @@ def _plot_paths(path_rows, path):
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 # ----------------------------------------------------------------------------------------

@@ -85,7 +85,7 @@ def test_plotting_keeps_the_users_backend(tmp_path):
 
 
 def test_library_never_switches_the_backend():
-    calls = [f"{p.relative_to(ROOT)}:{i}" for d in ("fusion", "envs") for p in (ROOT / d).rglob("*.py")
+    calls = [f"{p.relative_to(ROOT)}:{i}" for d in ("fusion", "envs", "controllers") for p in (ROOT / d).rglob("*.py")
              for i, line in enumerate(p.read_text().splitlines(), 1) if "matplotlib.use(" in line]
     assert not calls, calls
 
