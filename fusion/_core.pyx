@@ -429,9 +429,11 @@ cdef class Estimator:
             if a.dtype.kind not in "fiu" or a.shape != (4,):
                 raise ValueError(f"q0 must be 4 real numbers [w, x, y, z], got {q0!r}")
             a = a.astype(np.float64)
-            n = float(np.sqrt(np.sum(a * a)))
-            if not np.isfinite(n) or n == 0.0:
+            m = float(np.max(np.abs(a)))
+            if not np.isfinite(m) or m == 0.0:
                 raise ValueError(f"q0 must be finite and non-zero, got {q0!r}")
+            a = a / m        # scaled first: the squares of 1e-160 or 1e200 under- or overflow
+            n = float(np.sqrt(np.sum(a * a)))
             for i in range(4):
                 qin[i] = a[i] / n
             if self.ned:

@@ -356,3 +356,17 @@ def test_one_out_of_range_gyro_sample_does_not_derail(name):
         assert m1 < m0 + 0.1 and f1 < 0.25, (m0, m1, f1)
         assert b1 < 0.01, b1
     """)
+
+
+@pytest.mark.parametrize("scale", [1e-160, 1e-300, 1e200, 1e300])
+def test_reset_q0_of_any_finite_scale_is_normalised(scale):
+    """reset(q0) with components whose squares under- or overflow (1e-160, 1e300) gives the
+    unit quaternion of their direction, not NaN (Hypothesis found 1e-160)."""
+    run_script(f"""
+        for name in fusion.available():
+            est = fusion.make(name, 100.0)
+            est.reset(np.array([1.0, 2.0, -2.0, 4.0]) * {scale!r})
+            q = est.update([0.01, 0.0, 0.0], [0.0, 0.0, 9.81])
+            assert np.all(np.isfinite(q)), (name, q)
+            assert abs(np.linalg.norm(est.quaternion) - 1.0) < 1e-12, name
+    """)
