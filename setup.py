@@ -7,8 +7,9 @@ import numpy as np
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 
-# every fusion/_*.pyx is a kernel module
-KERNELS = sorted(p.stem for p in Path(__file__).parent.glob("fusion/_*.pyx"))
+# every fusion/_*.pyx and envs/_*.pyx is a kernel module
+KERNELS = sorted(f"{p.parent.name}.{p.stem}" for pkg in ("fusion", "envs")
+                 for p in Path(__file__).parent.glob(f"{pkg}/_*.pyx"))
 
 # FUSION_MARCH: the -march the kernels are compiled for. "native" (default): the machine that
 # builds them runs them (make install, make test), and the kernels gain 13-18 % from its
@@ -21,7 +22,7 @@ if "gcc" in (os.environ.get("CC") or sysconfig.get_config_var("CC") or ""):
     COMPILE_ARGS.append("--param=max-inline-insns-single=2000")
 
 extensions = [
-    Extension(f"fusion.{name}", [f"fusion/{name}.pyx"],
+    Extension(name, [name.replace(".", "/") + ".pyx"],
               include_dirs=[np.get_include()],
               define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
               extra_compile_args=COMPILE_ARGS)
