@@ -171,7 +171,8 @@ cdef class Loop:
             env._q_true_s = (self.q_true_s[0], self.q_true_s[1], self.q_true_s[2], self.q_true_s[3])
             env._gyr_last = (self.gyr_last[0], self.gyr_last[1], self.gyr_last[2])
         if self.new_q:
-            env._q_est = np.array([self.q_est[0], self.q_est[1], self.q_est[2], self.q_est[3]])
+            # a tuple: SphereRobotEnv._q_est_wxyz reads it as floats, as it reads update()'s array
+            env._q_est = (self.q_est[0], self.q_est[1], self.q_est[2], self.q_est[3])
         return 0
 
     # -- the true signals, the IMU, the estimator (SphereRobotEnv._sense) ----------------

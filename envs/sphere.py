@@ -257,6 +257,7 @@ class SphereRobotEnv(gym.Env):
         high = np.array([1, 1, 1, 1, 20, 20, 20, 50, 1, 1] + ([5.0, 5.0, 1, 1] if task == "track"
                                                              else [50.0, 50.0, 1, 1]), dtype=np.float32)
         self._obs_high = high
+        self._obs_low = -high
         self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.obs_names = OBS_NAMES[:10] + _TASK_NAMES[task]
@@ -859,7 +860,8 @@ class SphereRobotEnv(gym.Env):
             task = (fwd, left, math.sin(bear), math.cos(bear))
         obs = np.array((w, x, y, z, g[0], g[1], g[2], self._enc_speed, self._action[0], self._action[1]) + task,
                        dtype=np.float32)
-        np.clip(obs, -self._obs_high, self._obs_high, out=obs)
+        np.maximum(obs, self._obs_low, out=obs)       # np.clip's numbers, without its Python wrapper
+        np.minimum(obs, self._obs_high, out=obs)
         return obs
 
     def _info(self, terms):
