@@ -369,7 +369,7 @@ cdef class Loop:
                 self.ext(b, 0, (-self.roll_c * (self.wb[0] + wd * self.axle[0]),
                                 -self.roll_c * (self.wb[1] + wd * self.axle[1]),
                                 -self.spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
-                         self.world, physicsClientId=c)
+                         self.world, c)             # (physicsClientId: positional is cheaper)
             if self.stiction:
                 stuck = -0.05 < wd < 0.05
                 if stuck != self.stuck_gear:

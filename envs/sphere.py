@@ -696,13 +696,16 @@ class SphereRobotEnv(gym.Env):
     def step(self, action):
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (and after an episode ended)")
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
-        if a.shape != (2,):
-            raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
-        a0, a1 = float(a[0]), float(a[1])
+        if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind == "f":
+            a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
+        else:
+            try:
+                a = np.asarray(action, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
+            if a.shape != (2,):
+                raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
+            a0, a1 = float(a[0]), float(a[1])
         if not (math.isfinite(a0) and math.isfinite(a1)):
             raise ValueError(f"action must be finite, got {action!r}")
         if a0 > 1.0 or a0 < -1.0 or a1 > 1.0 or a1 < -1.0:
