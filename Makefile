@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
-SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd)
+SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd envs/*.pyx)
 
 .PHONY: demo test install bench clean
 
@@ -27,4 +27,4 @@ bench: $(STAMP)
 	$(PY) benchmarks/throughput.py
 
 clean:
-	rm -rf build *.egg-info fusion/*.c fusion/*.so fusion/*.html
+	rm -rf build *.egg-info fusion/*.c fusion/*.so fusion/*.html envs/*.c envs/*.so envs/*.html

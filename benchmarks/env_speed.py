@@ -2,12 +2,15 @@
 
     .venv/bin/python benchmarks/env_speed.py            # full run (10,000 resets: about a minute)
     .venv/bin/python benchmarks/env_speed.py --quick    # 1,000 resets
+    .venv/bin/python benchmarks/env_speed.py --breakdown  # CPU time of the parts of a step
 
 Prints, in one run on one core:
   - the raw PyBullet step rate of the same world (stepSimulation only, and with the drive
     motor's per-step joint read and torque command), the floor under everything else;
   - environment steps per second at the defaults (50 Hz control, 200 Hz IMU, 400 Hz physics)
     with estimator="ekf" and with "truth", and the estimator's share of the step time;
+  - the share of that limit the env reaches with "ekf" and "truth" (issue 16: >= 75 %),
+    by wall clock and by CPU time;
   - reset() time (mean, median, 99th percentile);
   - resident memory before and after N resets in one process, and whether physics clients
     leak (1,000 environments created and closed, 100 with --quick: the client slot must be
@@ -147,6 +150,66 @@ def env_rates(estimators, steps, repeats=5):
     return best, update_us, best_raw, best_cpu, best_raw_cpu
 
 
+def breakdown(rounds=12, steps=250):
+    """CPU time per env step (8 physics steps) of: PyBullet's limit (the raw world with the
+    env's per-step calls), the same plus the two state reads the true signals need (base
+    pose, base velocity), the env's physics loop alone (``_advance``), the whole ``step`` with
+    ``ekf`` and ``truth``, and the Python reference of the loop (``compiled=False``). Medians of
+    ``rounds`` interleaved rounds of ``steps`` env steps each."""
+    raw = RawWorld()
+    b, c, motor, servo = raw.b, raw.c, raw.motor, raw.servo
+    joints = (0, 1)
+
+    def raw_reads(n):
+        t = time.thread_time()
+        for _ in range(n):
+            js = p.getJointStates(b, joints, c)
+            tau = motor.torque(3.0, js[0][1])
+            ts = servo.torque(0.2, js[1][0], js[1][1])
+            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+            p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
+            p.stepSimulation(c)
+            p.getBasePositionAndOrientation(b, c)
+            p.getBaseVelocity(b, c)
+        return (time.thread_time() - t) / n * 8
+
+    envs_ = {"step, ekf": SphereRobotEnv(task="track", estimator="ekf"),
+             "step, truth": SphereRobotEnv(task="track", estimator="truth"),
+             "step, ekf, Python reference": SphereRobotEnv(task="track", estimator="ekf", compiled=False)}
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, 2)).astype(np.float32)
+    actions[:, 0] = np.abs(actions[:, 0]) * 0.8
+    res = {"PyBullet's limit": [], "+ base pose and velocity reads": [], "physics loop (_advance), ekf": []}
+    res.update({k: [] for k in envs_})
+    for env in envs_.values():
+        env.reset(seed=0)
+    for _ in range(rounds):
+        res["PyBullet's limit"].append(8.0 / raw.with_motor(8 * steps)[1])
+        res["+ base pose and velocity reads"].append(raw_reads(8 * steps))
+        for k, env in envs_.items():
+            t = time.thread_time()
+            for a in actions:
+                _, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    env.reset()
+            res[k].append((time.thread_time() - t) / steps)
+        env = envs_["step, ekf"]
+        t = time.thread_time()
+        for a in actions:
+            env._advance(env._n_sub, float(a[0]) * env.robot.motor_voltage, float(a[1]) * env.robot.steer_max)
+        res["physics loop (_advance), ekf"].append((time.thread_time() - t) / steps)
+        env.reset()
+    raw.close()
+    for env in envs_.values():
+        env.close()
+    ref = float(np.median(res["PyBullet's limit"]))
+    print(f"CPU time per env step, medians of {rounds} interleaved rounds of {steps} steps:")
+    print("| | us | share of PyBullet's limit |\n|---|---|---|")
+    for k, v in res.items():
+        m = float(np.median(v))
+        print(f"| {k} | {m * 1e6:.1f} | {ref / m:.1%} |")
+
+
 def reset_times(n=300):
     env = SphereRobotEnv(estimator="ekf")
     env.reset(seed=0)
@@ -195,9 +258,14 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
     ap.add_argument("--steps", type=int, default=5000, help="env steps per timing repeat")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="only the CPU-time breakdown of an env step (PyBullet, physics loop, the rest)")
     args = ap.parse_args()
     pinned = pin_one_core()
     print(f"one core: {'pinned' if pinned else 'not pinned'}; python {sys.version.split()[0]}")
+    if args.breakdown:
+        breakdown()
+        return
 
     raw = RawWorld()
     plain = raw.plain(20000)
