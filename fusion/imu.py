@@ -687,6 +687,22 @@ class IMU:
         self._seed(rng)
         self.reset()
 
+    def __getstate__(self):
+        """Copy and pickle: the streaming state back from the kernel, and a fresh kernel
+        (loaded from that state at the next step)."""
+        k = self._kernel
+        if k is not None and k.live:
+            k.store(self)
+        state = self.__dict__.copy()
+        state["_kernel"] = k is not None
+        return state
+
+    def __setstate__(self, state):
+        state = dict(state)
+        compiled = state.pop("_kernel")
+        self.__dict__.update(state)
+        self._kernel = _StepKernel() if compiled else None
+
     # -- randomness ---------------------------------------------------------------------
     def _seed(self, rng):
         seed = rng.integers(0, 2 ** 63 - 1, size=4, dtype=np.int64)

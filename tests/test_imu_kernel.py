@@ -127,3 +127,16 @@ def test_kernel_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="finite"):
         for _ in range(10):
             s.step((math.nan, 0, 0), (0, 0, G), (1, 2, 3))
+
+
+def test_copy_and_pickle_continue_the_record():
+    """A copy (or a pickled IMU) taken mid-record continues it as the original does."""
+    import copy
+    import pickle
+    t, gyr, acc, mag = motion(4000)
+    s = imu.IMU(full_spec(), np.random.default_rng(8), physics_rate_hz=1000.0)
+    run(s, gyr[:2000], acc[:2000], mag[:2000], None)
+    c, p = copy.deepcopy(s), pickle.loads(pickle.dumps(s))
+    a = run(s, gyr[2000:], acc[2000:], mag[2000:], None)
+    assert_same(a, run(c, gyr[2000:], acc[2000:], mag[2000:], None))
+    assert_same(a, run(p, gyr[2000:], acc[2000:], mag[2000:], None))
