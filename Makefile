@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
-SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd)
+SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd envs/*.pyx)
 
 # the kernels of the local build are compiled for this machine's CPU (setup.py: FUSION_MARCH);
 # `FUSION_MARCH= make install` builds the portable copy a wheel gets
@@ -43,4 +43,4 @@ wheel: $(STAMP)
 	$(PY) benchmarks/check_wheel_isa.py dist/*.whl
 
 clean:
-	rm -rf build dist site *.egg-info fusion/*.c fusion/*.so fusion/*.html
+	rm -rf build dist site *.egg-info fusion/*.c fusion/*.so fusion/*.html envs/*.c envs/*.so envs/*.html

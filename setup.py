@@ -9,8 +9,9 @@ import numpy as np
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 
-# every fusion/_*.pyx is a kernel module
-KERNELS = sorted(p.stem for p in Path(__file__).parent.glob("fusion/_*.pyx"))
+# every fusion/_*.pyx and envs/_*.pyx is a kernel module
+KERNELS = sorted(f"{p.parent.name}.{p.stem}" for pkg in ("fusion", "envs")
+                 for p in Path(__file__).parent.glob(f"{pkg}/_*.pyx"))
 
 # FUSION_MARCH: the -march the kernels are compiled for. Empty (default): the compiler's
 # baseline for the platform (x86-64: SSE2; aarch64: armv8-a), so a wheel runs on every CPU
@@ -37,7 +38,7 @@ if "gcc" in CC:
     COMPILE_ARGS.append("--param=max-inline-insns-single=2000")
 
 extensions = [
-    Extension(f"fusion.{name}", [f"fusion/{name}.pyx"],
+    Extension(name, [name.replace(".", "/") + ".pyx"],
               include_dirs=[np.get_include()],
               define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
               extra_compile_args=COMPILE_ARGS, extra_link_args=LINK_ARGS)

@@ -2,12 +2,15 @@
 
     .venv/bin/python benchmarks/env_speed.py            # full run (10,000 resets: about a minute)
     .venv/bin/python benchmarks/env_speed.py --quick    # 1,000 resets
+    .venv/bin/python benchmarks/env_speed.py --breakdown  # CPU time of the parts of a step
 
 Prints, in one run on one core:
   - the raw PyBullet step rate of the same world (stepSimulation only, and with the drive
     motor's per-step joint read and torque command), the floor under everything else;
   - environment steps per second at the defaults (50 Hz control, 200 Hz IMU, 400 Hz physics)
     with estimator="ekf" and with "truth", and the estimator's share of the step time;
+  - the share of that limit the env reaches with "ekf" and "truth" (issue 16: >= 75 %),
+    by wall clock and by CPU time;
   - reset() time (mean, median, 99th percentile);
   - resident memory before and after N resets in one process, and whether physics clients
     leak (1,000 environments created and closed, 100 with --quick: the client slot must be
@@ -49,23 +52,75 @@ def pin_one_core():
         return False
 
 
+class RawWorld:
+    """The environment's world in PyBullet alone: stepSimulation only, and with the
+    environment's per-step PyBullet calls: one joint read (both joints), one torque command
+    (drive and servo), one external torque (the floor's spinning and rolling losses)."""
+
+    def __init__(self):
+        params = RobotParams()
+        self.motor, self.servo = DCMotor(params), Servo(params)
+        c = self.c = p.connect(p.DIRECT)
+        p.resetSimulation(physicsClientId=c)
+        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
+        floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+        p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
+        self.b = build_robot(p, c, params, (0, 0), 0.0)
+
+    def plain(self, steps):
+        c = self.c
+        t = time.perf_counter()
+        for _ in range(steps):
+            p.stepSimulation(c)
+        return steps / (time.perf_counter() - t)
+
+    def with_motor(self, steps):
+        """(wall-clock, CPU-time) physics steps/s."""
+        b, c, motor, servo = self.b, self.c, self.motor, self.servo
+        joints = (0, 1)
+        cpu = time.thread_time()
+        t = time.perf_counter()
+        for _ in range(steps):
+            js = p.getJointStates(b, joints, c)
+            tau = motor.torque(3.0, js[0][1])
+            ts = servo.torque(0.2, js[1][0], js[1][1])
+            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+            p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
+            p.stepSimulation(c)
+        return steps / (time.perf_counter() - t), steps / (time.thread_time() - cpu)
+
+    def close(self):
+        p.disconnect(self.c)
+
+
 def env_rates(estimators, steps, repeats=5):
-    """Best steps/s of each estimator, runs interleaved (so that load changes on the machine
-    hit all alike), plus the measured time inside est.update per env step (us)."""
+    """Best steps/s of each estimator and of the raw PyBullet world (physics steps/s with the
+    env's per-step calls), runs interleaved (so that load changes on the machine hit all
+    alike), by wall clock and by CPU time (thread_time: less sensitive to the other jobs on
+    a shared machine), plus the measured time inside est.update per env step (us)."""
     envs_ = {e: SphereRobotEnv(task="track", estimator=e) for e in estimators}
+    raw = RawWorld()
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, (steps, 2)).astype(np.float32)
     actions[:, 0] = np.abs(actions[:, 0]) * 0.8          # mostly forward, changing steering
     best = {e: 0.0 for e in estimators}
+    best_cpu = {e: 0.0 for e in estimators}
+    best_raw = best_raw_cpu = 0.0
     for r in range(repeats):
+        w, u = raw.with_motor(8 * steps)
+        best_raw, best_raw_cpu = max(best_raw, w), max(best_raw_cpu, u)
         for e, env in envs_.items():
             env.reset(seed=r)
+            cpu = time.thread_time()
             t = time.perf_counter()
             for a in actions:
                 _, _, term, trunc, _ = env.step(a)
                 if term or trunc:
                     env.reset()
             best[e] = max(best[e], steps / (time.perf_counter() - t))
+            best_cpu[e] = max(best_cpu[e], steps / (time.thread_time() - cpu))
+    raw.close()
     update_us = {}
     for e, env in envs_.items():
         est = env._est
@@ -92,38 +147,67 @@ def env_rates(estimators, steps, repeats=5):
             env._est = inner
             update_us[e] = spent[0] / 2000 * 1e6
         env.close()
-    return best, update_us
+    return best, update_us, best_raw, best_cpu, best_raw_cpu
 
 
-def raw_pybullet_rate(steps=20000):
-    """stepSimulation alone, and with the environment's per-step PyBullet calls: one joint
-    read (both joints), one torque command (drive and servo), one external torque (the
-    floor's spinning and rolling losses)."""
-    params = RobotParams()
-    motor, servo = DCMotor(params), Servo(params)
-    c = p.connect(p.DIRECT)
-    p.resetSimulation(physicsClientId=c)
-    p.setGravity(0, 0, -9.81, physicsClientId=c)
-    p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
-    floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
-    p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
-    b = build_robot(p, c, params, (0, 0), 0.0)
-    t = time.perf_counter()
-    for _ in range(steps):
-        p.stepSimulation(c)
-    plain = steps / (time.perf_counter() - t)
+def breakdown(rounds=12, steps=250):
+    """CPU time per env step (8 physics steps) of: PyBullet's limit (the raw world with the
+    env's per-step calls), the same plus the two state reads the true signals need (base
+    pose, base velocity), the env's physics loop alone (``_advance``), the whole ``step`` with
+    ``ekf`` and ``truth``, and the Python reference of the loop (``compiled=False``). Medians of
+    ``rounds`` interleaved rounds of ``steps`` env steps each."""
+    raw = RawWorld()
+    b, c, motor, servo = raw.b, raw.c, raw.motor, raw.servo
     joints = (0, 1)
-    t = time.perf_counter()
-    for _ in range(steps):
-        js = p.getJointStates(b, joints, c)
-        tau = motor.torque(3.0, js[0][1])
-        ts = servo.torque(0.2, js[1][0], js[1][1])
-        p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
-        p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
-        p.stepSimulation(c)
-    with_motor = steps / (time.perf_counter() - t)
-    p.disconnect(c)
-    return plain, with_motor
+
+    def raw_reads(n):
+        t = time.thread_time()
+        for _ in range(n):
+            js = p.getJointStates(b, joints, c)
+            tau = motor.torque(3.0, js[0][1])
+            ts = servo.torque(0.2, js[1][0], js[1][1])
+            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+            p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
+            p.stepSimulation(c)
+            p.getBasePositionAndOrientation(b, c)
+            p.getBaseVelocity(b, c)
+        return (time.thread_time() - t) / n * 8
+
+    envs_ = {"step, ekf": SphereRobotEnv(task="track", estimator="ekf"),
+             "step, truth": SphereRobotEnv(task="track", estimator="truth"),
+             "step, ekf, Python reference": SphereRobotEnv(task="track", estimator="ekf", compiled=False)}
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, 2)).astype(np.float32)
+    actions[:, 0] = np.abs(actions[:, 0]) * 0.8
+    res = {"PyBullet's limit": [], "+ base pose and velocity reads": [], "physics loop (_advance), ekf": []}
+    res.update({k: [] for k in envs_})
+    for env in envs_.values():
+        env.reset(seed=0)
+    for _ in range(rounds):
+        res["PyBullet's limit"].append(8.0 / raw.with_motor(8 * steps)[1])
+        res["+ base pose and velocity reads"].append(raw_reads(8 * steps))
+        for k, env in envs_.items():
+            t = time.thread_time()
+            for a in actions:
+                _, _, term, trunc, _ = env.step(a)
+                if term or trunc:
+                    env.reset()
+            res[k].append((time.thread_time() - t) / steps)
+        env = envs_["step, ekf"]
+        t = time.thread_time()
+        for a in actions:
+            env._advance(env._n_sub, float(a[0]) * env.robot.motor_voltage, float(a[1]) * env.robot.steer_max)
+        res["physics loop (_advance), ekf"].append((time.thread_time() - t) / steps)
+        env.reset()
+    raw.close()
+    for env in envs_.values():
+        env.close()
+    ref = float(np.median(res["PyBullet's limit"]))
+    print(f"CPU time per env step, medians of {rounds} interleaved rounds of {steps} steps:")
+    print("| | us | share of PyBullet's limit |\n|---|---|---|")
+    for k, v in res.items():
+        m = float(np.median(v))
+        print(f"| {k} | {m * 1e6:.1f} | {ref / m:.1%} |")
 
 
 def reset_times(n=300):
@@ -174,15 +258,23 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
     ap.add_argument("--steps", type=int, default=5000, help="env steps per timing repeat")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="only the CPU-time breakdown of an env step (PyBullet, physics loop, the rest)")
     args = ap.parse_args()
     pinned = pin_one_core()
     print(f"one core: {'pinned' if pinned else 'not pinned'}; python {sys.version.split()[0]}")
+    if args.breakdown:
+        breakdown()
+        return
 
-    plain, with_motor = raw_pybullet_rate()
+    raw = RawWorld()
+    plain = raw.plain(20000)
+    raw.close()
+    rates, update_us, with_motor, rates_cpu, with_motor_cpu = env_rates(["ekf", "truth"], args.steps)
+    limit = with_motor / 8
     print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the env's joint read, "
-          f"torque command and floor-loss torque: {with_motor:,.0f}/s  (= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
-
-    rates, update_us = env_rates(["ekf", "truth"], args.steps)
+          f"torque command and floor-loss torque: {with_motor:,.0f}/s  (= {limit:,.0f} env steps/s at 8 physics steps "
+          "each; best of the runs interleaved with the env's)")
     r_ekf, r_truth = rates["ekf"], rates["truth"]
     share_diff = 1.0 - r_ekf / r_truth
     share_direct = update_us["ekf"] * 1e-6 * r_ekf
@@ -190,6 +282,10 @@ def main():
           f"truth {r_truth:,.0f}")
     print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
           f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step)")
+    print(f"  share of PyBullet's limit: ekf {r_ekf / limit:.1%}, truth {r_truth / limit:.1%} "
+          f"(target >= 75 % with ekf: {'met' if r_ekf >= 0.75 * limit else 'NOT met'}); by CPU time: "
+          f"limit {with_motor_cpu / 8:,.0f}, ekf {rates_cpu['ekf']:,.0f} ({8 * rates_cpu['ekf'] / with_motor_cpu:.1%}), "
+          f"truth {rates_cpu['truth']:,.0f} ({8 * rates_cpu['truth'] / with_motor_cpu:.1%})")
     print(f"  target >= 2,000 with ekf: {'met' if r_ekf >= 2000 else 'NOT met'}; "
           f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
 

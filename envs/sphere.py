@@ -20,6 +20,7 @@ from gymnasium import spaces
 import fusion
 from fusion import imu as fimu
 
+from envs import _signals
 from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
                         SPIN_EPS, build_robot, spin_torque, set_drive_friction, set_steer)
 
@@ -104,6 +105,9 @@ class SphereRobotEnv(gym.Env):
         dead reckoning (0 Hz: none).
     render_mode: None, "rgb_array" (TinyRenderer, headless) or "human" (PyBullet window).
     render_size: (width, height) of rgb_array frames.
+    compiled: True (default): the per-physics-step path (motor, servo, floor losses, true
+        IMU signals, IMU model, estimator update) runs in C (envs/_signals.pyx, fusion/_imu.pyx),
+        the same numbers as the Python methods here, which False selects (the reference).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
@@ -114,7 +118,7 @@ class SphereRobotEnv(gym.Env):
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
                  mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, n_waypoints=4,
                  waypoint_radius=0.5, position_fix_hz=0.0, position_fix_std=0.5,
-                 realism="real", render_mode=None, render_size=(320, 240)):
+                 realism="real", render_mode=None, render_size=(320, 240), compiled=True):
         super().__init__()
         if task not in TASKS:
             raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")
@@ -219,6 +223,10 @@ class SphereRobotEnv(gym.Env):
         if not (16 <= rw <= 4096 and 16 <= rh <= 4096):
             raise ValueError(f"render_size must be (width, height), each in [16, 4096], got {render_size!r}")
         self.render_size = (rw, rh)
+        if not isinstance(compiled, (bool, np.bool_)):
+            raise ValueError(f"compiled must be True or False, got {compiled!r}")
+        self._compiled = bool(compiled)
+        self._loop = _signals.Loop() if self._compiled else None
 
         self.imu_spec = spec.replace(rate_hz=self.imu_hz)
         self._est_params = dict(estimator_params or {})
@@ -249,6 +257,7 @@ class SphereRobotEnv(gym.Env):
         high = np.array([1, 1, 1, 1, 20, 20, 20, 50, 1, 1] + ([5.0, 5.0, 1, 1] if task == "track"
                                                              else [50.0, 50.0, 1, 1]), dtype=np.float32)
         self._obs_high = high
+        self._obs_low = -high
         self.observation_space = spaces.Box(-high, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.obs_names = OBS_NAMES[:10] + _TASK_NAMES[task]
@@ -430,7 +439,16 @@ class SphereRobotEnv(gym.Env):
     def _sense(self, first=False):
         """True IMU signals at the current physics step -> the IMU model -> the estimator.
 
-        Plain float arithmetic (no numpy): this runs at the physics rate."""
+        Plain float arithmetic (no numpy): this runs at the physics rate. The compiled loop
+        (envs/_signals.pyx) runs the same; this is its reference (and runs while a signal
+        log is on)."""
+        loop = self._loop
+        if loop is not None:
+            if first:
+                loop.load(self)             # the episode's world, zones and IMU
+            if self.signal_log is None:
+                loop.sense(self, first)
+                return
         p, c, b = self._p, self._client, self._body
         pos, orn = p.getBasePositionAndOrientation(b, c)
         lin, ang = p.getBaseVelocity(b, c)
@@ -559,7 +577,10 @@ class SphereRobotEnv(gym.Env):
     def _advance(self, n, voltage, target):
         """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
         steering ``target`` (rad); the previous command holds for the first
-        ``latency_s`` of them (actuation latency)."""
+        ``latency_s`` of them (actuation latency). The compiled loop runs the same."""
+        if self._loop is not None and self.signal_log is None:
+            self._loop.advance(self, n, voltage, target)
+            return
         p, c, b = self._p, self._client, self._body
         rp = self.robot
         motor, servo = self._motor, self._servo
@@ -632,7 +653,8 @@ class SphereRobotEnv(gym.Env):
                 self._yaw0 = float(yaw)
         self._draw_task()
         if self._imu is None:
-            self._imu = fimu.IMU(self.imu_spec, self.np_random, physics_rate_hz=self.physics_hz)
+            self._imu = fimu.IMU(self.imu_spec, self.np_random, physics_rate_hz=self.physics_hz,
+                                 compiled=self._compiled)
         else:
             self._imu.reset(rng=self.np_random)
         self._build_world(self._xy0, self._yaw0, bumps, ramps)
@@ -674,13 +696,16 @@ class SphereRobotEnv(gym.Env):
     def step(self, action):
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (and after an episode ended)")
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
-        if a.shape != (2,):
-            raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
-        a0, a1 = float(a[0]), float(a[1])
+        if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind == "f":
+            a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
+        else:
+            try:
+                a = np.asarray(action, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
+            if a.shape != (2,):
+                raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
+            a0, a1 = float(a[0]), float(a[1])
         if not (math.isfinite(a0) and math.isfinite(a1)):
             raise ValueError(f"action must be finite, got {action!r}")
         if a0 > 1.0 or a0 < -1.0 or a1 > 1.0 or a1 < -1.0:
@@ -838,7 +863,8 @@ class SphereRobotEnv(gym.Env):
             task = (fwd, left, math.sin(bear), math.cos(bear))
         obs = np.array((w, x, y, z, g[0], g[1], g[2], self._enc_speed, self._action[0], self._action[1]) + task,
                        dtype=np.float32)
-        np.clip(obs, -self._obs_high, self._obs_high, out=obs)
+        np.maximum(obs, self._obs_low, out=obs)       # np.clip's numbers, without its Python wrapper
+        np.minimum(obs, self._obs_high, out=obs)
         return obs
 
     def _info(self, terms):

@@ -28,6 +28,8 @@ from typing import NamedTuple, Optional, Tuple, Union
 
 import numpy as np
 
+from fusion._imu import StepKernel as _StepKernel
+
 __all__ = [
     "SensorSpec", "MagSpec", "Vibration", "IMUSpec", "IMU", "IMURecord", "IMUSample",
     "PRESETS", "preset", "available", "VIBRATION_SEED003",
@@ -620,13 +622,15 @@ class IMU:
     physics_rate_hz: rate of the true motion (Hz); the default ``dt`` of ``step`` and a check on
     the ``t`` of ``simulate``; None: taken from the input.
     mag_unit: unit of the magnetic field in and out: "uT", "nT", "mT", "T", "G" or "mG".
+    compiled: True (default): ``step`` runs on the C kernel (fusion/_imu.pyx), the same
+    numbers as this module's Python ``step``, which False selects (the reference).
 
     ``simulate`` (batch) and ``step`` (streaming) share one state and give the same numbers
     (to floating-point rounding) for the same generator: a record can be produced in chunks,
     or by any mix of the two. ``reset()`` starts a new record and redraws the constants.
     """
 
-    def __init__(self, spec_or_preset_name, rng, physics_rate_hz=None, mag_unit="uT"):
+    def __init__(self, spec_or_preset_name, rng, physics_rate_hz=None, mag_unit="uT", compiled=True):
         if isinstance(spec_or_preset_name, IMUSpec):
             spec = spec_or_preset_name
         elif isinstance(spec_or_preset_name, str):
@@ -644,6 +648,9 @@ class IMU:
                                  f"got {physics_rate_hz}")
         if mag_unit not in _MAG_UNITS:
             raise ValueError(f"mag_unit must be one of {', '.join(_MAG_UNITS)}, got {mag_unit!r}")
+        if not isinstance(compiled, (bool, np.bool_)):
+            raise ValueError(f"compiled must be True or False, got {compiled!r}")
+        self._kernel = _StepKernel() if compiled else None
         self._spec = spec
         self._fs = spec.rate_hz
         self._physics_rate = physics_rate_hz
@@ -680,6 +687,22 @@ class IMU:
         self._seed(rng)
         self.reset()
 
+    def __getstate__(self):
+        """Copy and pickle: the streaming state back from the kernel, and a fresh kernel
+        (loaded from that state at the next step)."""
+        k = self._kernel
+        if k is not None and k.live:
+            k.store(self)
+        state = self.__dict__.copy()
+        state["_kernel"] = k is not None
+        return state
+
+    def __setstate__(self, state):
+        state = dict(state)
+        compiled = state.pop("_kernel")
+        self.__dict__.update(state)
+        self._kernel = _StepKernel() if compiled else None
+
     # -- randomness ---------------------------------------------------------------------
     def _seed(self, rng):
         seed = rng.integers(0, 2 ** 63 - 1, size=4, dtype=np.int64)
@@ -708,6 +731,8 @@ class IMU:
             if not isinstance(rng, np.random.Generator):
                 raise ValueError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
             self._seed(rng)
+        if self._kernel is not None:
+            self._kernel.live = False       # reloaded from the state below at the next step
         c = self._gen.standard_normal(61)
         jitter0 = c[0]
         self._M, self._ident = [], []
@@ -945,6 +970,8 @@ class IMU:
         (``mag_unit``). Returns an ``IMURecord`` at the IMU rate. Continues the current record:
         a second call must start after the first ended (``reset()`` for a new record).
         """
+        if self._kernel is not None and self._kernel.live:
+            self._kernel.store(self)        # the streaming state, for the batch code below
         t = np.asarray(t)
         if t.ndim != 1 or t.dtype.kind not in "fiu":
             raise ValueError(f"t must be a 1-D array of times (s), got shape {t.shape} dtype {t.dtype}")
@@ -1127,6 +1154,11 @@ class IMU:
         else None. The first call after ``reset()`` is time 0 (its dt is not used); later
         calls advance by ``dt`` (s), default 1/physics_rate_hz. Arguments as one row of
         ``simulate``'s (3 numbers each)."""
+        k = self._kernel
+        if k is not None:
+            if not k.live:
+                k.load(self)
+            return k.step(gyr_true, acc_true, mag_true, dt, IMUSample)
         x = self._x
         try:
             x[0:3] = gyr_true

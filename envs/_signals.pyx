@@ -1,0 +1,382 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""The environment's per-physics-step path in C: ``SphereRobotEnv._advance`` (motor, servo,
+floor losses, gearbox stiction, the PyBullet calls) and ``SphereRobotEnv._sense`` (the true
+IMU signals: body rate, specific force at the IMU point, the field with the floor's dipole
+zones, the drive's vibration and the robot's own field; then the IMU model's step and the
+estimator's update).
+
+The Python methods in envs/sphere.py are the reference: the same arithmetic in the same
+order, compiled without fused multiply-adds, so the trajectories are the same to the last
+bit (tests/test_env_kernel.py). ``Loop.load(env)`` takes the constants and state from the
+environment at every reset; ``advance`` and ``sense`` read the state the environment may
+change between calls and write back everything the Python code reads, so the two paths can
+be mixed (the environment falls back to Python while a signal log is on).
+"""
+from libc.math cimport sqrt, sin, cos, fmod, copysign
+
+from fusion._imu cimport StepKernel
+from fusion._core cimport Estimator, _claim, _release
+
+import numpy as np
+
+cdef extern from *:
+    """
+    #if defined(__GNUC__) && !defined(__clang__)
+    #pragma GCC optimize ("fp-contract=off")
+    #endif
+    #if defined(__clang__)
+    #pragma clang fp contract(off)
+    #endif
+    """
+
+cdef double G = 9.81                 # envs.sphere.G
+cdef double TWO_PI = 6.283185307179586
+
+
+cdef inline double _pymod(double a, double m) noexcept nogil:
+    """Python's float a % m (m > 0): the result has the sign of m."""
+    cdef double r = fmod(a, m)
+    if r != 0.0:
+        if (m < 0) != (r < 0):
+            r += m
+    else:
+        r = copysign(0.0, m)
+    return r
+
+
+cdef class Loop:
+    # PyBullet
+    cdef object p, getjs, setm, ext, step, getpo, getvel, joints, torque_mode, world
+    cdef object set_steer, set_drive_friction, rp
+    cdef int c, b
+    # motor (envs.robot.DCMotor), servo (envs.robot.Servo)
+    cdef double m_k, m_b, m_limit, m_k_over_r, m_k2_over_r, m_deadband, m_rbat, idle
+    cdef bint has_servo
+    cdef double s_stall, s_inv_band, s_kd, i_servo
+    cdef int lat
+    cdef double stiction, coulomb, spin, inv_eps, roll_c
+    # true signals
+    cdef bint has_offset, vib, self_field
+    cdef double ox, oy, oz, k_phys, ex, ey, ez, mag_steer, mag_current
+    cdef double vk[8]
+    cdef double[:, ::1] zones
+    cdef Py_ssize_t nz
+    cdef StepKernel imu
+    # state (copied in and out of the environment)
+    cdef double v_prev[3]
+    cdef double wb[3]
+    cdef double axle[3]
+    cdef double qd, wd_last, qs, i_prev, i_other, i_signed, tau
+    cdef bint stuck_gear
+    cdef object ang, pos, orn, lin
+    cdef double gyr[3]
+    cdef double acc[3]
+    cdef double mag[3]
+    cdef double gyr_last[3]
+    cdef double q_est[4]
+    cdef double q_true_s[4]
+    cdef bint new_q, any_sample
+    cdef double gyr_sum_y
+    cdef long long gyr_n, n_samples
+    cdef object est, motor
+    cdef Estimator fast_est
+
+    def load(self, env):
+        """Constants of the episode (call after the world is built, before the first sense)."""
+        import envs.robot as robot
+        p = env._p
+        self.p = p
+        self.getjs, self.setm, self.ext = p.getJointStates, p.setJointMotorControlArray, p.applyExternalTorque
+        self.step, self.getpo, self.getvel = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
+        self.joints = (robot.DRIVE_JOINT, robot.STEER_JOINT)
+        self.torque_mode, self.world = p.TORQUE_CONTROL, p.WORLD_FRAME
+        self.set_steer, self.set_drive_friction = robot.set_steer, robot.set_drive_friction
+        self.c, self.b = env._client, env._body
+        rp = env.robot
+        self.rp = rp
+        m = env._motor
+        self.motor = m
+        self.m_k, self.m_b, self.m_limit = m.k, m.b, m.limit
+        self.m_k_over_r, self.m_k2_over_r = m._k_over_r, m._k2_over_r
+        self.m_deadband, self.m_rbat, self.idle = m.deadband, m.r_bat, robot.IDLE_CURRENT
+        s = env._servo
+        self.has_servo = s is not None
+        if s is not None:
+            self.s_stall, self.s_inv_band, self.s_kd = s.stall, s.inv_band, s.kd
+            self.i_servo = robot.SERVO_STALL_CURRENT / rp.steer_torque
+        self.lat = env._lat_steps
+        self.stiction, self.coulomb = rp.drive_stiction, rp.drive_coulomb
+        self.spin, self.inv_eps, self.roll_c = robot.spin_torque(rp), 1.0 / robot.SPIN_EPS, rp.rolling_damping
+        self.has_offset = env._has_offset
+        self.ox, self.oy, self.oz = env.imu_offset
+        self.k_phys = env.physics_hz
+        self.ex, self.ey, self.ez = env.earth_field
+        self.vib = env._vib
+        for i in range(8):
+            self.vk[i] = env._vib_k[i]
+        self.self_field = env._self_field
+        self.mag_steer, self.mag_current = rp.mag_steer, rp.mag_current
+        self.zones = np.array(env._zones, dtype=np.float64).reshape(-1, 7)
+        self.nz = self.zones.shape[0]
+        imu = env._imu
+        self.imu = imu._kernel
+        if self.imu is None:
+            raise ValueError("the compiled loop needs an IMU with compiled=True")
+        if not self.imu.live:
+            self.imu.load(imu)
+
+    # -- state in and out ----------------------------------------------------------------
+    cdef int _get(self, env, bint first=False) except -1:
+        cdef int i
+        if not first:               # (a first sense sets them)
+            v = env._v_prev
+            self.ang = env._wb
+            a = env._axle
+            for i in range(3):
+                self.v_prev[i] = v[i]
+                self.wb[i] = self.ang[i]
+                self.axle[i] = a[i]
+        self.qd, self.wd_last, self.qs = env._qd, env._wd_last, env._qs
+        m = self.motor
+        self.i_prev, self.i_other, self.i_signed = m.i_prev, m.i_other, m.i_signed
+        self.stuck_gear = getattr(env, "_stuck_gear", False)     # (reset sets it after the first sense)
+        self._get_sums(env)
+        return 0
+
+    cdef int _get_sums(self, env) except -1:
+        self.gyr_sum_y, self.gyr_n, self.n_samples = env._gyr_sum_y, env._gyr_n, env._n_samples
+        est = env._est
+        self.est = est
+        self.fast_est = est if isinstance(est, Estimator) else None
+        self.new_q = False
+        self.any_sample = False
+        return 0
+
+    cdef int _put(self, env) except -1:
+        env._v_prev = (self.v_prev[0], self.v_prev[1], self.v_prev[2])
+        env._wb = self.ang
+        env._axle = (self.axle[0], self.axle[1], self.axle[2])
+        env._qd, env._wd_last, env._qs = self.qd, self.wd_last, self.qs
+        m = self.motor
+        m.i_prev, m.i_other, m.i_signed = self.i_prev, self.i_other, self.i_signed
+        env._stuck_gear = self.stuck_gear
+        self._put_sums(env)
+        return 0
+
+    cdef int _put_sums(self, env) except -1:
+        env._true = (self.pos, self.orn, self.lin, (self.gyr[0], self.gyr[1], self.gyr[2]),
+                     (self.acc[0], self.acc[1], self.acc[2]), (self.mag[0], self.mag[1], self.mag[2]))
+        env._gyr_sum_y, env._gyr_n, env._n_samples = self.gyr_sum_y, self.gyr_n, self.n_samples
+        if self.any_sample:
+            env._q_true_s = (self.q_true_s[0], self.q_true_s[1], self.q_true_s[2], self.q_true_s[3])
+            env._gyr_last = (self.gyr_last[0], self.gyr_last[1], self.gyr_last[2])
+        if self.new_q:
+            # a tuple: SphereRobotEnv._q_est_wxyz reads it as floats, as it reads update()'s array
+            env._q_est = (self.q_est[0], self.q_est[1], self.q_est[2], self.q_est[3])
+        return 0
+
+    # -- the true signals, the IMU, the estimator (SphereRobotEnv._sense) ----------------
+    def sense(self, env, first=False):
+        """SphereRobotEnv._sense on the kernel."""
+        self._get(env, first)
+        self._sense(first)
+        self._put(env)
+
+    cdef int _sense(self, bint first) except -1:
+        cdef double x, y, z, w, x2, y2, z2, xx, yy, zz, xy_, xz, yz, wx, wy, wz
+        cdef double r00, r01, r02, r10, r11, r12, r20, r21, r22
+        cdef double wx_, wy_, wz_, vx, vy, vz, rx, ry, rz, ax, ay, az, bx, by, bz
+        cdef double px, py, pz, dx, dy, dz, d2, d, ux, uy, uz, mr, s, k
+        cdef double vbx = 0.0, vby = 0.0, vbz = 0.0
+        cdef double cq, sq
+        cdef double qq[4]
+        cdef Py_ssize_t i
+        cdef double[:, ::1] zn = self.zones
+        cdef Estimator e
+        pos, orn = self.getpo(self.b, self.c)
+        lin, ang = self.getvel(self.b, self.c)
+        self.pos, self.orn, self.lin, self.ang = pos, orn, lin, ang
+        x, y, z, w = orn
+        x2, y2, z2 = x + x, y + y, z + z
+        xx, yy, zz = x * x2, y * y2, z * z2
+        xy_, xz, yz, wx, wy, wz = x * y2, x * z2, y * z2, w * x2, w * y2, w * z2
+        r00, r01, r02 = 1.0 - (yy + zz), xy_ - wz, xz + wy
+        r10, r11, r12 = xy_ + wz, 1.0 - (xx + zz), yz - wx
+        r20, r21, r22 = xz - wy, yz + wx, 1.0 - (xx + yy)
+        wx_, wy_, wz_ = ang
+        vx, vy, vz = lin
+        if self.has_offset:
+            rx = r00 * self.ox + r01 * self.oy + r02 * self.oz
+            ry = r10 * self.ox + r11 * self.oy + r12 * self.oz
+            rz = r20 * self.ox + r21 * self.oy + r22 * self.oz
+            vx += wy_ * rz - wz_ * ry
+            vy += wz_ * rx - wx_ * rz
+            vz += wx_ * ry - wy_ * rx
+        else:
+            rx = ry = rz = 0.0
+        if first:
+            ax = ay = 0.0
+            az = G
+        else:
+            k = self.k_phys
+            ax, ay, az = (vx - self.v_prev[0]) * k, (vy - self.v_prev[1]) * k, (vz - self.v_prev[2]) * k + G
+        self.v_prev[0], self.v_prev[1], self.v_prev[2] = vx, vy, vz
+        self.wb[0], self.wb[1], self.wb[2] = wx_, wy_, wz_
+        self.axle[0], self.axle[1], self.axle[2] = r01, r11, r21
+        bx, by, bz = self.ex, self.ey, self.ez
+        if self.nz:
+            px, py, pz = <double>pos[0] + rx, <double>pos[1] + ry, <double>pos[2] + rz
+            for i in range(self.nz):
+                dx, dy, dz = px - zn[i, 0], py - zn[i, 1], pz - zn[i, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < zn[i, 6]:
+                    d = sqrt(d2 if d2 > 1e-4 else 1e-4)
+                    ux, uy, uz = dx / d, dy / d, dz / d
+                    mr = zn[i, 3] * ux + zn[i, 4] * uy + zn[i, 5] * uz
+                    s = 0.1 / (d * d * d)
+                    bx += s * (3 * ux * mr - zn[i, 3])
+                    by += s * (3 * uy * mr - zn[i, 4])
+                    bz += s * (3 * uz * mr - zn[i, 5])
+        self.gyr[0] = r00 * wx_ + r10 * wy_ + r20 * wz_
+        self.gyr[1] = r01 * wx_ + r11 * wy_ + r21 * wz_
+        self.gyr[2] = r02 * wx_ + r12 * wy_ + r22 * wz_
+        if self.vib:
+            self._vibration(&vbx, &vby, &vbz)
+            self.acc[0] = r00 * ax + r10 * ay + r20 * az + vbx
+            self.acc[1] = r01 * ax + r11 * ay + r21 * az + vby
+            self.acc[2] = r02 * ax + r12 * ay + r22 * az + vbz
+        else:
+            self.acc[0] = r00 * ax + r10 * ay + r20 * az
+            self.acc[1] = r01 * ax + r11 * ay + r21 * az
+            self.acc[2] = r02 * ax + r12 * ay + r22 * az
+        self.mag[0] = r00 * bx + r10 * by + r20 * bz
+        self.mag[1] = r01 * bx + r11 * by + r21 * bz
+        self.mag[2] = r02 * bx + r12 * by + r22 * bz
+        if self.self_field:
+            # SphereRobotEnv._add_self_field
+            cq, sq = cos(self.qs), sin(self.qs)
+            dy, dz = self.mag_steer * sq, self.mag_steer * (1.0 - cq)
+            dy += self.mag_current * self.i_signed
+            self.mag[1] = self.mag[1] + dy
+            self.mag[2] = self.mag[2] + dz
+        if not self.imu.step_c(self.gyr, self.acc, self.mag, 0.0, False):
+            return 0
+        self.n_samples += 1
+        self.any_sample = True
+        self.q_true_s[0], self.q_true_s[1], self.q_true_s[2], self.q_true_s[3] = w, x, y, z
+        if self.est is not None:
+            e = self.fast_est
+            if e is not None:
+                # Estimator.update without its Python call: the same step (_run_batch, n = 1)
+                _claim(e)
+                e._run_batch(self.imu.out_g, self.imu.out_a, self.imu.out_m if self.imu.out_has_mag else NULL,
+                             NULL, e.dt_nominal, qq, 1, False)
+                _release(e)
+                for i in range(4):
+                    self.q_est[i] = qq[i]
+            else:
+                q = self.est.update(np.array([self.imu.out_g[0], self.imu.out_g[1], self.imu.out_g[2]]),
+                                    np.array([self.imu.out_a[0], self.imu.out_a[1], self.imu.out_a[2]]),
+                                    np.array([self.imu.out_m[0], self.imu.out_m[1], self.imu.out_m[2]])
+                                    if self.imu.out_has_mag else None)
+                for i in range(4):
+                    self.q_est[i] = q[i]
+            self.new_q = True
+            for i in range(3):
+                self.gyr_last[i] = self.imu.out_g[i]
+        else:
+            for i in range(3):
+                self.gyr_last[i] = self.gyr[i]
+        self.gyr_sum_y += self.gyr_last[1]
+        self.gyr_n += 1
+        return 0
+
+    cdef void _vibration(self, double* vx_, double* vy_, double* vz_) noexcept:
+        """SphereRobotEnv._vibration."""
+        cdef double n_m = self.vk[0], a_m = self.vk[1], a_c = self.vk[2], n_g = self.vk[3]
+        cdef double a_g = self.vk[4], a_s = self.vk[5], inv_top = self.vk[6], lim = self.vk[7]
+        cdef double q = self.qd, w = self.wd_last, s, vx = 0.0, vy = 0.0, vz = 0.0, ph, c, sn, a, u
+        if w < 0.0:
+            w = -w
+        s = w * inv_top
+        if n_m * w < lim:
+            ph = n_m * q
+            c, sn = cos(ph), sin(ph)
+            a = a_m * s
+            vx = a * c
+            vz = a * sn
+            vy = 0.3 * a * (0.5403023058681398 * c - 0.8414709848078965 * sn)
+            if 2.0 * n_m * w < lim:
+                vz += a_c * s * (c * c - sn * sn)
+        if n_g * w < lim:
+            ph = n_g * q
+            a = a_g * s
+            vx += a * sin(ph)
+            vz += a * cos(ph)
+        if a_s:
+            u = _pymod(q, TWO_PI) * (1.0 / 0.15)
+            if u < 1.0:
+                vz += a_s * s * s * 0.5 * (1.0 - cos(TWO_PI * u))
+        vx_[0], vy_[0], vz_[0] = vx, vy, vz
+
+    # -- the physics steps (SphereRobotEnv._advance) ----------------------------------------
+    def advance(self, env, int n, double voltage, double target):
+        """SphereRobotEnv._advance on the kernel."""
+        cdef double v_old, t_old, v, tgt, wd, t, lim, ts = 0.0, tau = 0.0, e, s0
+        cdef int i
+        cdef bint stuck
+        self._get(env)
+        v_old, t_old = env._cmd_prev
+        b, c, joints = self.b, self.c, self.joints
+        for i in range(n):
+            if i < self.lat:
+                v, tgt = v_old, t_old
+            else:
+                v, tgt = voltage, target
+            js = self.getjs(b, joints, c)
+            j0, j1 = js[0], js[1]
+            self.qd = j0[0]
+            wd = j0[1]
+            self.qs = j1[0]
+            self.wd_last = wd
+            # DCMotor.torque
+            if -self.m_deadband < v < self.m_deadband:
+                v = 0.0
+            elif self.m_rbat:
+                v *= 1.0 - self.m_rbat * (self.i_prev + self.i_other + self.idle)
+            t = self.m_k_over_r * v - self.m_k2_over_r * wd
+            lim = self.m_limit
+            if t > lim:
+                t = lim
+            elif t < -lim:
+                t = -lim
+            self.i_prev = (t if t >= 0 else -t) / self.m_k
+            self.i_signed = t / self.m_k
+            tau = t - self.m_b * wd
+            if self.has_servo:
+                # Servo.torque
+                e = (tgt - <double>j1[0]) * self.s_inv_band
+                e = 1.0 if e > 1.0 else (-1.0 if e < -1.0 else e)
+                ts = self.s_stall * e - self.s_kd * <double>j1[1]
+                s0 = self.s_stall
+                ts = s0 if ts > s0 else (-s0 if ts < -s0 else ts)
+                self.i_other = self.i_servo * (ts if ts >= 0 else -ts)
+            elif i == self.lat:
+                self.set_steer(self.p, c, b, self.rp, target)
+            self.setm(b, joints, self.torque_mode, forces=(tau, ts), physicsClientId=c)
+            if self.spin or self.roll_c:
+                e = (self.wb[2] + wd * self.axle[2]) * self.inv_eps
+                self.ext(b, 0, (-self.roll_c * (self.wb[0] + wd * self.axle[0]),
+                                -self.roll_c * (self.wb[1] + wd * self.axle[1]),
+                                -self.spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
+                         self.world, c)             # (physicsClientId: positional is cheaper)
+            if self.stiction:
+                stuck = -0.05 < wd < 0.05
+                if stuck != self.stuck_gear:
+                    self.stuck_gear = stuck
+                    self.set_drive_friction(self.p, c, b, self.stiction if stuck else self.coulomb)
+            self.step(c)
+            self._sense(False)
+        env._cmd_prev = (voltage, target)
+        env._tau = tau
+        self._put(env)
