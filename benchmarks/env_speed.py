@@ -17,7 +17,6 @@ Prints, in one run on one core:
 """
 import argparse
 import gc
-import math
 import os
 import sys
 import time
@@ -49,6 +48,23 @@ def pin_one_core():
         return False
 
 
+class _TimedUpdate:
+    """Wraps an estimator and adds up the wall time spent inside its update calls."""
+
+    def __init__(self, inner):
+        self.inner, self.spent, self.calls = inner, 0.0, 0
+
+    def update(self, *a):
+        t0 = time.perf_counter()
+        q = self.inner.update(*a)
+        self.spent += time.perf_counter() - t0
+        self.calls += 1
+        return q
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
 def env_rates(estimators, steps, repeats=5):
     """Best steps/s of each estimator, runs interleaved (so that load changes on the machine
     hit all alike), plus the measured time inside est.update per env step (us)."""
@@ -70,27 +86,15 @@ def env_rates(estimators, steps, repeats=5):
     for e, env in envs_.items():
         est = env._est
         if est is not None:                                # the estimator's own cost per env step
-            inner = est
-            spent = [0.0, 0]
-
-            class Timed:
-                def update(self, *a):
-                    t0 = time.perf_counter()
-                    q = inner.update(*a)
-                    spent[0] += time.perf_counter() - t0
-                    spent[1] += 1
-                    return q
-
-                def __getattr__(self, name):
-                    return getattr(inner, name)
-            env._est = Timed()
+            timed = _TimedUpdate(est)
+            env._est = timed
             env.reset(seed=0)
             for a in actions[:2000]:
                 _, _, term, trunc, _ = env.step(a)
                 if term or trunc:
                     env.reset()
-            env._est = inner
-            update_us[e] = spent[0] / 2000 * 1e6
+            env._est = est
+            update_us[e] = timed.spent / 2000 * 1e6
         env.close()
     return best, update_us
 
@@ -180,7 +184,8 @@ def main():
 
     plain, with_motor = raw_pybullet_rate()
     print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the env's joint read, "
-          f"torque command and floor-loss torque: {with_motor:,.0f}/s  (= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
+          f"torque command and floor-loss torque: {with_motor:,.0f}/s  "
+          f"(= {with_motor / 8:,.0f} env steps/s at 8 physics steps each)")
 
     rates, update_us = env_rates(["ekf", "truth"], args.steps)
     r_ekf, r_truth = rates["ekf"], rates["truth"]

@@ -70,8 +70,9 @@ DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
 # ---------------------------------------------------------------------------------------------
 # timing
 
-def _time_once(build):
-    go = build()
+def _time_once(build, *args):
+    """Seconds of one call of build(*args)'s returned closure (the build is not timed)."""
+    go = build(*args)
     t0 = time.perf_counter()
     go()
     return time.perf_counter() - t0
@@ -88,7 +89,7 @@ def size_cell(method, kind, nine, d, n_max, target, n_min):
     builder = method.builders[kind]
     n = min(200, n_max)
     while True:                      # grow a probe until it takes a measurable time
-        dt = _time_once(lambda: builder(d, n, nine))
+        dt = _time_once(builder, d, n, nine)
         if dt >= target / 8 or n >= n_max:
             break
         n = min(n * 4, n_max)
@@ -102,14 +103,14 @@ def measure_all(cells, d, repeats, log):
     interleaved across cells so that a slow spell of a shared machine hits all methods alike
     rather than all repeats of one of them."""
     times = {key: [] for key in cells}
-    for key, (meth, kind, nine, n) in cells.items():
-        _time_once(lambda: meth.builders[kind](d, n, nine))          # warm-up at the measured size
+    for meth, kind, nine, n in cells.values():
+        _time_once(meth.builders[kind], d, n, nine)          # warm-up at the measured size
     for r in range(repeats):
         for key, (meth, kind, nine, n) in cells.items():
-            times[key].append(_time_once(lambda: meth.builders[kind](d, n, nine)))
+            times[key].append(_time_once(meth.builders[kind], d, n, nine))
         log(f"  round {r + 1}/{repeats} done")
     out = {}
-    for key, (meth, kind, nine, n) in cells.items():
+    for key, (_, _, _, n) in cells.items():
         t = times[key]
         med = statistics.median(t)
         out[key] = dict(n=n, repeats=repeats, median_s=med, min_s=min(t), max_s=max(t), rate=n / med)
@@ -274,8 +275,8 @@ def bank_section(d, n, repeats):
     lines = ["| method | filter-samples/s |", "|---|---:|"]
     lines += [f"| {cells[k][0].name} | {fmt_rate(rate[k])} |" for k in cells]
     lines += ["",
-              f"- bank.update / {BANK_COUNT} separate update calls: {rate['bank update'] / rate['separate update']:.2f}x "
-              "(target >= 4x)",
+              f"- bank.update / {BANK_COUNT} separate update calls: "
+              f"{rate['bank update'] / rate['separate update']:.2f}x (target >= 4x)",
               f"- bank.update time per filter-sample / VQF updateBatch time per sample: "
               f"{rate['vqf batch'] / rate['bank update']:.2f} (target <= 1)",
               f"- bank.run / {BANK_NAME}.run per piece: {rate['bank run'] / rate['separate run']:.2f}x; "
@@ -340,7 +341,7 @@ def main(argv=None):
               + ("  (gyro integration only: drifts by design)" if meth.drifts else ""), flush=True)
     print()
 
-    print("sizing (N per cell for ~%g s per call):" % target, flush=True)
+    print(f"sizing (N per cell for ~{target:g} s per call):", flush=True)
     cells = {}
     for meth in methods:
         sizes = []

@@ -16,7 +16,6 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
@@ -44,13 +43,13 @@ class Trial:
     t: np.ndarray
     gyr: np.ndarray
     acc: np.ndarray
-    mag: Optional[np.ndarray]
+    mag: np.ndarray | None
     quat: np.ndarray
     fs: float
     quality: str
     notes: str
     dt: np.ndarray
-    path: Optional[Path] = None
+    path: Path | None = None
     extra: dict = field(default_factory=dict)
 
     @property

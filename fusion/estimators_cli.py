@@ -91,8 +91,8 @@ def main(argv=None):
                                    digits=4, title="Synthetic scenarios: Euler-angle errors (deg), as the seed papers")
     sc, curves = syn_curves["mixed"]
     written.append(compare.plot_errors(
-        {f"9-axis (gyro + acc + mag)": curves["9-axis"],
-         f"6-axis (gyro + acc), one heading offset removed": curves["6-axis"]},
+        {"9-axis (gyro + acc + mag)": curves["9-axis"],
+         "6-axis (gyro + acc), one heading offset removed": curves["6-axis"]},
         out / "synthetic_mixed_error.png", t=sc.t,
         title=f"Synthetic 'mixed' scenario (seed {args.seed}, {sc.fs:g} Hz, {sc.t[-1] + sc.dt[0]:g} s): total error"))
 

@@ -11,7 +11,6 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 pytest.importorskip("pybullet")
 
-import envs  # noqa: E402  (registers the ids)
 from envs.sphere import SphereRobotEnv  # noqa: E402
 
 G = 9.81
