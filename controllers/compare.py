@@ -254,6 +254,60 @@ def _load_cached(path, key):
     return d["rows"]
 
 
+def _open_cache(jobs, cache_dir, resume, results, log):
+    """(cache folder, each job's cell key); with ``resume`` fills ``results`` with the cells
+    already cached for this code version."""
+    cache = Path(cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    version = code_version()
+    keys = [cell_key(j, version) for j in jobs]
+    if resume:
+        for i, k in enumerate(keys):
+            results[i] = _load_cached(cache / f"{k}.json", k)
+        n = sum(r is not None for r in results)
+        log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
+    return cache, keys
+
+
+def _run_local(jobs, todo, workers, done):
+    """The jobs ``todo`` in a process pool of ``workers`` (default the CPU count), each
+    finished one handed to ``done(i, rows)``."""
+    import multiprocessing as mp
+    n = workers or os.cpu_count() or 1
+    if n == 1 or len(todo) <= 1:
+        for i in todo:
+            done(i, run_job(jobs[i]))
+        return
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
+    try:
+        futs = {pool.submit(run_job, jobs[i]): i for i in todo}
+        for f in as_completed(futs):
+            done(futs[f], f.result())
+    except BaseException:
+        # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
+        # are cached) instead of waiting for the queued ones
+        procs = list((pool._processes or {}).values())   # shutdown() forgets them
+        for proc in procs:
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _run_ray(jobs, todo, address, workers, done):
+    """The jobs ``todo`` as Ray tasks, each finished one handed to ``done(i, rows)``."""
+    with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
+        remote = ray.remote(num_cpus=1)(run_job)
+        # the policies are in the task's working directory
+        ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
+        refs = {remote.remote(ray_jobs[i]): i for i in todo}
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for r in ready:
+                done(refs[r], ray.get(r))
+
+
 def run_grid(jobs, backend="local", workers=None, address=None, progress=True, cache_dir=None, resume=False,
              log=print):
     """Run the jobs; returns the rows in job order. backend: "local" (process pool of
@@ -267,15 +321,7 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
     results = [None] * len(jobs)
     cache = keys = None
     if cache_dir is not None and not any(j.get("record_path") for j in jobs):
-        cache = Path(cache_dir)
-        cache.mkdir(parents=True, exist_ok=True)
-        version = code_version()
-        keys = [cell_key(j, version) for j in jobs]
-        if resume:
-            for i, k in enumerate(keys):
-                results[i] = _load_cached(cache / f"{k}.json", k)
-            n = sum(r is not None for r in results)
-            log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
+        cache, keys = _open_cache(jobs, cache_dir, resume, results, log)
     # cells that run the same thing (ppo and ppo-truth under truth: one policy) run once
     same = {}
     for i, j in enumerate(jobs):
@@ -295,37 +341,9 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
             bar.update()
 
     if backend == "local":
-        import multiprocessing as mp
-        n = workers or os.cpu_count() or 1
-        if n == 1 or len(todo) <= 1:
-            for i in todo:
-                done(i, run_job(jobs[i]))
-        else:
-            pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
-            try:
-                futs = {pool.submit(run_job, jobs[i]): i for i in todo}
-                for f in as_completed(futs):
-                    done(futs[f], f.result())
-            except BaseException:
-                # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
-                # are cached) instead of waiting for the queued ones
-                procs = list((pool._processes or {}).values())   # shutdown() forgets them
-                for proc in procs:
-                    proc.terminate()
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
-            pool.shutdown()
+        _run_local(jobs, todo, workers, done)
     elif todo:
-        with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
-            remote = ray.remote(num_cpus=1)(run_job)
-            # the policies are in the task's working directory
-            ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
-            refs = {remote.remote(ray_jobs[i]): i for i in todo}
-            pending = list(refs)
-            while pending:
-                ready, pending = ray.wait(pending, num_returns=1)
-                for r in ready:
-                    done(refs[r], ray.get(r))
+        _run_ray(jobs, todo, address, workers, done)
     bar.close()
     return [row for rows in results for row in rows]
 
@@ -457,7 +475,8 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
             for r in rs:
                 pct = main in BINARY_METRICS
                 dm = "delta_" + main
-                delta = _fmt(r[dm], r[dm + "_lo"], r[dm + "_hi"], pct=pct, unit=" pp") + (" *" if r["separated"] else "")
+                delta = (_fmt(r[dm], r[dm + "_lo"], r[dm + "_hi"], pct=pct, unit=" pp")
+                         + (" *" if r["separated"] else ""))
                 if r["estimator"] == "truth" or not math.isfinite(r[dm]):
                     delta = "(reference)" if r["estimator"] == "truth" else "- (no truth cell)"
                 cells = [r["controller"], f"`{r['estimator']}`", str(r["episodes"]), delta]
@@ -629,7 +648,8 @@ def _parser():
                     help=f"comma-separated estimators; include truth for the differences and the figure "
                          f"(default: all; --quick: {QUICK['estimators']}). Accepted: {', '.join(all_est)}")
     ap.add_argument("--controllers", default=None, metavar="LIST",
-                    help=f"comma-separated controllers (default: all; --quick: {QUICK['controllers']}). Accepted: pid (the same gains everywhere), "
+                    help=f"comma-separated controllers (default: all; --quick: {QUICK['controllers']}). "
+                         "Accepted: pid (the same gains everywhere), "
                          "ppo (the policy trained with that estimator), ppo-truth (the policy trained on the true "
                          "attitude, run with that estimator)")
     ap.add_argument("--episodes", type=int, default=None, metavar="N",

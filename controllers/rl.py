@@ -292,14 +292,15 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
     x = torch.as_tensor(venv.normalize_obs(np.concatenate(obs)).astype(np.float32))
     y = torch.as_tensor(np.concatenate(acts))
     rng = np.random.default_rng(seed)
-    batches = lambda: (torch.as_tensor(idx) for perm in [rng.permutation(len(x))]
-                       for idx in (perm[k:k + batch_size] for k in range(0, len(x), batch_size)))
+    def batches():
+        perm = rng.permutation(len(x))
+        return (torch.as_tensor(perm[k:k + batch_size]) for k in range(0, len(x), batch_size))
     if sac:
         actor = model.actor
         opt = torch.optim.Adam(actor.parameters(), lr=lr)
         target_log_std = float(np.log(action_std))
         actor.set_training_mode(True)
-        for epoch in range(epochs):
+        for _ in range(epochs):
             total = 0.0
             for idx in batches():
                 mean, log_std, _ = actor.get_action_dist_params(x[idx])
@@ -324,7 +325,7 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
         policy = model.policy
         opt = torch.optim.Adam(policy.parameters(), lr=lr)
         policy.set_training_mode(True)
-        for epoch in range(epochs):
+        for _ in range(epochs):
             total = 0.0
             for idx in batches():
                 values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
@@ -338,7 +339,8 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
             policy.log_std.clamp_(min=float(np.log(action_std)))
             mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
     if log:
-        log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, final loss {total / len(x):.3f}")
+        log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, "
+            f"final loss {total / len(x):.3f}")
     return len(x)
 
 
@@ -367,7 +369,7 @@ def _fit_sac_critics(model, steps):
     model.critic.set_training_mode(False)
 
 
-def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
+def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,  # noqa: C901  (split: issue 14 item 5)
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
           command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
           log=print, trusted=False):
@@ -376,19 +378,20 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     written into the package: ``install_policy`` does that).
 
     All arguments are checked (a ValueError names the one at fault: ``n_envs``, a bad
-    ``env_kwargs`` entry, a hyperparameter) before any work. Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
-    ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
-    the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
-    continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
-    policy stem of the same algorithm (and observation space) whose weights and
-    normalisation statistics start the training (a name of ``available_policies()`` or a path;
-    outside the package an ``UntrustedPolicyWarning`` unless ``trusted``) (fine-tuning: a policy trained on the true
-    attitude adapted to an estimator, or a track policy as the start of a waypoints one);
-    ``timesteps`` then counts the new steps only. ``init_from="pid"`` starts from a
-    behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher steps;
-    for SAC they also fill the replay buffer). The starting policy (clone or ``init_from``) is evaluated first and kept as the
-    best model unless training beats it. ``hyperparams_override``: a dict replacing entries
-    of the YAML file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
+    ``env_kwargs`` entry, a hyperparameter) before any work. Work directory ``<stem>.run/``
+    keeps the Monitor logs, the checkpoints (every ``checkpoint_freq`` steps, with their
+    VecNormalize statistics) and the best model of the evaluation callback. Ctrl-C saves a
+    checkpoint before leaving; ``resume=True`` continues from the newest checkpoint to the same
+    total ``timesteps``. ``init_from``: a policy stem of the same algorithm (and observation
+    space) whose weights and normalisation statistics start the training (a name of
+    ``available_policies()`` or a path; outside the package an ``UntrustedPolicyWarning`` unless
+    ``trusted``) (fine-tuning: a policy trained on the true attitude adapted to an estimator, or
+    a track policy as the start of a waypoints one); ``timesteps`` then counts the new steps
+    only. ``init_from="pid"`` starts from a behaviour clone of the PID controller
+    (``clone_teacher``, ``bc_steps`` teacher steps; for SAC they also fill the replay buffer).
+    The starting policy (clone or ``init_from``) is evaluated first and kept as the best model
+    unless training beats it. ``hyperparams_override``: a dict replacing entries of the YAML
+    file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
     """
     import torch
     torch.set_num_threads(1)
@@ -574,8 +577,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         t0, steps0 = time.perf_counter(), model.num_timesteps
         try:
             if remaining > 0:
-                model.learn(remaining, callback=CallbackList([ckpt, ev]), reset_num_timesteps=start_ckpt is None and init is None,
-                            progress_bar=progress)
+                model.learn(remaining, callback=CallbackList([ckpt, ev]),
+                            reset_num_timesteps=start_ckpt is None and init is None, progress_bar=progress)
         except KeyboardInterrupt:
             path = save_checkpoint()
             log(f"\ninterrupted at {model.num_timesteps} steps: checkpoint saved to {path}; "
@@ -612,7 +615,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             history = list(old.get("history") or [old.get("command")])
         except (OSError, ValueError):
             history = []
-    meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
+    meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator,
+            "env_id": TASK_IDS[task],
             "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
             "hyperparams": used_hp, "normalize": normalize,
             "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
@@ -723,7 +727,8 @@ def load_policy(path, env=None, trusted=False):
     torch.set_num_threads(1)
     stem, zip_path, json_path, vn_path = _resolve(path)
     if not zip_path.is_file():
-        hint = f"; shipped policies: {', '.join(available_policies())}" if Path(os.fspath(path)).name == os.fspath(path) else ""
+        bare = Path(os.fspath(path)).name == os.fspath(path)
+        hint = f"; shipped policies: {', '.join(available_policies())}" if bare else ""
         raise PolicyError(f"policy file {zip_path} does not exist{hint}")
     if not isinstance(trusted, bool):
         raise ValueError(f"trusted must be True or False, got {trusted!r}")

@@ -18,8 +18,8 @@ from fusion._aekf import AEKF
 from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
-__all__ = ["make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
-           "Butterworth", "SlidingMean"]
+__all__ = ["make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF",
+           "CFEKF", "AEKF", "Butterworth", "SlidingMean"]
 __version__ = "0.1.0"
 
 _REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}

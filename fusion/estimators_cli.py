@@ -1,5 +1,6 @@
-"""``spherebot-estimators`` (``scripts/compare_estimators.py``): score every estimator (default parameters) on the built-in synthetic scenarios and on the
-recorded trials of the data folder; write Markdown + CSV tables and PNG figures.
+"""``spherebot-estimators`` (``scripts/compare_estimators.py``): score every estimator (default
+parameters) on the built-in synthetic scenarios and on the recorded trials of the data folder;
+write Markdown + CSV tables and PNG figures.
 
     spherebot-estimators [--out results/compare] [--data DIR] [--estimators gyro ekf ...] [--quick]
 
@@ -54,7 +55,8 @@ def parse_args(argv=None):
                    help="short scenarios and the first 2 'ok' trials per set (a smoke run)")
     p.add_argument("--plot-trial", default=None, metavar="SET/TRIAL",
                    help="recorded trial for the error figure (default: the first scored one with a magnetometer)")
-    p.add_argument("--seed", type=_seed, default=0, help="synthetic scenario seed, an integer >= 0 (default: %(default)s)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="synthetic scenario seed, an integer >= 0 (default: %(default)s)")
     return p.parse_args(argv)
 
 
@@ -125,7 +127,8 @@ def main(argv=None):
         agg_rows = compare.aggregate(trial_rows)
         written += compare.write_table(trial_rows, out / "trials",
                                        ["set", "trial", "mode", "estimator", "n"] + ERR_COLS + ["heading_offset"],
-                                       title="Recorded trials: RMSE (deg) per trial (6-axis: heading offset removed, deg)")
+                                       title="Recorded trials: RMSE (deg) per trial "
+                                             "(6-axis: heading offset removed, deg)")
         written += compare.write_table(agg_rows, out / "trials_aggregate",
                                        ["set", "mode", "estimator", "n_trials"] + ERR_COLS,
                                        title="Recorded trials: mean RMSE over trials (deg)")
@@ -144,7 +147,8 @@ def main(argv=None):
              "constant heading offset per run removed (least squares) before scoring.\n",
              "## Synthetic scenarios (RMSE)\n", syn_md,
              "## Synthetic scenarios: Euler-angle errors (seed papers' table)\n",
-             compare.markdown_table(syn_euler, ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
+             compare.markdown_table(syn_euler,
+                                    ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
              "## Recorded trials: mean RMSE over trials\n", agg_md]
     if agg_rows:
         parts += ["Reference (../shared/data/README.md, VQF online, default parameters; VQF takes one "
