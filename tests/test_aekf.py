@@ -11,7 +11,7 @@ import fusion
 import reference as ref
 import reference_aekf as ra
 from fusion._aekf import quest
-from test_reference import compare_state, count_invalid, inject_invalid, qdiff
+from _helpers import compare_state, count_invalid, inject_invalid, qdiff
 
 FS = 100.0
 N = 10_000

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import fusion
-from test_fuzz import SETTINGS, bad_message, check_output
+from _helpers import SETTINGS, bad_message, check_output
 
 NAMES = fusion.available()
 KALMAN = ["ekf", "iir-ekf", "aekf", "ukf"]
