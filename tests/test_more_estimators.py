@@ -144,34 +144,6 @@ def test_skip_invalid_samples(data, name, frame):
     assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
 
 
-@pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])
-@pytest.mark.parametrize("name", NAMES)
-def test_run_equals_repeated_update(data, name, variant):
-    _, gyr, acc, mag = data
-    n = 2000
-    gyr, acc, mag = gyr[:n], acc[:n], mag[:n]
-    kw, dt = {}, None
-    if variant == "6axis":
-        mag = None
-    elif variant == "dt":
-        dt = np.random.default_rng(6).uniform(0.002, 0.03, n)
-    elif variant == "skip":
-        gyr, acc, mag = inject_invalid(gyr, acc, mag)
-        kw["on_invalid"] = "skip"
-    elif variant == "ned":
-        kw["frame"] = "NED"
-    a, b = fusion.make(name, FS, **kw), fusion.make(name, FS, **kw)
-    q = a.run(gyr, acc, mag, dt=dt)
-    qu = np.array([b.update(gyr[i], acc[i], None if mag is None else mag[i],
-                            dt=None if dt is None else dt[i]) for i in range(n)])
-    assert np.abs(q - qu).max() <= 1e-15
-    assert np.array_equal(a.quaternion, b.quaternion)
-    assert a.skipped == b.skipped
-    assert np.abs(a.bias - b.bias).max() <= 1e-15
-    if a.covariance is not None:
-        assert np.abs(a.covariance - b.covariance).max() <= 1e-15 * np.abs(a.covariance).max()
-
-
 # --- madgwick against the peer library ahrs -------------------------------------------------
 
 QZ90 = np.array([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)])   # ahrs' x-north z-up -> ENU
