@@ -42,7 +42,7 @@ def scenario(n=N, fs=FS, seed=21, turn=1.0, burst_amp=6.0, n_bursts=14, disturb=
              disturb_field=(0.3, 0.1, 0.1), acc_noise=0.05, mag_noise=0.5):
     """A turning body with linear-acceleration bursts and a magnetic disturbance episode.
 
-    Returns (q_true, gyr, acc, mag, burst, dist): readings as in test_reference.synthetic
+    Returns (q_true, gyr, acc, mag, burst, dist): readings as in _helpers.synthetic
     (exact attitude, gyro = rate + bias + noise) with Hann bursts of linear acceleration up to
     burst_amp per axis, 0.5-2.5 s long, and from disturb[0] to disturb[1] s a disturbing field
     disturb_field * MAG_SCALE (navigation frame, ramped in and out over 1 s) added to the
