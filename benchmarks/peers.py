@@ -26,9 +26,9 @@ import numpy as np
 
 import fusion
 from fusion import quat
+from fusion.constants import GRAVITY
 from fusion.scenarios import make_scenario
 
-G = 9.81
 UT = 50.0                    # |B| in uT the peers get when the data's unit is arbitrary
 
 # body -> NWU / NED quaternions are turned into body -> ENU by a fixed rotation on the left
@@ -71,7 +71,7 @@ class Data:
         self.gyr = c(gyr, dtype=np.float64)                   # rad/s
         self.acc = c(acc, dtype=np.float64)                   # m/s^2
         self.gyr_dps = c(np.degrees(self.gyr))                # deg/s
-        self.acc_g = c(self.acc / G)                          # g
+        self.acc_g = c(self.acc / GRAVITY)                          # g
         self.acc_down = c(-self.acc)                          # m/s^2, gravity (ahrs.EKF, see there)
         self.mag = self.mag_ut = self.mag_nt = None
         self.dip_deg = dip_deg

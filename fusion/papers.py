@@ -28,6 +28,7 @@ import numpy as np
 
 import fusion
 from fusion import compare, imu, metrics, quat, scenarios
+from fusion.constants import GRAVITY
 
 __all__ = ["SECTIONS", "PAPER", "SEEDS", "QUICK_SEEDS", "reproduce", "run_section"]
 
@@ -271,7 +272,7 @@ def _plot_switching(s, qs, dec, path):
         return ax.fill_between(t, 0, 1, where=mask, color=color, alpha=0.25,
                                transform=ax.get_xaxis_transform(), label=label)
     ax = axes[0]
-    ax.plot(t, np.linalg.norm(s.acc, axis=1) - scenarios.G, lw=0.7, label="|a| - g (m/s²)")
+    ax.plot(t, np.linalg.norm(s.acc, axis=1) - GRAVITY, lw=0.7, label="|a| - g (m/s²)")
     ax.plot(t, np.linalg.norm(s.a_lin, axis=1), lw=0.7, label="|true linear acceleration| (m/s²)")
     shade(ax, s.acc_disturbed, "tab:red", "acc disturbed (truth)")
     ax.set_ylabel("m/s²")

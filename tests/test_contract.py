@@ -9,9 +9,9 @@ import pytest
 from _helpers import FS, inject_invalid
 
 import fusion
+from fusion.constants import GRAVITY as G
 
 NAMES = fusion.available()
-G = 9.81
 # settings beyond the defaults that change what run and update do (other branches, counters)
 CASES = [(name, {}) for name in NAMES] + [
     ("mahony", {"kp": 2.0, "ki": 0.1}),

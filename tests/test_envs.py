@@ -12,8 +12,7 @@ gym = pytest.importorskip("gymnasium")
 pytest.importorskip("pybullet")
 
 from envs.sphere import SphereRobotEnv  # noqa: E402
-
-G = 9.81
+from fusion.constants import GRAVITY as G  # noqa: E402
 
 
 def qmul(a, b):

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 import fusion
+from fusion.constants import GRAVITY as G
 
 NAMES = fusion.available()
-G = 9.81
 MAG_N = np.array([0.0, 0.22, -0.42])   # a northern-hemisphere field in ENU (dip about 62 deg)
 C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
 
