@@ -7,6 +7,8 @@
 Conventions (docs/estimators.md): Hamilton quaternions, scalar first, rotating body vectors
 into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI units.
 """
+from typing import Any
+
 from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
@@ -25,12 +27,12 @@ __version__ = "0.1.0"
 _REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
 
 
-def available():
+def available() -> list[str]:
     """Names accepted by make(), in a stable order."""
     return list(_REGISTRY)
 
 
-def make(name, fs, frame="ENU", on_invalid="raise", **params):
+def make(name: str, fs: float, frame: str = "ENU", on_invalid: str = "raise", **params: Any) -> Estimator:
     """Build the estimator called `name` for sample rate `fs` (Hz).
 
     frame: "ENU" (default) or "NED", the navigation frame of quaternions in and out.
