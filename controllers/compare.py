@@ -402,7 +402,7 @@ def _rank_key(r):
     return (1, harm if math.isfinite(harm) else math.inf, r["estimator"])
 
 
-def min_detectable_success(n):
+def min_detectable_success(n: int) -> int | None:
     """The smallest number of failed runs out of ``n`` (against a truth that succeeds in
     all ``n``) whose paired interval excludes 0; None if even ``n`` failures do not."""
     for k in range(1, n + 1):

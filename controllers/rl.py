@@ -25,6 +25,7 @@ import time
 import warnings
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +48,7 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy loaded from outside the package."""
 
 
-def available_policies():
+def available_policies() -> list[str]:
     """The names of the policies shipped in the package (``load_policy(name)`` takes them)."""
     return sorted(p.stem for p in POLICY_DIR.glob("*.zip"))
 
@@ -57,12 +58,12 @@ def _check_choice(name, value, accepted):
         raise ValueError(f"unknown {name} {value!r}; accepted: {', '.join(accepted)}")
 
 
-def policy_stem(algo, task, estimator, directory=POLICY_DIR):
+def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR) -> Path:
     """The policy of (algo, task, estimator) in ``directory`` (default: the package's)."""
     return Path(directory) / f"{algo}-{task}-{estimator}"
 
 
-def new_run_stem(algo, task, estimator, log_folder="logs"):
+def new_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path:
     """rl-zoo3's layout: ``<log_folder>/<algo>/<env-id>_<n>/<algo>-<task>-<estimator>``, ``n`` one
     more than the highest run there (from 1)."""
     base = Path(log_folder) / algo
@@ -71,7 +72,7 @@ def new_run_stem(algo, task, estimator, log_folder="logs"):
     return base / f"{env_id}_{max(runs, default=0) + 1}" / f"{algo}-{task}-{estimator}"
 
 
-def latest_run_stem(algo, task, estimator, log_folder="logs"):
+def latest_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path | None:
     """The newest run of (algo, task, estimator) in ``log_folder`` that holds checkpoints, or None."""
     base = Path(log_folder) / algo
     env_id = TASK_IDS[task]
@@ -84,7 +85,7 @@ def latest_run_stem(algo, task, estimator, log_folder="logs"):
     return None
 
 
-def hyperparams(algo, task):
+def hyperparams(algo: str, task: str) -> dict[str, Any]:
     """The YAML entry of ``algo`` for ``task``'s environment id, as a dict (a copy)."""
     import yaml
     _check_choice("algorithm", algo, ALGOS)
@@ -648,7 +649,7 @@ def _check_env_kwargs(task, estimator, env_kwargs):
     env.close()
 
 
-def install_policy(stem, name=None):
+def install_policy(stem: str | os.PathLike, name: str | None = None) -> Path:
     """Copy the policy ``stem`` (``.zip``, statistics, ``.json``) into the package's policies
     (``POLICY_DIR``) as ``name`` (default: the stem's name), each file atomically; returns the
     installed stem."""
@@ -691,7 +692,7 @@ class PolicyController(Controller):
         return a[0] if single else a
 
 
-def _resolve(path):
+def _resolve(path: Any) -> tuple[Path, Path, Path, Path]:
     """(stem, zip, json, statistics) of a policy: a name of ``available_policies()`` (the
     package's, from any folder) or a path to the stem or the ``.zip``."""
     if path is None or isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
@@ -714,7 +715,7 @@ def _in_package(path):
         return False
 
 
-def load_policy(path, env=None, trusted=False):
+def load_policy(path: str | os.PathLike, env: Any = None, trusted: bool = False) -> PolicyController:
     """Load a policy: ``path`` a name of ``available_policies()`` (shipped in the package) or
     the path of a stem or ``.zip`` saved by ``train``. With ``env``, also check that the policy
     was trained for its task and observation space.

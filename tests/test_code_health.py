@@ -88,3 +88,36 @@ def test_envs_gravity_agrees():
     pytest.importorskip("pybullet")
     from envs import sphere
     assert sphere.G == constants.GRAVITY
+
+
+def _stub_names(path):
+    """(module-level names, {class: member names}) a .pyi declares."""
+    top, members = set(), {}
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.ClassDef):
+            top.add(node.name)
+            members[node.name] = {n.name for n in node.body if isinstance(n, ast.FunctionDef)} | {
+                n.target.id for n in node.body if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name)}
+        elif isinstance(node, ast.FunctionDef):
+            top.add(node.name)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            top.add(node.target.id)
+    return top, members
+
+
+STUBS = sorted((ROOT / "fusion").glob("_*.pyi"))
+
+
+def test_every_kernel_module_has_a_stub():
+    kernels = {p.stem for p in (ROOT / "fusion").glob("_*.pyx")}
+    assert kernels <= {p.stem for p in STUBS}, kernels - {p.stem for p in STUBS}
+
+
+@pytest.mark.parametrize("stub", STUBS, ids=[p.stem for p in STUBS])
+def test_stub_names_exist_at_run_time(stub):
+    import importlib
+    mod = importlib.import_module(f"fusion.{stub.stem}")
+    top, members = _stub_names(stub)
+    missing = [n for n in top if n != "Array" and not hasattr(mod, n)]
+    missing += [f"{c}.{m}" for c, ms in members.items() for m in ms if not hasattr(getattr(mod, c), m)]
+    assert not missing, f"{stub.name} declares names the module does not have: {missing}"
