@@ -14,12 +14,9 @@ MAX_LINES = 60
 # functions still over the limit, each to be split (then removed from here): (path, name) -> its
 # length today, which it may not exceed (a listed function that grows fails too).
 KNOWN_LONG = {
-    ("controllers/rl.py", "train"): 258,
-    ("controllers/rl.py", "clone_teacher"): 92,
+    ("controllers/rl.py", "train"): 121,
     ("benchmarks/accuracy.py", "main"): 175,
-    ("benchmarks/throughput.py", "main"): 118,
     ("benchmarks/long_run.py", "main"): 81,
-    ("fusion/estimators_cli.py", "main"): 109,
     ("controllers/compare.py", "write_outputs"): 71,
     ("controllers/compare.py", "_plot_headline"): 67,
     ("controllers/compare.py", "_parser"): 61,
