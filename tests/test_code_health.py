@@ -16,10 +16,6 @@ MAX_LINES = 60
 KNOWN_LONG = {
     ("controllers/rl.py", "train"): 121,
     ("benchmarks/accuracy.py", "main"): 175,
-    ("benchmarks/long_run.py", "main"): 81,
-    ("controllers/compare.py", "write_outputs"): 71,
-    ("controllers/compare.py", "_plot_headline"): 67,
-    ("controllers/compare.py", "_parser"): 61,
     ("fusion/papers.py", "_section_001"): 66,
     ("fusion/papers.py", "_section_003"): 62,
     ("fusion/scenarios.py", "seed_scenario"): 68,
