@@ -196,9 +196,13 @@ def _section_000(seeds, out, tick):
 
 # --- 001 -----------------------------------------------------------------------------------
 
-def _section_001(seeds, out, tick):
-    names = ("ekf", "aekf")
-    cases = ("seed001-slow", "seed001-fast", "seed001-faster")
+def _frac(x, m):
+    """Fraction of the samples in mask ``m`` where ``x`` holds (NaN for an empty mask)."""
+    return float(x[m].mean()) if m.any() else math.nan
+
+
+def _runs_001(cases, names, seeds, tick):
+    """(Euler rows, switching rows, the first seed001-faster run kept for the figure)."""
     runs, sw = [], []
     keep = None
     for case in cases:
@@ -210,14 +214,20 @@ def _section_001(seeds, out, tick):
                 for ang, st in metrics.euler_table(qs[n], s.q_true).items():
                     runs.append(dict(scenario=case, seed=seed, estimator=n, angle=ang, RMSE=st["RMSE"]))
             acc_rej, mag_rej = (dec & 1) > 0, (dec & 2) > 0
-            def frac(x, m):
-                return float(x[m].mean()) if m.any() else math.nan
             sw.append(dict(scenario=case, seed=seed,
-                           acc_rej_in=frac(acc_rej, s.acc_disturbed), acc_rej_out=frac(acc_rej, ~s.acc_disturbed),
-                           mag_rej_in=frac(mag_rej, s.mag_disturbed), mag_rej_out=frac(mag_rej, ~s.mag_disturbed)))
+                           acc_rej_in=_frac(acc_rej, s.acc_disturbed), acc_rej_out=_frac(acc_rej, ~s.acc_disturbed),
+                           mag_rej_in=_frac(mag_rej, s.mag_disturbed), mag_rej_out=_frac(mag_rej, ~s.mag_disturbed)))
             if case == "seed001-faster" and keep is None:
                 keep = (s, qs, dec)
             tick()
+    return runs, sw, keep
+
+
+def _section_001(seeds, out, tick):
+    names = ("ekf", "aekf")
+    cases = ("seed001-slow", "seed001-fast", "seed001-faster")
+    runs, sw, keep = _runs_001(cases, names, seeds, tick)
+
     def get(c, n, a):
         return [r["RMSE"] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a]
     table, lines, verdicts = [], [], []
@@ -306,9 +316,9 @@ def _plot_switching(s, qs, dec, path):
 
 # --- 003 -----------------------------------------------------------------------------------
 
-def _section_003(seeds, out, tick):
-    names = ("ekf", "ukf", "iir-ekf")
-    cases = ("static", "dynamic", "vibration")
+def _runs_003(cases, names, seeds, tick):
+    """(roll-error rows, per vibration seed the share of accelerometer tones aliased below the
+    IIR-EKF's cut-off, the first vibration run kept for the figure)."""
     runs, alias_share, keep = [], [], None
     for case in cases:
         for seed in seeds:
@@ -324,6 +334,14 @@ def _section_003(seeds, out, tick):
                 if keep is None:
                     keep = (s, qs)
             tick()
+    return runs, alias_share, keep
+
+
+def _section_003(seeds, out, tick):
+    names = ("ekf", "ukf", "iir-ekf")
+    cases = ("static", "dynamic", "vibration")
+    runs, alias_share, keep = _runs_003(cases, names, seeds, tick)
+
     def get(c, n, k):
         return np.array([r[k] for r in runs if r["case"] == c and r["estimator"] == n])
     table, lines, verdicts = [], [], []

@@ -16,8 +16,6 @@ MAX_LINES = 60
 KNOWN_LONG = {
     ("controllers/rl.py", "train"): 121,
     ("benchmarks/accuracy.py", "main"): 175,
-    ("fusion/papers.py", "_section_001"): 66,
-    ("fusion/papers.py", "_section_003"): 62,
     ("fusion/scenarios.py", "seed_scenario"): 68,
     ("fusion/imu.py", "_simulate"): 108,
     ("fusion/imu.py", "step"): 101,

@@ -39,8 +39,8 @@ def _close(x, y):
 # --- interface ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", NAMES)
-def test_interface(name):
-    est = fusion.make(name, FS)
+def test_interface(name, make_estimator):
+    est = make_estimator(name)
     cls = type(est)
     assert isinstance(est, fusion.Estimator) and cls.name == est.name == name
     assert est.fs == FS and est.frame == "ENU" and est.on_invalid == "raise"
@@ -143,8 +143,8 @@ def test_bad_shapes_dtypes_lengths_and_dt(name):
 
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("which", ["gyr", "acc", "mag"])
-def test_non_finite_input_is_named(name, which):
-    est = fusion.make(name, FS)
+def test_non_finite_input_is_named(name, which, make_estimator):
+    est = make_estimator(name)
     rows = {"gyr": np.zeros((5, 3)), "acc": np.tile([0.0, 0.0, G], (5, 1)), "mag": np.tile([0.0, 20.0, -40.0], (5, 1))}
     rows[which][3, 1] = np.nan
     with pytest.raises(ValueError, match=which):
