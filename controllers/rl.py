@@ -509,6 +509,36 @@ def _learn(saver, timesteps, callback, ev, reset, progress, n_envs, log):
     return wall, rate, train_rate
 
 
+def _run_hyperparams(algo, task, override):
+    """(hyperparameters for the run, the same as recorded in its JSON): the YAML file's, with
+    the entries of ``override`` (checked: only names the file has) replacing them."""
+    hp = hyperparams(algo, task)
+    override = dict(override or {})
+    _check_hyperparams(override, hp, algo, task)
+    hp.update(override)
+    return hp, dict(hp)
+
+
+def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):
+    """The starting policy (a clone or ``init_from``) is the first candidate for the best
+    model: training must beat it."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+    eval_env.obs_rms = venv.obs_rms
+    mean_reward, _ = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
+    saver.save_best(float(mean_reward))
+    ev.best_mean_reward = float(mean_reward)
+    log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+
+
+def _write_run_json(stem, best_json, meta):
+    """<stem>.json: ``meta`` plus the observation size, the best evaluation and the time."""
+    from envs.sphere import OBS_NAMES
+    meta = dict(meta, obs_size=len(OBS_NAMES),
+                best_eval=json.loads(best_json.read_text()) if best_json.is_file() else None,
+                saved=time.strftime("%Y-%m-%d %H:%M:%S"))
+    atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+
+
 def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes):
     """(timesteps, n_envs) as ints, or a ValueError naming the argument at fault."""
     if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
@@ -633,11 +663,7 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     _check_choice("algorithm", algo, ALGOS)
     _check_choice("task", task, tuple(TASK_IDS))
     _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
-    hp = hyperparams(algo, task)
-    override = dict(hyperparams_override or {})
-    _check_hyperparams(override, hp, algo, task)
-    hp.update(override)
-    used_hp = dict(hp)
+    hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
     default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
     timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
                                         default_envs if n_envs is None else n_envs,
@@ -685,15 +711,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         best_json = run_dir / "best.json"
         if start_ckpt is not None and best_json.is_file() and (run_dir / "best_model.zip").is_file():
             ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
-
         if clone or init is not None:
-            # the starting policy is the first candidate for the best model: training must beat it
-            from stable_baselines3.common.evaluation import evaluate_policy
-            eval_env.obs_rms = venv.obs_rms
-            mean_reward, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
-            saver.save_best(float(mean_reward))
-            ev.best_mean_reward = float(mean_reward)
-            log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+            _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log)
 
         wall, rate, train_rate = _learn(saver, timesteps, CallbackList([ckpt, ev]), ev,
                                         start_ckpt is None and init is None, progress, n_envs, log)
@@ -707,19 +726,15 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     _copy(run_dir / "best_model.zip", str(stem) + ".zip")
     if normalize:
         _copy(run_dir / "best_vecnormalize.npz", str(stem) + NORM_SUFFIX)
-    from envs.sphere import OBS_NAMES
     history = _history(stem) if start_ckpt is not None else []
-    meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator,
-            "env_id": TASK_IDS[task],
-            "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
-            "hyperparams": used_hp, "normalize": normalize,
-            "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
-                          else None if init is None else str(Path(init[0]).name)),
-            "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
-            "eval_time_s": round(ev.eval_time, 1), "obs_size": len(OBS_NAMES),
-            "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,
-            "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
-    atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+    _write_run_json(stem, best_json, {
+        "command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator,
+        "env_id": TASK_IDS[task], "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
+        "hyperparams": used_hp, "normalize": normalize,
+        "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
+                      else None if init is None else str(Path(init[0]).name)),
+        "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
+        "eval_time_s": round(ev.eval_time, 1)})
     return stem
 
 

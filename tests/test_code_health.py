@@ -14,7 +14,7 @@ MAX_LINES = 60
 # functions still over the limit, each to be split (then removed from here): (path, name) -> its
 # length today, which it may not exceed (a listed function that grows fails too).
 KNOWN_LONG = {
-    ("controllers/rl.py", "train"): 121,
+    ("controllers/rl.py", "train"): 106,
     ("benchmarks/accuracy.py", "main"): 175,
     ("fusion/scenarios.py", "seed_scenario"): 68,
     ("fusion/imu.py", "_simulate"): 108,
