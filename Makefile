@@ -28,6 +28,7 @@ demo: $(STAMP)
 	$(PY) scripts/compare_control.py --quick
 
 test: $(STAMP)
+	$(PY) -m ruff check .
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

@@ -20,7 +20,6 @@ Prints, in one run on one core:
 """
 import argparse
 import gc
-import math
 import os
 import sys
 import time
@@ -94,6 +93,23 @@ class RawWorld:
         p.disconnect(self.c)
 
 
+class _TimedUpdate:
+    """Wraps an estimator and adds up the wall time spent inside its update calls."""
+
+    def __init__(self, inner):
+        self.inner, self.spent, self.calls = inner, 0.0, 0
+
+    def update(self, *a):
+        t0 = time.perf_counter()
+        q = self.inner.update(*a)
+        self.spent += time.perf_counter() - t0
+        self.calls += 1
+        return q
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
 def env_rates(estimators, steps, repeats=5):
     """Best steps/s of each estimator and of the raw PyBullet world (physics steps/s with the
     env's per-step calls), runs interleaved (so that load changes on the machine hit all
@@ -125,27 +141,14 @@ def env_rates(estimators, steps, repeats=5):
     for e, env in envs_.items():
         est = env._est
         if est is not None:                                # the estimator's own cost per env step
-            inner = est
-            spent = [0.0, 0]
-
-            class Timed:
-                def update(self, *a):
-                    t0 = time.perf_counter()
-                    q = inner.update(*a)
-                    spent[0] += time.perf_counter() - t0
-                    spent[1] += 1
-                    return q
-
-                def __getattr__(self, name):
-                    return getattr(inner, name)
-            env._est = Timed()
+            timed = env._est = _TimedUpdate(est)
             env.reset(seed=0)
             for a in actions[:2000]:
                 _, _, term, trunc, _ = env.step(a)
                 if term or trunc:
                     env.reset()
-            env._est = inner
-            update_us[e] = spent[0] / 2000 * 1e6
+            env._est = est
+            update_us[e] = timed.spent / 2000 * 1e6
         env.close()
     return best, update_us, best_raw, best_cpu, best_raw_cpu
 
@@ -284,7 +287,8 @@ def main():
           f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step)")
     print(f"  share of PyBullet's limit: ekf {r_ekf / limit:.1%}, truth {r_truth / limit:.1%} "
           f"(target >= 75 % with ekf: {'met' if r_ekf >= 0.75 * limit else 'NOT met'}); by CPU time: "
-          f"limit {with_motor_cpu / 8:,.0f}, ekf {rates_cpu['ekf']:,.0f} ({8 * rates_cpu['ekf'] / with_motor_cpu:.1%}), "
+          f"limit {with_motor_cpu / 8:,.0f}, "
+          f"ekf {rates_cpu['ekf']:,.0f} ({8 * rates_cpu['ekf'] / with_motor_cpu:.1%}), "
           f"truth {rates_cpu['truth']:,.0f} ({8 * rates_cpu['truth'] / with_motor_cpu:.1%})")
     print(f"  target >= 2,000 with ekf: {'met' if r_ekf >= 2000 else 'NOT met'}; "
           f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")

@@ -96,27 +96,36 @@ def main():
                 secs[n] += time.perf_counter() - t
                 norm_err[n] = max(norm_err[n], float(np.abs(np.linalg.norm(q, axis=1) - 1).max()))
                 if stop in marks:
-                    inc = inclination_deg(q, q0[idx])
-                    P = est.covariance
-                    b = est.bias
-                    rows.append(dict(
-                        estimator=n, samples=stop, hours=stop / FS / 3600,
-                        norm_err=norm_err[n],
-                        sym_err=np.nan if P is None else float(np.abs(P - P.T).max()),
-                        min_eig=np.nan if P is None else float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()),
-                        bias_norm=np.nan if b is None else float(np.linalg.norm(b)),
-                        bias_err=np.nan if b is None else float(np.linalg.norm(b - bias)),
-                        incl_deg=float(inc[-1]), incl_max_chunk_deg=float(inc.max()),
-                        finite=bool(np.isfinite(q).all()),
-                        ns_per_sample=secs[n] / stop * 1e9))
-                    r = rows[-1]
+                    r = checkpoint_row(n, est, q, q0[idx], stop, norm_err[n], bias, secs[n])
+                    rows.append(r)
                     tqdm.write(f"{n:9s} {stop:>12,d}  |q|-1 {r['norm_err']:.1e}  P-P' {r['sym_err']:.1e}  "
                                f"min eig {r['min_eig']:.2e}  |b| {r['bias_norm']:.5f}  "
                                f"b err {r['bias_err']:.1e}  incl {r['incl_deg']:.3f} deg "
                                f"(max {r['incl_max_chunk_deg']:.2f})  {r['ns_per_sample']:.0f} ns/sample")
             done = stop
             bar.update(k)
-    out = Path(a.out)
+    write_outputs(Path(a.out), rows, total, a.samples)
+
+
+def checkpoint_row(name, est, q, q_true, stop, norm_err, bias, secs):
+    """The health figures of estimator ``est`` after ``stop`` samples (its last chunk ``q``)."""
+    inc = inclination_deg(q, q_true)
+    P = est.covariance
+    b = est.bias
+    return dict(
+        estimator=name, samples=stop, hours=stop / FS / 3600,
+        norm_err=norm_err,
+        sym_err=np.nan if P is None else float(np.abs(P - P.T).max()),
+        min_eig=np.nan if P is None else float(np.linalg.eigvalsh(0.5 * (P + P.T)).min()),
+        bias_norm=np.nan if b is None else float(np.linalg.norm(b)),
+        bias_err=np.nan if b is None else float(np.linalg.norm(b - bias)),
+        incl_deg=float(inc[-1]), incl_max_chunk_deg=float(inc.max()),
+        finite=bool(np.isfinite(q).all()),
+        ns_per_sample=secs / stop * 1e9)
+
+
+def write_outputs(out, rows, total, samples_arg):
+    """long_run.csv (every checkpoint) and long_run.md (the last one) in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     cols = list(rows[0])
     with open(out / "long_run.csv", "w", newline="") as f:
@@ -126,7 +135,7 @@ def main():
     final = [r for r in rows if r["samples"] == total]
     with open(out / "long_run.md", "w") as f:
         f.write(f"# Long run: {total:,} samples at {FS:g} Hz ({total / FS / 3600:.1f} h of data) per estimator\n\n")
-        f.write(f"`benchmarks/long_run.py --samples {a.samples:g}`; {os.cpu_count()} CPUs shared. "
+        f.write(f"`benchmarks/long_run.py --samples {samples_arg:g}`; {os.cpu_count()} CPUs shared. "
                 "Worst over the run for |q|-1; the rest at the last sample (incl max: over the last chunk). "
                 "All checkpoints in long_run.csv.\n\n")
         f.write("| estimator | max abs(abs(q)-1) | max abs(P-P^T) | min eig P | abs(bias) | bias error | "

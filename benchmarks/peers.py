@@ -26,9 +26,9 @@ import numpy as np
 
 import fusion
 from fusion import quat
+from fusion.constants import GRAVITY
 from fusion.scenarios import make_scenario
 
-G = 9.81
 UT = 50.0                    # |B| in uT the peers get when the data's unit is arbitrary
 
 # body -> NWU / NED quaternions are turned into body -> ENU by a fixed rotation on the left
@@ -55,7 +55,8 @@ class Data:
     ``dt`` is None when the time stamps are even at ``1/fs`` (every library then runs at its
     nominal rate), else the (N,) step into each sample, for the peers that take it; ``ts``
     is the one constant sample time for the peers that take no per-sample dt (the mean step
-    of the stamps, ``1/fs`` when even). ``mag_ut_per_unit`` scales our magnetometer unit to uT; ``dip_deg`` is the field's dip."""
+    of the stamps, ``1/fs`` when even). ``mag_ut_per_unit`` scales our magnetometer unit to uT;
+    ``dip_deg`` is the field's dip."""
 
     def __init__(self, gyr, acc, mag=None, *, fs, dt=None, q_true=None, mag_ut_per_unit=None,
                  dip_deg=None):
@@ -70,7 +71,7 @@ class Data:
         self.gyr = c(gyr, dtype=np.float64)                   # rad/s
         self.acc = c(acc, dtype=np.float64)                   # m/s^2
         self.gyr_dps = c(np.degrees(self.gyr))                # deg/s
-        self.acc_g = c(self.acc / G)                          # g
+        self.acc_g = c(self.acc / GRAVITY)                          # g
         self.acc_down = c(-self.acc)                          # m/s^2, gravity (ahrs.EKF, see there)
         self.mag = self.mag_ut = self.mag_nt = None
         self.dip_deg = dip_deg
@@ -216,84 +217,130 @@ def vqf_method(cls_name, nominal=False):
                           + ("1/fs (nominal)" if nominal else "mean step of t") + " (no per-sample dt API)")
 
 
-def imufusion_method():
+def _imufusion_ahrs(d):
     import imufusion
+    ahrs = imufusion.Ahrs()
+    s = imufusion.AhrsSettings()          # defaults, but ENU like our data and our fs
+    s.convention = imufusion.CONVENTION_ENU
+    s.sample_rate = d.fs
+    ahrs.set_settings(s)
+    ahrs.set_sample_period(1.0 / d.fs)    # this version takes no dt argument in update()
+    return ahrs
 
-    def make(d):
-        ahrs = imufusion.Ahrs()
-        s = imufusion.AhrsSettings()          # defaults, but ENU like our data and our fs
-        s.convention = imufusion.CONVENTION_ENU
-        s.sample_rate = d.fs
-        ahrs.set_settings(s)
-        ahrs.set_sample_period(1.0 / d.fs)    # this version takes no dt argument in update()
-        return ahrs
 
-    def loops(d, n, nine, store):
-        ahrs = make(d)
-        get = ahrs.get_quaternion
-        g, a = d.gyr_dps[:n], d.acc_g[:n]
-        out = np.empty((n, 4)) if store else None
-        m = d.mag_ut[:n] if nine else None
-        if store and d.dt is not None:
-            # uneven time stamps: the sample period set before every sample (accuracy runs only;
-            # throughput's data is even, so its timed loops below are unchanged)
-            per, dts = ahrs.set_sample_period, d.dt[:n]
-            if nine:
-                upd = ahrs.update
+def _imufusion_uneven_loop(ahrs, g, a, m, dts, out):
+    """The sample period set before every sample (accuracy runs only; throughput's data is
+    even, so its timed loops are unchanged)."""
+    per, get = ahrs.set_sample_period, ahrs.get_quaternion
+    if m is not None:
+        upd = ahrs.update
 
-                def go():
-                    for i, (gi, ai, mi, ti) in enumerate(zip(g, a, m, dts)):
-                        per(ti)
-                        upd(gi, ai, mi)
-                        out[i] = get()
-                    return out
-            else:
-                upd = ahrs.update_no_magnetometer
+        def go():
+            for i, (gi, ai, mi, ti) in enumerate(zip(g, a, m, dts)):
+                per(ti)
+                upd(gi, ai, mi)
+                out[i] = get()
+            return out
+    else:
+        upd = ahrs.update_no_magnetometer
 
-                def go():
-                    for i, (gi, ai, ti) in enumerate(zip(g, a, dts)):
-                        per(ti)
-                        upd(gi, ai)
-                        out[i] = get()
-                    return out
-            return go
-        if nine:
-            upd = ahrs.update
-            if store:
-                def go():
-                    for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
-                        upd(gi, ai, mi)
-                        out[i] = get()
-                    return out
-            else:
-                def go():
-                    q = None
-                    for gi, ai, mi in zip(g, a, m):
-                        upd(gi, ai, mi)
-                        q = get()
-                    return q
+        def go():
+            for i, (gi, ai, ti) in enumerate(zip(g, a, dts)):
+                per(ti)
+                upd(gi, ai)
+                out[i] = get()
+            return out
+    return go
+
+
+def _imufusion_even_loop(ahrs, g, a, m, out):
+    """One closure per case, so that the timed loop holds no branch; out=None keeps only the last."""
+    get = ahrs.get_quaternion
+    if m is not None:
+        upd = ahrs.update
+        if out is not None:
+            def go():
+                for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
+                    upd(gi, ai, mi)
+                    out[i] = get()
+                return out
         else:
-            upd = ahrs.update_no_magnetometer
-            if store:
-                def go():
-                    for i, (gi, ai) in enumerate(zip(g, a)):
-                        upd(gi, ai)
-                        out[i] = get()
-                    return out
-            else:
-                def go():
-                    q = None
-                    for gi, ai in zip(g, a):
-                        upd(gi, ai)
-                        q = get()
-                    return q
-        return go
+            def go():
+                q = None
+                for gi, ai, mi in zip(g, a, m):
+                    upd(gi, ai, mi)
+                    q = get()
+                return q
+    else:
+        upd = ahrs.update_no_magnetometer
+        if out is not None:
+            def go():
+                for i, (gi, ai) in enumerate(zip(g, a)):
+                    upd(gi, ai)
+                    out[i] = get()
+                return out
+        else:
+            def go():
+                q = None
+                for gi, ai in zip(g, a):
+                    upd(gi, ai)
+                    q = get()
+                return q
+    return go
 
+
+def _imufusion_loops(d, n, nine, store):
+    ahrs = _imufusion_ahrs(d)
+    g, a = d.gyr_dps[:n], d.acc_g[:n]
+    out = np.empty((n, 4)) if store else None
+    m = d.mag_ut[:n] if nine else None
+    if store and d.dt is not None:
+        return _imufusion_uneven_loop(ahrs, g, a, m, d.dt[:n], out)
+    return _imufusion_even_loop(ahrs, g, a, m, out)
+
+
+def imufusion_method():
     return Method("imufusion.Ahrs", "peer",
-                  lambda d, n, nine: loops(d, n, nine, False),
-                  lambda d, n, nine: loops(d, n, nine, True),
+                  lambda d, n, nine: _imufusion_loops(d, n, nine, False),
+                  lambda d, n, nine: _imufusion_loops(d, n, nine, True),
                   run_note="Python loop, no batch API",
                   feeding="deg/s, g, uT; CONVENTION_ENU; set_sample_period(dt) before each sample")
+
+
+def _ahrs_update_loop(q0, upd, g, a, m):
+    """The per-sample loop of an ahrs filter's update; m=None for 6 axes."""
+    if m is not None:
+        def go():
+            q = q0
+            for gi, ai, mi in zip(g, a, m):
+                q = upd(q, gi, ai, mi)
+            return q
+    else:
+        def go():
+            q = q0
+            for gi, ai in zip(g, a):
+                q = upd(q, gi, ai)
+            return q
+    return go
+
+
+def _ahrs_uneven_run(stepper, d, nine, g, a, m, n):
+    """The batch constructor's own loop (start from the first sample, then update from the
+    second on), with each sample's dt."""
+    dts = d.dt[:n]
+
+    def go():
+        q0, upd = stepper(d, nine, m)
+        out = np.empty((n, 4))
+        out[0] = q0
+        if nine:
+            for i in range(1, n):
+                out[i] = upd(out[i - 1], g[i], a[i], m[i], dt=dts[i])
+        else:
+            for i in range(1, n):
+                out[i] = upd(out[i - 1], g[i], a[i], dt=dts[i])
+        return out
+    return go
 
 
 def ahrs_method(cls_name):
@@ -333,19 +380,7 @@ def ahrs_method(cls_name):
         g, a = d.gyr[:n], acc_of(d)[:n]
         m = d.mag_nt[:n] if nine else None
         q0, upd = stepper(d, nine, m)
-        if nine:
-            def go():
-                q = q0
-                for gi, ai, mi in zip(g, a, m):
-                    q = upd(q, gi, ai, mi)
-                return q
-        else:
-            def go():
-                q = q0
-                for gi, ai in zip(g, a):
-                    q = upd(q, gi, ai)
-                return q
-        return go
+        return _ahrs_update_loop(q0, upd, g, a, m)
 
     def run(d, n, nine):
         g, a = d.gyr[:n], acc_of(d)[:n]
@@ -353,22 +388,7 @@ def ahrs_method(cls_name):
         if d.dt is None:                 # even stamps: the library's batch constructor
             kw = kwargs(d)
             return lambda: cls(gyr=g, acc=a, mag=m, **kw).Q
-        # uneven stamps: the batch constructor's own loop (start from the first sample, then
-        # update from the second on), with each sample's dt
-        dts = d.dt[:n]
-
-        def go():
-            q0, upd = stepper(d, nine, m)
-            out = np.empty((n, 4))
-            out[0] = q0
-            if nine:
-                for i in range(1, n):
-                    out[i] = upd(out[i - 1], g[i], a[i], m[i], dt=dts[i])
-            else:
-                for i in range(1, n):
-                    out[i] = upd(out[i - 1], g[i], a[i], dt=dts[i])
-            return out
-        return go
+        return _ahrs_uneven_run(stepper, d, nine, g, a, m, n)      # uneven stamps
 
     nav = {"EKF": "NED", "Madgwick": "NWU"}.get(cls_name, "ENU")
     units = ("rad/s, gravity (-specific force) m/s^2, nT; NED, magnetic_ref = dip" if ekf

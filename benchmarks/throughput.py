@@ -70,8 +70,9 @@ DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
 # ---------------------------------------------------------------------------------------------
 # timing
 
-def _time_once(build):
-    go = build()
+def _time_once(build, *args):
+    """Seconds of one call of build(*args)'s returned closure (the build is not timed)."""
+    go = build(*args)
     t0 = time.perf_counter()
     go()
     return time.perf_counter() - t0
@@ -88,7 +89,7 @@ def size_cell(method, kind, nine, d, n_max, target, n_min):
     builder = method.builders[kind]
     n = min(200, n_max)
     while True:                      # grow a probe until it takes a measurable time
-        dt = _time_once(lambda: builder(d, n, nine))
+        dt = _time_once(builder, d, n, nine)
         if dt >= target / 8 or n >= n_max:
             break
         n = min(n * 4, n_max)
@@ -102,14 +103,14 @@ def measure_all(cells, d, repeats, log):
     interleaved across cells so that a slow spell of a shared machine hits all methods alike
     rather than all repeats of one of them."""
     times = {key: [] for key in cells}
-    for key, (meth, kind, nine, n) in cells.items():
-        _time_once(lambda: meth.builders[kind](d, n, nine))          # warm-up at the measured size
+    for meth, kind, nine, n in cells.values():
+        _time_once(meth.builders[kind], d, n, nine)          # warm-up at the measured size
     for r in range(repeats):
         for key, (meth, kind, nine, n) in cells.items():
-            times[key].append(_time_once(lambda: meth.builders[kind](d, n, nine)))
+            times[key].append(_time_once(meth.builders[kind], d, n, nine))
         log(f"  round {r + 1}/{repeats} done")
     out = {}
-    for key, (meth, kind, nine, n) in cells.items():
+    for key, (_, _, _, n) in cells.items():
         t = times[key]
         med = statistics.median(t)
         out[key] = dict(n=n, repeats=repeats, median_s=med, min_s=min(t), max_s=max(t), rate=n / med)
@@ -274,13 +275,88 @@ def bank_section(d, n, repeats):
     lines = ["| method | filter-samples/s |", "|---|---:|"]
     lines += [f"| {cells[k][0].name} | {fmt_rate(rate[k])} |" for k in cells]
     lines += ["",
-              f"- bank.update / {BANK_COUNT} separate update calls: {rate['bank update'] / rate['separate update']:.2f}x "
-              "(target >= 4x)",
+              f"- bank.update / {BANK_COUNT} separate update calls: "
+              f"{rate['bank update'] / rate['separate update']:.2f}x (target >= 4x)",
               f"- bank.update time per filter-sample / VQF updateBatch time per sample: "
               f"{rate['vqf batch'] / rate['bank update']:.2f} (target <= 1)",
               f"- bank.run / {BANK_NAME}.run per piece: {rate['bank run'] / rate['separate run']:.2f}x; "
               f"bank.run / VQF updateBatch: {rate['bank run'] / rate['vqf batch']:.2f}x"]
     return "\n".join(lines), res
+
+
+def sanity_all(methods, d, n_sanity):
+    """(method name, mode) -> (ok, tilt error deg) of every cell, printed as a table."""
+    print("sanity (tilt error vs truth, deg; update: last sample, run: median of 2nd half; "
+          f"first {n_sanity} samples):")
+    sane = {}
+    for meth in methods:
+        cells = []
+        for mode in MODES:
+            kind, nine = mode.split()[0], mode.endswith("9-axis")
+            try:
+                ok, err = sanity(meth, kind, nine, d, n_sanity)
+            except Exception as e:                                     # noqa: BLE001
+                ok, err = False, float("nan")
+                print(f"  {meth.name} {mode}: {type(e).__name__}: {e}")
+            sane[(meth.name, mode)] = (ok, err)
+            cells.append(f"{mode} {err:6.2f}{'' if ok else ' CHECK'}")
+        print(f"  {meth.name:<22s} " + " | ".join(cells)
+              + ("  (gyro integration only: drifts by design)" if meth.drifts else ""), flush=True)
+    print()
+    return sane
+
+
+def size_all(methods, d, n_run, n_upd, target, n_min):
+    """(method name, mode) -> (method, kind, nine, N) of every cell that could be sized."""
+    print(f"sizing (N per cell for ~{target:g} s per call):", flush=True)
+    cells = {}
+    for meth in methods:
+        sizes = []
+        for mode in MODES:
+            kind, nine = mode.split()[0], mode.endswith("9-axis")
+            n_max = n_run if kind == "run" else n_upd
+            try:
+                n = size_cell(meth, kind, nine, d, n_max, target, n_min)
+            except Exception as e:                                     # noqa: BLE001
+                print(f"  {meth.name} {mode}: failed: {type(e).__name__}: {e}")
+                continue
+            cells[(meth.name, mode)] = (meth, kind, nine, n)
+            sizes.append(f"{mode} N={n:,}")
+        print(f"  {meth.name:<22s} " + " | ".join(sizes), flush=True)
+    return cells
+
+
+def detail_rows(results, cells, sane):
+    """The rows of throughput_detail.csv: every cell's timings and sanity."""
+    detail = []
+    for (name, mode), r in results.items():
+        meth, kind = cells[(name, mode)][0], cells[(name, mode)][1]
+        ok, err = sane[(name, mode)]
+        detail.append(dict(method=name, group=meth.group, mode=mode,
+                           note=meth.run_note if kind == "run" else "",
+                           sanity_ok=ok, tilt_err_deg=f"{err:.3g}",
+                           n=r["n"], repeats=r["repeats"], median_s=f"{r['median_s']:.6g}",
+                           min_s=f"{r['min_s']:.6g}", max_s=f"{r['max_s']:.6g}",
+                           samples_per_s=f"{r['rate']:.6g}",
+                           spread_max_over_min=f"{r['max_s'] / r['min_s']:.3g}"))
+    return detail
+
+
+def write_outputs(out, md, csv_header, csv_rows, detail):
+    """throughput.md (``md`` under its title), throughput.csv and throughput_detail.csv in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    md_path, csv_path, det_path = out / "throughput.md", out / "throughput.csv", out / "throughput_detail.csv"
+    with open(md_path, "w") as f:
+        f.write("# Estimator throughput (samples/s)\n\n" + md)
+    with open(csv_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(csv_header)
+        w.writerows(csv_rows)
+    with open(det_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(detail[0]) if detail else ["method"])
+        w.writeheader()
+        w.writerows(detail)
+    print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
 
 
 def main(argv=None):
@@ -294,12 +370,9 @@ def main(argv=None):
     ap.add_argument("--bank-only", action="store_true", help="only the bank section")
     args = ap.parse_args(argv)
 
-    if args.quick:
-        n_run, n_upd, repeats, target, n_min, n_sanity = 50_000, 50_000, 3, 0.06, 200, 1500
-    else:
-        n_run, n_upd, repeats, target, n_min, n_sanity = 200_000, 200_000, 5, 0.3, 500, 3000
-    if args.target is not None:
-        target = args.target
+    n_run, n_upd, repeats, target, n_min, n_sanity = ((50_000, 50_000, 3, 0.06, 200, 1500) if args.quick
+                                                      else (200_000, 200_000, 5, 0.3, 500, 3000))
+    target = target if args.target is None else args.target
 
     t_start = time.perf_counter()
     info, vers = machine_info(), versions()
@@ -321,53 +394,11 @@ def main(argv=None):
         return
     methods = all_methods(print)
 
-    # sanity first (also imports and warms every code path)
-    print("sanity (tilt error vs truth, deg; update: last sample, run: median of 2nd half; "
-          f"first {n_sanity} samples):")
-    sane = {}
-    for meth in methods:
-        cells = []
-        for mode in MODES:
-            kind, nine = mode.split()[0], mode.endswith("9-axis")
-            try:
-                ok, err = sanity(meth, kind, nine, d, n_sanity)
-            except Exception as e:                                     # noqa: BLE001
-                ok, err = False, float("nan")
-                print(f"  {meth.name} {mode}: {type(e).__name__}: {e}")
-            sane[(meth.name, mode)] = (ok, err)
-            cells.append(f"{mode} {err:6.2f}{'' if ok else ' CHECK'}")
-        print(f"  {meth.name:<22s} " + " | ".join(cells)
-              + ("  (gyro integration only: drifts by design)" if meth.drifts else ""), flush=True)
-    print()
-
-    print("sizing (N per cell for ~%g s per call):" % target, flush=True)
-    cells = {}
-    for meth in methods:
-        sizes = []
-        for mode in MODES:
-            kind, nine = mode.split()[0], mode.endswith("9-axis")
-            n_max = n_run if kind == "run" else n_upd
-            try:
-                n = size_cell(meth, kind, nine, d, n_max, target, n_min)
-            except Exception as e:                                     # noqa: BLE001
-                print(f"  {meth.name} {mode}: failed: {type(e).__name__}: {e}")
-                continue
-            cells[(meth.name, mode)] = (meth, kind, nine, n)
-            sizes.append(f"{mode} N={n:,}")
-        print(f"  {meth.name:<22s} " + " | ".join(sizes), flush=True)
+    sane = sanity_all(methods, d, n_sanity)         # first: also imports and warms every code path
+    cells = size_all(methods, d, n_run, n_upd, target, n_min)
     print(f"timing ({repeats} interleaved rounds after 1 warm-up per cell):", flush=True)
     results = measure_all(cells, d, repeats, lambda msg: print(msg, flush=True))
-    detail = []
-    for (name, mode), r in results.items():
-        meth, kind = cells[(name, mode)][0], cells[(name, mode)][1]
-        ok, err = sane[(name, mode)]
-        detail.append(dict(method=name, group=meth.group, mode=mode,
-                           note=meth.run_note if kind == "run" else "",
-                           sanity_ok=ok, tilt_err_deg=f"{err:.3g}",
-                           n=r["n"], repeats=r["repeats"], median_s=f"{r['median_s']:.6g}",
-                           min_s=f"{r['min_s']:.6g}", max_s=f"{r['max_s']:.6g}",
-                           samples_per_s=f"{r['rate']:.6g}",
-                           spread_max_over_min=f"{r['max_s'] / r['min_s']:.3g}"))
+    detail = detail_rows(results, cells, sane)
 
     header, md_rows, csv_header, csv_rows, best = build_table(methods, results)
     table = markdown(header, md_rows)
@@ -376,30 +407,16 @@ def main(argv=None):
              "the quaternion each sample); run = one batch call. Ratios: ours / fastest peer in that column. "
              "Median of %d repeats; N per cell in throughput_detail.csv." % repeats)
     print("\n" + table + "\n\n" + notes + "\n")
-    bank_text, bank_res = bank_section(d, n_bank, repeats)
+    bank_text, _ = bank_section(d, n_bank, repeats)
     print("\n" + bank_text + "\n")
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    md_path, csv_path, det_path = out / "throughput.md", out / "throughput.csv", out / "throughput_detail.csv"
-    with open(md_path, "w") as f:
-        f.write("# Estimator throughput (samples/s)\n\n")
-        f.write(f"- machine: {info['platform']}, Python {info['python']}; cpu: {info['cpu']}; "
-                f"{info['cpu_count']} CPUs ({info['usable_cpus']} usable)\n")
-        f.write("- versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + "\n")
-        f.write(f"- settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; "
-                f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement\n\n")
-        f.write(table + "\n\n" + notes + "\n")
-        f.write("\n## Bank\n\n" + bank_text + "\n")
-    with open(csv_path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(csv_header)
-        w.writerows(csv_rows)
-    with open(det_path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(detail[0]) if detail else ["method"])
-        w.writeheader()
-        w.writerows(detail)
-    print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
+    head = (f"- machine: {info['platform']}, Python {info['python']}; cpu: {info['cpu']}; "
+            f"{info['cpu_count']} CPUs ({info['usable_cpus']} usable)\n"
+            "- versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + "\n"
+            f"- settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; "
+            f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement\n\n")
+    md = head + table + "\n\n" + notes + "\n" + "\n## Bank\n\n" + bank_text + "\n"
+    write_outputs(Path(args.out), md, csv_header, csv_rows, detail)
     print(f"total {time.perf_counter() - t_start:.0f} s")
 
 

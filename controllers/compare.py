@@ -255,6 +255,60 @@ def _load_cached(path, key):
     return d["rows"]
 
 
+def _open_cache(jobs, cache_dir, resume, results, log):
+    """(cache folder, each job's cell key); with ``resume`` fills ``results`` with the cells
+    already cached for this code version."""
+    cache = Path(cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    version = code_version()
+    keys = [cell_key(j, version) for j in jobs]
+    if resume:
+        for i, k in enumerate(keys):
+            results[i] = _load_cached(cache / f"{k}.json", k)
+        n = sum(r is not None for r in results)
+        log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
+    return cache, keys
+
+
+def _run_local(jobs, todo, workers, done):
+    """The jobs ``todo`` in a process pool of ``workers`` (default the CPU count), each
+    finished one handed to ``done(i, rows)``."""
+    import multiprocessing as mp
+    n = workers or os.cpu_count() or 1
+    if n == 1 or len(todo) <= 1:
+        for i in todo:
+            done(i, run_job(jobs[i]))
+        return
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
+    try:
+        futs = {pool.submit(run_job, jobs[i]): i for i in todo}
+        for f in as_completed(futs):
+            done(futs[f], f.result())
+    except BaseException:
+        # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
+        # are cached) instead of waiting for the queued ones
+        procs = list((pool._processes or {}).values())   # shutdown() forgets them
+        for proc in procs:
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _run_ray(jobs, todo, address, workers, done):
+    """The jobs ``todo`` as Ray tasks, each finished one handed to ``done(i, rows)``."""
+    with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
+        remote = ray.remote(num_cpus=1)(run_job)
+        # the policies are in the task's working directory
+        ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
+        refs = {remote.remote(ray_jobs[i]): i for i in todo}
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for r in ready:
+                done(refs[r], ray.get(r))
+
+
 def run_grid(jobs, backend="local", workers=None, address=None, progress=True, cache_dir=None, resume=False,
              log=print):
     """Run the jobs; returns the rows in job order. backend: "local" (process pool of
@@ -268,15 +322,7 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
     results = [None] * len(jobs)
     cache = keys = None
     if cache_dir is not None and not any(j.get("record_path") for j in jobs):
-        cache = Path(cache_dir)
-        cache.mkdir(parents=True, exist_ok=True)
-        version = code_version()
-        keys = [cell_key(j, version) for j in jobs]
-        if resume:
-            for i, k in enumerate(keys):
-                results[i] = _load_cached(cache / f"{k}.json", k)
-            n = sum(r is not None for r in results)
-            log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
+        cache, keys = _open_cache(jobs, cache_dir, resume, results, log)
     # cells that run the same thing (ppo and ppo-truth under truth: one policy) run once
     same = {}
     for i, j in enumerate(jobs):
@@ -296,37 +342,9 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
             bar.update()
 
     if backend == "local":
-        import multiprocessing as mp
-        n = workers or os.cpu_count() or 1
-        if n == 1 or len(todo) <= 1:
-            for i in todo:
-                done(i, run_job(jobs[i]))
-        else:
-            pool = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("forkserver"))
-            try:
-                futs = {pool.submit(run_job, jobs[i]): i for i in todo}
-                for f in as_completed(futs):
-                    done(futs[f], f.result())
-            except BaseException:
-                # Ctrl-C, SIGTERM or a failed cell: stop the workers now (the finished cells
-                # are cached) instead of waiting for the queued ones
-                procs = list((pool._processes or {}).values())   # shutdown() forgets them
-                for proc in procs:
-                    proc.terminate()
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
-            pool.shutdown()
+        _run_local(jobs, todo, workers, done)
     elif todo:
-        with ray_session(address, workers, _custom_policy_dir([jobs[i] for i in todo])) as ray:
-            remote = ray.remote(num_cpus=1)(run_job)
-            # the policies are in the task's working directory
-            ray_jobs = {i: (dict(jobs[i], policy_dir=".") if jobs[i].get("policy") else jobs[i]) for i in todo}
-            refs = {remote.remote(ray_jobs[i]): i for i in todo}
-            pending = list(refs)
-            while pending:
-                ready, pending = ray.wait(pending, num_returns=1)
-                for r in ready:
-                    done(refs[r], ray.get(r))
+        _run_ray(jobs, todo, address, workers, done)
     bar.close()
     return [row for rows in results for row in rows]
 
@@ -385,7 +403,7 @@ def _rank_key(r):
     return (1, harm if math.isfinite(harm) else math.inf, r["estimator"])
 
 
-def min_detectable_success(n):
+def min_detectable_success(n: int) -> int | None:
     """The smallest number of failed runs out of ``n`` (against a truth that succeeds in
     all ``n``) whose paired interval excludes 0; None if even ``n`` failures do not."""
     for k in range(1, n + 1):
@@ -406,6 +424,33 @@ def _fmt(v, lo=None, hi=None, pct=False, unit=" %"):
     if lo is not None and math.isfinite(lo):
         s += f" [{f(lo)}, {f(hi)}]"
     return s
+
+
+def _summary_table(task, scenario, rs):
+    """The Markdown lines of one (task, scenario) table of summary.md."""
+    main = MAIN_METRIC[task][0]
+    lines = [f"## {task}, {scenario} (main metric: {main})", ""]
+    cols = ["controller", "estimator", "n", f"Δ {main} vs truth"] + \
+           [f"{m} ({UNITS[m]})" if UNITS[m] else m for m in SHOWN[task]]
+    if main not in BINARY_METRICS:
+        cols.insert(5, f"{main} IQM")
+    lines.append("| " + " | ".join(cols) + " |")
+    lines.append("|" + "---|" * len(cols))
+    for r in rs:
+        pct = main in BINARY_METRICS
+        dm = "delta_" + main
+        delta = (_fmt(r[dm], r[dm + "_lo"], r[dm + "_hi"], pct=pct, unit=" pp")
+                 + (" *" if r["separated"] else ""))
+        if r["estimator"] == "truth" or not math.isfinite(r[dm]):
+            delta = "(reference)" if r["estimator"] == "truth" else "- (no truth cell)"
+        cells = [r["controller"], f"`{r['estimator']}`", str(r["episodes"]), delta]
+        for m in SHOWN[task]:
+            cells.append(_fmt(r[m], r[m + "_lo"], r[m + "_hi"], pct=m in BINARY_METRICS))
+            if m == main and m not in BINARY_METRICS:
+                cells.append(_fmt(r[m + "_iqm"], r[m + "_iqm_lo"], r[m + "_iqm_hi"]))
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
 
 
 def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
@@ -445,29 +490,8 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
                      if k else f"With {n} episodes per cell no success difference can be detected.")
     lines.append("")
     for task in sorted({r["task"] for r in summary}):
-        main = MAIN_METRIC[task][0]
         for sc in sorted({r["scenario"] for r in summary if r["task"] == task}):
-            rs = [r for r in summary if r["task"] == task and r["scenario"] == sc]
-            lines += [f"## {task}, {sc} (main metric: {main})", ""]
-            cols = ["controller", "estimator", "n", f"Δ {main} vs truth"] + \
-                   [f"{m} ({UNITS[m]})" if UNITS[m] else m for m in SHOWN[task]]
-            if main not in BINARY_METRICS:
-                cols.insert(5, f"{main} IQM")
-            lines.append("| " + " | ".join(cols) + " |")
-            lines.append("|" + "---|" * len(cols))
-            for r in rs:
-                pct = main in BINARY_METRICS
-                dm = "delta_" + main
-                delta = _fmt(r[dm], r[dm + "_lo"], r[dm + "_hi"], pct=pct, unit=" pp") + (" *" if r["separated"] else "")
-                if r["estimator"] == "truth" or not math.isfinite(r[dm]):
-                    delta = "(reference)" if r["estimator"] == "truth" else "- (no truth cell)"
-                cells = [r["controller"], f"`{r['estimator']}`", str(r["episodes"]), delta]
-                for m in SHOWN[task]:
-                    cells.append(_fmt(r[m], r[m + "_lo"], r[m + "_hi"], pct=m in BINARY_METRICS))
-                    if m == main and m not in BINARY_METRICS:
-                        cells.append(_fmt(r[m + "_iqm"], r[m + "_iqm_lo"], r[m + "_iqm_hi"]))
-                lines.append("| " + " | ".join(cells) + " |")
-            lines.append("")
+            lines += _summary_table(task, sc, [r for r in summary if r["task"] == task and r["scenario"] == sc])
     why = _plot_headline(summary, out / "headline.png")
     if why:
         lines += ["## Headline figure", "", why, ""]
@@ -483,6 +507,50 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
 _LABEL = {"heading_ss": "Δ steady-state heading error vs truth (deg)",
           "success": "Δ success rate vs truth (percentage points)"}
 _COLOR = {"pid": "tab:blue", "ppo": "tab:orange", "ppo-truth": "tab:green"}
+
+
+def _headline_panel(ax, summary, task, sc):
+    """One panel of the headline figure: (task, floor) ``sc``."""
+    main, higher = MAIN_METRIC[task]
+    pct = 100.0 if main in BINARY_METRICS else 1.0
+    rs = [r for r in summary if r["task"] == task and r["scenario"] == sc and r["estimator"] != "truth"]
+    ctrls = [c for c in CONTROLLERS if any(r["controller"] == c for r in rs)]
+    # rank by the first controller's difference (the least harm at the top)
+    ref = {r["estimator"]: _rank_key(r)[1] for r in rs if r["controller"] == ctrls[0]}
+    ests = sorted({r["estimator"] for r in rs}, key=lambda e: (ref.get(e, math.inf), e))
+    y = np.arange(len(ests))[::-1]
+    off = 0.22
+    for k, c in enumerate(ctrls):
+        for e, yy in zip(ests, y):
+            r = next((r for r in rs if r["estimator"] == e and r["controller"] == c), None)
+            if r is None:
+                continue
+            d, lo, hi = (r["delta_" + main] * pct, r["delta_" + main + "_lo"] * pct,
+                         r["delta_" + main + "_hi"] * pct)
+            yk = yy + (k - (len(ctrls) - 1) / 2) * off
+            ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]], fmt="o", color=_COLOR[c], ms=5, capsize=3,
+                        label=c)
+            # the cell's own value beside its interval (success as an absolute rate)
+            ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
+                        (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
+                        color=_COLOR[c])
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set_yticks(y, ests)
+    ax.set_ylim(-0.6, len(ests) - 0.4)
+    truth = {r["controller"]: r for r in summary
+             if r["task"] == task and r["scenario"] == sc and r["estimator"] == "truth"}
+    unit = "" if main in BINARY_METRICS else f" {UNITS[main]}"
+    ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}{unit}"
+                        for c in ctrls if c in truth)
+    worse = "left" if higher else "right"
+    ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}   ({worse} = worse; labels: the cell's own value)",
+                 fontsize=9)
+    ax.margins(x=0.12)
+    ax.set_xlabel(_LABEL.get(main, f"Δ {main} vs truth"))
+    ax.grid(axis="x", alpha=0.3)
+    handles, labels = ax.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles))
+    ax.legend(uniq.values(), uniq.keys(), fontsize=8, loc="best")
 
 
 def _plot_headline(summary, path):
@@ -504,46 +572,7 @@ def _plot_headline(summary, path):
     axes = fig.subplots(len(panels), 1,
                              gridspec_kw={"height_ratios": [1.0 + 0.42 * s for s in sizes]}, squeeze=False)
     for ax, (task, sc) in zip(axes[:, 0], panels):
-        main, higher = MAIN_METRIC[task]
-        pct = 100.0 if main in BINARY_METRICS else 1.0
-        rs = [r for r in summary if r["task"] == task and r["scenario"] == sc and r["estimator"] != "truth"]
-        ctrls = [c for c in CONTROLLERS if any(r["controller"] == c for r in rs)]
-        # rank by the first controller's difference (the least harm at the top)
-        ref = {r["estimator"]: _rank_key(r)[1] for r in rs if r["controller"] == ctrls[0]}
-        ests = sorted({r["estimator"] for r in rs}, key=lambda e: (ref.get(e, math.inf), e))
-        y = np.arange(len(ests))[::-1]
-        off = 0.22
-        for k, c in enumerate(ctrls):
-            for e, yy in zip(ests, y):
-                r = next((r for r in rs if r["estimator"] == e and r["controller"] == c), None)
-                if r is None:
-                    continue
-                d, lo, hi = (r["delta_" + main] * pct, r["delta_" + main + "_lo"] * pct,
-                             r["delta_" + main + "_hi"] * pct)
-                yk = yy + (k - (len(ctrls) - 1) / 2) * off
-                ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]], fmt="o", color=_COLOR[c], ms=5, capsize=3,
-                            label=c)
-                # the cell's own value beside its interval (success as an absolute rate)
-                ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
-                            (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
-                            color=_COLOR[c])
-        ax.axvline(0, color="k", lw=0.8)
-        ax.set_yticks(y, ests)
-        ax.set_ylim(-0.6, len(ests) - 0.4)
-        truth = {r["controller"]: r for r in summary
-                 if r["task"] == task and r["scenario"] == sc and r["estimator"] == "truth"}
-        unit = "" if main in BINARY_METRICS else f" {UNITS[main]}"
-        ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}{unit}"
-                            for c in ctrls if c in truth)
-        worse = "left" if higher else "right"
-        ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}   ({worse} = worse; labels: the cell's own value)",
-                     fontsize=9)
-        ax.margins(x=0.12)
-        ax.set_xlabel(_LABEL.get(main, f"Δ {main} vs truth"))
-        ax.grid(axis="x", alpha=0.3)
-        handles, labels = ax.get_legend_handles_labels()
-        uniq = dict(zip(labels, handles))
-        ax.legend(uniq.values(), uniq.keys(), fontsize=8, loc="best")
+        _headline_panel(ax, summary, task, sc)
     n = sorted({r["episodes"] for r in summary})
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
@@ -601,24 +630,27 @@ def _check_writable(out):
         raise ValueError(f"--out {str(out)!r} cannot be written ({e.strerror or e}); choose another folder") from None
 
 
+_DESCRIPTION = (
+    "Compare motion control under each attitude estimator: the PID, PPO trained with that estimator "
+    "and PPO trained on the true attitude, every cell against the `truth` cell of the same controller "
+    "and floor over the same episode seeds.")
+_EPILOG = (
+    "Writes <out>/summary.md (the table), summary.csv (<metric>, <metric>_lo, <metric>_hi, "
+    "delta_<metric>, ...), episodes.csv, headline.png (estimators ranked by their paired difference "
+    "against truth) and paths.png; finished cells are cached in <out>/cells/. Metrics: "
+    "docs/envs/sphere_bot_track.md and sphere_bot_waypoints.md.")
+_EXAMPLES = (
+    "  spherebot-compare --quick                       # the demo (make demo), a few minutes\n"
+    "  spherebot-compare --full --backend ray --address auto   # every cell, 30 episodes, on a cluster\n"
+    "  spherebot-compare --full --resume               # continue an interrupted run")
+
+
 def _parser():
     import fusion
     all_est = ["truth"] + fusion.available()
-    ap = argparse.ArgumentParser(
-        prog="spherebot-compare",
-        description=textwrap.fill(
-            "Compare motion control under each attitude estimator: the PID, PPO trained with that estimator "
-            "and PPO trained on the true attitude, every cell against the `truth` cell of the same controller "
-            "and floor over the same episode seeds.", 78),
-        epilog=textwrap.fill(
-            "Writes <out>/summary.md (the table), summary.csv (<metric>, <metric>_lo, <metric>_hi, "
-            "delta_<metric>, ...), episodes.csv, headline.png (estimators ranked by their paired difference "
-            "against truth) and paths.png; finished cells are cached in <out>/cells/. Metrics: "
-            "docs/envs/sphere_bot_track.md and sphere_bot_waypoints.md.", 78) + "\n\n"
-               "  spherebot-compare --quick                       # the demo (make demo), a few minutes\n"
-               "  spherebot-compare --full --backend ray --address auto   # every cell, 30 episodes, on a cluster\n"
-               "  spherebot-compare --full --resume               # continue an interrupted run",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="spherebot-compare", description=textwrap.fill(_DESCRIPTION, 78),
+                                 epilog=textwrap.fill(_EPILOG, 78) + "\n\n" + _EXAMPLES,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tasks", default=",".join(TASKS), metavar="LIST",
                     help=f"comma-separated tasks (default: all). Accepted: {', '.join(TASKS)}")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), metavar="LIST",
@@ -628,7 +660,8 @@ def _parser():
                     help=f"comma-separated estimators; include truth for the differences and the figure "
                          f"(default: all; --quick: {QUICK['estimators']}). Accepted: {', '.join(all_est)}")
     ap.add_argument("--controllers", default=None, metavar="LIST",
-                    help=f"comma-separated controllers (default: all; --quick: {QUICK['controllers']}). Accepted: pid (the same gains everywhere), "
+                    help=f"comma-separated controllers (default: all; --quick: {QUICK['controllers']}). "
+                         "Accepted: pid (the same gains everywhere), "
                          "ppo (the policy trained with that estimator), ppo-truth (the policy trained on the true "
                          "attitude, run with that estimator)")
     ap.add_argument("--episodes", type=int, default=None, metavar="N",

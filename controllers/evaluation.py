@@ -32,8 +32,14 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from controllers.base import Controller
 
 __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
            "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MAIN_METRIC", "BINARY_METRICS",
@@ -100,7 +106,8 @@ def _track_metrics(log, dt):
             "settle_time": float(np.mean(settle)) if settle else float("nan")}
 
 
-def run_episode(controller, env, seed, settle_s=2.0, record_path=False):
+def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2.0,
+                record_path: bool = False) -> dict[str, Any]:
     """One episode of ``controller`` in ``env`` (reset with ``seed``); returns a dict of the
     metrics of ``EPISODE_METRICS[task]`` (plus ``path`` and ``waypoints`` if asked).
     ``settle_s``: the start from rest left out of ``heading_rmse`` and ``speed_rmse``."""
@@ -167,7 +174,8 @@ def _check_int(name, v, lo):
     return int(v)
 
 
-def evaluate(controller, env_kwargs=None, episodes=10, seed=0, record_path=False, env=None):
+def evaluate(controller: Controller, env_kwargs: dict[str, Any] | None = None, episodes: int = 10, seed: int = 0,
+             record_path: bool = False, env: Any = None) -> dict[str, Any]:
     """Run ``controller`` for ``episodes`` episodes of ``SphereRobotEnv(**env_kwargs)``
     (or of ``env`` if given), episode ``i`` seeded ``seed + i``. Returns
     ``{"episodes": [per-episode dicts], "summary": aggregate(...)}``."""
@@ -185,7 +193,7 @@ def evaluate(controller, env_kwargs=None, episodes=10, seed=0, record_path=False
     return {"episodes": eps, "summary": aggregate(eps, env.unwrapped.task)}
 
 
-def aggregate(episodes, task, seed=0):
+def aggregate(episodes: Sequence[dict[str, Any]], task: str, seed: int = 0) -> dict[str, dict[str, float]]:
     """Per metric of ``EPISODE_METRICS[task]``: ``interval`` of its finite values (mean,
     lo, hi, iqm, iqm_lo, iqm_hi, n) plus the standard deviation ``std``."""
     out = {}
@@ -200,7 +208,7 @@ def aggregate(episodes, task, seed=0):
 # ----------------------------------------------------------------------------------------
 # statistics
 
-def wilson(k, n, z=Z95):
+def wilson(k: float, n: int, z: float = Z95) -> tuple[float, float, float]:
     """Wilson score interval of a proportion: (k / n, lo, hi), inside [0, 1]."""
     if n <= 0:
         return float("nan"), float("nan"), float("nan")
@@ -211,7 +219,7 @@ def wilson(k, n, z=Z95):
     return p, max(0.0, centre - half), min(1.0, centre + half)
 
 
-def newcombe_paired(x, y, z=Z95):
+def newcombe_paired(x: ArrayLike, y: ArrayLike, z: float = Z95) -> tuple[float, float, float]:
     """Difference mean(x) - mean(y) of paired 0/1 outcomes and its interval by Newcombe's
     method 10 ("Improved confidence intervals for the difference between binomial
     proportions based on paired data", 1998; the "square-and-add" interval of Fagerland et
@@ -239,13 +247,14 @@ def newcombe_paired(x, y, z=Z95):
     return D, max(-1.0, D - dl), min(1.0, D + du)
 
 
-def iqm(x, axis=-1):
+def iqm(x: Any, axis: int = -1) -> Any:
     """Interquartile mean: the mean of the middle 50 % (scipy's trim_mean, 25 % cut each side)."""
     from scipy.stats import trim_mean
     return trim_mean(x, 0.25, axis=axis)
 
 
-def bootstrap_ci(values, stat=np.mean, strata=None, n_boot=N_BOOT, seed=0, level=0.95):
+def bootstrap_ci(values: Any, stat: Callable[..., Any] = np.mean, strata: Sequence[Any] | None = None,
+                 n_boot: int = N_BOOT, seed: int = 0, level: float = 0.95) -> tuple[float, float]:
     """Percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D), resampling
     with replacement within each stratum (``strata``: a label per value; None: one
     stratum), seeded. ``stat`` takes an (n_boot, n) array and ``axis=1``. The percentile
@@ -271,7 +280,7 @@ def bootstrap_ci(values, stat=np.mean, strata=None, n_boot=N_BOOT, seed=0, level
     return float(lo), float(hi)
 
 
-def interval(values, metric, seed=0):
+def interval(values: Any, metric: str, seed: int = 0) -> dict[str, float]:
     """The cell statistics of one metric's finite values: dict of mean, lo, hi (95 %:
     Wilson for a 0/1 metric, bootstrap otherwise), iqm, iqm_lo, iqm_hi (NaN for 0/1) and n."""
     v = np.asarray(values, dtype=float)
@@ -287,7 +296,7 @@ def interval(values, metric, seed=0):
     return {"mean": float(v.mean()), "lo": lo, "hi": hi, "iqm": float(iqm(v)), "iqm_lo": ilo, "iqm_hi": ihi, "n": n}
 
 
-def paired_difference(x, y, metric, seed=0):
+def paired_difference(x: Any, y: Any, metric: str, seed: int = 0) -> dict[str, float]:
     """mean(x - y) over the pairs where both are finite (the same episode seed under two
     estimators), with its 95 % interval: Newcombe's paired method for a 0/1 metric, a
     bootstrap of the pairs otherwise. Returns dict of delta, lo, hi, n."""

@@ -25,6 +25,7 @@ import time
 import warnings
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +48,7 @@ class UntrustedPolicyWarning(UserWarning):
     """A policy loaded from outside the package."""
 
 
-def available_policies():
+def available_policies() -> list[str]:
     """The names of the policies shipped in the package (``load_policy(name)`` takes them)."""
     return sorted(p.stem for p in POLICY_DIR.glob("*.zip"))
 
@@ -57,12 +58,12 @@ def _check_choice(name, value, accepted):
         raise ValueError(f"unknown {name} {value!r}; accepted: {', '.join(accepted)}")
 
 
-def policy_stem(algo, task, estimator, directory=POLICY_DIR):
+def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR) -> Path:
     """The policy of (algo, task, estimator) in ``directory`` (default: the package's)."""
     return Path(directory) / f"{algo}-{task}-{estimator}"
 
 
-def new_run_stem(algo, task, estimator, log_folder="logs"):
+def new_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path:
     """rl-zoo3's layout: ``<log_folder>/<algo>/<env-id>_<n>/<algo>-<task>-<estimator>``, ``n`` one
     more than the highest run there (from 1)."""
     base = Path(log_folder) / algo
@@ -71,7 +72,7 @@ def new_run_stem(algo, task, estimator, log_folder="logs"):
     return base / f"{env_id}_{max(runs, default=0) + 1}" / f"{algo}-{task}-{estimator}"
 
 
-def latest_run_stem(algo, task, estimator, log_folder="logs"):
+def latest_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path | None:
     """The newest run of (algo, task, estimator) in ``log_folder`` that holds checkpoints, or None."""
     base = Path(log_folder) / algo
     env_id = TASK_IDS[task]
@@ -84,7 +85,7 @@ def latest_run_stem(algo, task, estimator, log_folder="logs"):
     return None
 
 
-def hyperparams(algo, task):
+def hyperparams(algo: str, task: str) -> dict[str, Any]:
     """The YAML entry of ``algo`` for ``task``'s environment id, as a dict (a copy)."""
     import yaml
     _check_choice("algorithm", algo, ALGOS)
@@ -250,23 +251,10 @@ def _check_hyperparams(override, hp, algo, task):
 TEACHER = "pid"
 
 
-def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action_std=0.15, lr=1e-3,
-                  seed=0, progress=True, log=print):
-    """Behaviour cloning: run ``teacher`` (a ``Controller``) for ``steps`` environment steps
-    in ``venv`` (a ``VecNormalize``; its statistics learn from these steps), then fit the
-    policy of ``model`` to the teacher's actions, with an action std of ``action_std`` (PPO: at
-    least that) so that the learner still explores.
-
-    PPO: policy by maximum likelihood, value function to the discounted (normalised) returns
-    of the teacher's episodes. SAC: the actor's mean action by least squares and its std to
-    ``action_std``; the teacher's transitions go into the replay buffer, and the critics are
-    fitted to them for as many gradient steps as the actor had (``epochs`` passes of
-    ``batch_size``) with the cloned actor as the policy (SAC's own critic loss), so that the
-    first actor updates follow a critic that knows the clone. Returns the number of steps
-    collected."""
-    import torch
+def _collect_teacher(model, venv, teacher, steps, sac, progress):
+    """Run ``teacher`` for ``steps`` steps of ``venv``: the lists of raw observations, actions,
+    (normalised) rewards and dones per step; SAC: each transition also into the replay buffer."""
     from tqdm.auto import tqdm
-    sac = hasattr(model, "replay_buffer")
     n = venv.num_envs
     teacher.reset()
     venv.reset()
@@ -289,56 +277,94 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
         dones.append(done.copy())
         for i in np.flatnonzero(done):
             teacher.reset(i)
+    return obs, acts, rews, dones
+
+
+def _fit_sac_actor(model, x, y, batches, epochs, lr, action_std):
+    """SAC's actor: mean action to ``y`` by least squares, log std to log(action_std).
+    Returns (action MSE, the last epoch's summed loss)."""
+    import torch
+    actor = model.actor
+    opt = torch.optim.Adam(actor.parameters(), lr=lr)
+    target_log_std = float(np.log(action_std))
+    actor.set_training_mode(True)
+    for _ in range(epochs):
+        total = 0.0
+        for idx in batches():
+            mean, log_std, _ = actor.get_action_dist_params(x[idx])
+            loss = ((torch.tanh(mean) - y[idx]) ** 2).mean() + ((log_std - target_log_std) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+    actor.set_training_mode(False)
+    with torch.no_grad():
+        mse = float(((actor(x, deterministic=True) - y) ** 2).mean())
+    return mse, total
+
+
+def _fit_ppo_policy(model, x, y, rews, dones, batches, epochs, lr, action_std):
+    """PPO's policy by maximum likelihood of ``y``, its value function to the discounted
+    returns of the teacher's episodes (cut by the end of collection: bootstrap 0), its std
+    at least ``action_std``. Returns (action MSE, the last epoch's summed loss)."""
+    import torch
+    returns = np.zeros_like(rews)
+    g = np.zeros(rews.shape[1])
+    for t in range(len(rews) - 1, -1, -1):
+        g = rews[t] + model.gamma * g * (1.0 - dones[t])
+        returns[t] = g
+    ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
+    policy = model.policy
+    opt = torch.optim.Adam(policy.parameters(), lr=lr)
+    policy.set_training_mode(True)
+    for _ in range(epochs):
+        total = 0.0
+        for idx in batches():
+            values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
+            loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+    policy.set_training_mode(False)
+    with torch.no_grad():
+        policy.log_std.clamp_(min=float(np.log(action_std)))
+        mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
+    return mse, total
+
+
+def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action_std=0.15, lr=1e-3,
+                  seed=0, progress=True, log=print):
+    """Behaviour cloning: run ``teacher`` (a ``Controller``) for ``steps`` environment steps
+    in ``venv`` (a ``VecNormalize``; its statistics learn from these steps), then fit the
+    policy of ``model`` to the teacher's actions, with an action std of ``action_std`` (PPO: at
+    least that) so that the learner still explores.
+
+    PPO: policy by maximum likelihood, value function to the discounted (normalised) returns
+    of the teacher's episodes. SAC: the actor's mean action by least squares and its std to
+    ``action_std``; the teacher's transitions go into the replay buffer, and the critics are
+    fitted to them for as many gradient steps as the actor had (``epochs`` passes of
+    ``batch_size``) with the cloned actor as the policy (SAC's own critic loss), so that the
+    first actor updates follow a critic that knows the clone. Returns the number of steps
+    collected."""
+    import torch
+    sac = hasattr(model, "replay_buffer")
+    obs, acts, rews, dones = _collect_teacher(model, venv, teacher, steps, sac, progress)
     x = torch.as_tensor(venv.normalize_obs(np.concatenate(obs)).astype(np.float32))
     y = torch.as_tensor(np.concatenate(acts))
     rng = np.random.default_rng(seed)
-    batches = lambda: (torch.as_tensor(idx) for perm in [rng.permutation(len(x))]
-                       for idx in (perm[k:k + batch_size] for k in range(0, len(x), batch_size)))
+    def batches():
+        perm = rng.permutation(len(x))
+        return (torch.as_tensor(perm[k:k + batch_size]) for k in range(0, len(x), batch_size))
     if sac:
-        actor = model.actor
-        opt = torch.optim.Adam(actor.parameters(), lr=lr)
-        target_log_std = float(np.log(action_std))
-        actor.set_training_mode(True)
-        for epoch in range(epochs):
-            total = 0.0
-            for idx in batches():
-                mean, log_std, _ = actor.get_action_dist_params(x[idx])
-                loss = ((torch.tanh(mean) - y[idx]) ** 2).mean() + ((log_std - target_log_std) ** 2).mean()
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                total += loss.item() * len(idx)
-        actor.set_training_mode(False)
+        mse, total = _fit_sac_actor(model, x, y, batches, epochs, lr, action_std)
         _fit_sac_critics(model, epochs * -(-len(x) // batch_size))
         model.learning_starts = 0       # the buffer is filled: no random-action warm-up
-        with torch.no_grad():
-            mse = float(((actor(x, deterministic=True) - y) ** 2).mean())
     else:
-        rews, dones = np.array(rews), np.array(dones)
-        returns = np.zeros_like(rews)
-        g = np.zeros(n)
-        for t in range(len(rews) - 1, -1, -1):     # episodes cut by the end of collection bootstrap 0
-            g = rews[t] + model.gamma * g * (1.0 - dones[t])
-            returns[t] = g
-        ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
-        policy = model.policy
-        opt = torch.optim.Adam(policy.parameters(), lr=lr)
-        policy.set_training_mode(True)
-        for epoch in range(epochs):
-            total = 0.0
-            for idx in batches():
-                values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
-                loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                total += loss.item() * len(idx)
-        policy.set_training_mode(False)
-        with torch.no_grad():
-            policy.log_std.clamp_(min=float(np.log(action_std)))
-            mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
+        mse, total = _fit_ppo_policy(model, x, y, np.array(rews), np.array(dones), batches, epochs, lr, action_std)
     if log:
-        log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, final loss {total / len(x):.3f}")
+        log(f"cloned {type(teacher).__name__} from {len(x)} steps: action MSE {mse:.2e}, "
+            f"final loss {total / len(x):.3f}")
     return len(x)
 
 
@@ -367,73 +393,181 @@ def _fit_sac_critics(model, steps):
     model.critic.set_training_mode(False)
 
 
-def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
-          eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print, trusted=False):
-    """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
-    (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
-    written into the package: ``install_policy`` does that).
+class _RunFiles:
+    """The files a training run writes in its run directory, each atomically."""
 
-    All arguments are checked (a ValueError names the one at fault: ``n_envs``, a bad
-    ``env_kwargs`` entry, a hyperparameter) before any work. Work directory ``<stem>.run/`` keeps the Monitor logs, the checkpoints (every
-    ``checkpoint_freq`` steps, with their VecNormalize statistics) and the best model of
-    the evaluation callback. Ctrl-C saves a checkpoint before leaving; ``resume=True``
-    continues from the newest checkpoint to the same total ``timesteps``. ``init_from``: a
-    policy stem of the same algorithm (and observation space) whose weights and
-    normalisation statistics start the training (a name of ``available_policies()`` or a path;
-    outside the package an ``UntrustedPolicyWarning`` unless ``trusted``) (fine-tuning: a policy trained on the true
-    attitude adapted to an estimator, or a track policy as the start of a waypoints one);
-    ``timesteps`` then counts the new steps only. ``init_from="pid"`` starts from a
-    behaviour clone of the PID controller (``clone_teacher``, ``bc_steps`` teacher steps;
-    for SAC they also fill the replay buffer). The starting policy (clone or ``init_from``) is evaluated first and kept as the
-    best model unless training beats it. ``hyperparams_override``: a dict replacing entries
-    of the YAML file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
-    """
-    import torch
-    torch.set_num_threads(1)
-    import fusion
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
+    def __init__(self, model, run_dir, ckpt_dir, normalize):
+        self.model, self.run_dir, self.ckpt_dir, self.normalize = model, run_dir, ckpt_dir, normalize
+
+    def save_best(self, mean_reward):
+        # model, statistics, then the score that names them the best: each file atomic
+        model = self.model
+        save_model(model, self.run_dir / "best_model.zip")
+        if self.normalize:
+            save_normalization(model.get_vec_normalize_env(), self.run_dir / "best_vecnormalize.npz")
+        atomic_write(self.run_dir / "best.json", lambda f: f.write(json.dumps(
+            {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps)}).encode()))
+
+    def ensure_best(self):
+        """No evaluation ran (a very short run): the last model is the one shipped."""
+        if not (self.run_dir / "best_model.zip").exists():
+            save_model(self.model, self.run_dir / "best_model.zip")
+            if self.normalize:
+                save_normalization(self.model.get_vec_normalize_env(), self.run_dir / "best_vecnormalize.npz")
+
+    def save_checkpoint(self):
+        # statistics first, then the zip: a checkpoint is listed only once both are whole
+        model = self.model
+        self.ckpt_dir.mkdir(parents=True, exist_ok=True)
+        path = self.ckpt_dir / f"ckpt_{model.num_timesteps}_steps.zip"
+        if self.normalize:
+            save_normalization(model.get_vec_normalize_env(), _checkpoint_stats(path))
+        save_model(model, path)
+        return path
+
+
+def _callbacks(saver, eval_env, eval_freq, checkpoint_freq, eval_episodes):
+    """(checkpoint callback, evaluation callback) of a run; the evaluation's ``eval_time``
+    adds up the seconds its episodes took inside learn()."""
+    from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+    class SaveBestStats(BaseCallback):
+        # beside the best model: its normalisation statistics and its score, so that a
+        # resumed run only replaces it with a better one
+        def _on_step(self):
+            saver.save_best(float(self.parent.best_mean_reward))
+            return True
+
+    class Checkpoint(BaseCallback):
+        def _on_step(self):
+            if self.n_calls % checkpoint_freq == 0:
+                saver.save_checkpoint()
+            return True
+
+    class TimedEval(EvalCallback):
+        # the evaluation episodes run inside learn(): time them apart from training
+        eval_time = 0.0
+
+        def _on_step(self):
+            t = time.perf_counter()
+            ok = super()._on_step()
+            self.eval_time += time.perf_counter() - t
+            return ok
+
+    ev = TimedEval(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
+                   eval_freq=eval_freq, best_model_save_path=None, log_path=str(saver.run_dir),
+                   deterministic=True, verbose=0)
+    return Checkpoint(), ev
+
+
+def _new_model(venv, init, algo, policy, hp, normalize, extra, seed, log):
+    """(venv, model) of a run that does not resume: the weights and statistics of ``init``
+    (zip, statistics) if given, else a fresh ``algo`` model with the hyperparameters ``hp``."""
     from stable_baselines3.common.vec_env import VecNormalize
+    if init is not None:
+        if normalize:
+            venv = vec_normalize(load_normalization(init[1]), venv, True)
+        model = load_model(init[0], env=venv, algo=algo, extra=extra)
+        model.set_random_seed(seed)
+        model.num_timesteps = 0
+        log(f"starting from the weights of {init[0]}")
+        return venv, model
+    if normalize:
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hp.get("gamma", 0.99))
+    return venv, _algo_class(algo)(policy, venv, seed=seed, device="cpu", verbose=0, **hp)
 
-    _check_choice("algorithm", algo, ALGOS)
-    _check_choice("task", task, tuple(TASK_IDS))
-    _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
+
+def _clone_pid(model, venv, eval_env, bc_steps, seed, progress, log):
+    """Behaviour-clone the PID into ``model`` (``clone_teacher``); returns the steps collected."""
+    from controllers.pid import PID
+    # the teacher runs at the training environments' control rate (env_kwargs may set it)
+    teacher = PID.for_env(eval_env.venv.envs[0])
+    return clone_teacher(model, venv, teacher, bc_steps, seed=seed, progress=progress, log=log)
+
+
+def _learn(saver, timesteps, callback, ev, reset, progress, n_envs, log):
+    """model.learn up to ``timesteps`` in all; Ctrl-C saves a checkpoint first. Returns (wall
+    s, steps/s, steps/s of training alone: the evaluation episodes' time taken out)."""
+    model = saver.model
+    remaining = timesteps - model.num_timesteps
+    t0, steps0 = time.perf_counter(), model.num_timesteps
+    try:
+        if remaining > 0:
+            model.learn(remaining, callback=callback, reset_num_timesteps=reset, progress_bar=progress)
+    except KeyboardInterrupt:
+        path = saver.save_checkpoint()
+        log(f"\ninterrupted at {model.num_timesteps} steps: checkpoint saved to {path}; "
+            f"continue with --resume")
+        raise
+    wall = time.perf_counter() - t0
+    done = model.num_timesteps - steps0
+    rate = done / wall if wall > 0 else float("nan")
+    train_wall = wall - ev.eval_time
+    train_rate = done / train_wall if train_wall > 0 else float("nan")
+    log(f"trained {done} steps in {wall:.0f} s: {train_rate:.0f} environment steps/s of training "
+        f"({n_envs} envs; {rate:.0f}/s including {ev.eval_time:.0f} s of evaluation episodes)")
+    return wall, rate, train_rate
+
+
+def _run_hyperparams(algo, task, override):
+    """(hyperparameters for the run, the same as recorded in its JSON): the YAML file's, with
+    the entries of ``override`` (checked: only names the file has) replacing them."""
     hp = hyperparams(algo, task)
-    override = dict(hyperparams_override or {})
+    override = dict(override or {})
     _check_hyperparams(override, hp, algo, task)
     hp.update(override)
-    used_hp = dict(hp)
-    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
-    timesteps = default_steps if timesteps is None else timesteps
+    return hp, dict(hp)
+
+
+def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):
+    """The starting policy (a clone or ``init_from``) is the first candidate for the best
+    model: training must beat it."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+    eval_env.obs_rms = venv.obs_rms
+    mean_reward, _ = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
+    saver.save_best(float(mean_reward))
+    ev.best_mean_reward = float(mean_reward)
+    log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+
+
+def _write_run_json(stem, best_json, meta):
+    """<stem>.json: ``meta`` plus the observation size, the best evaluation and the time."""
+    from envs.sphere import OBS_NAMES
+    meta = dict(meta, obs_size=len(OBS_NAMES),
+                best_eval=json.loads(best_json.read_text()) if best_json.is_file() else None,
+                saved=time.strftime("%Y-%m-%d %H:%M:%S"))
+    atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+
+
+def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes):
+    """(timesteps, n_envs) as ints, or a ValueError naming the argument at fault."""
     if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
             not np.isfinite(timesteps) or int(timesteps) != timesteps or timesteps < 1:
         raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
-    timesteps = int(timesteps)
-    n_envs = default_envs if n_envs is None else n_envs
     if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or not 1 <= n_envs <= 256:
         raise ValueError(f"n_envs must be an integer in [1, 256], got {n_envs!r}")
-    n_envs = int(n_envs)
     for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
             raise ValueError(f"{name} must be None or an integer >= 1, got {v!r}")
     if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, (int, np.integer)) or eval_episodes < 1:
         raise ValueError(f"eval_episodes must be an integer >= 1, got {eval_episodes!r}")
-    normalize = hp.pop("normalize", True)
-    policy = hp.pop("policy", "MlpPolicy")
+    return int(timesteps), int(n_envs)
+
+
+def _checked_env_kwargs(task, estimator, env_kwargs):
+    """A copy of ``env_kwargs`` (None: {}), each entry checked by the environment's rules."""
     if not isinstance(env_kwargs, (dict, type(None))):
         raise ValueError(f"env_kwargs must be a dict of environment arguments, got {env_kwargs!r}")
     env_kwargs = dict(env_kwargs or {})
     if "task" in env_kwargs or "estimator" in env_kwargs:
         raise ValueError("env_kwargs must not hold task or estimator (they are arguments of their own)")
     _check_env_kwargs(task, estimator, env_kwargs)
-    stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
-    run_dir = Path(str(stem) + ".run")
-    ckpt_dir = run_dir / "checkpoints"
-    eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
-    checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
+    return env_kwargs
 
-    start_ckpt = None
+
+def _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log):
+    """Refuse to mix runs: an earlier run's checkpoints need ``resume`` or ``overwrite`` (which
+    moves the earlier run directory aside); ``resume`` needs a checkpoint."""
     if not resume and _latest_checkpoint(ckpt_dir) is not None:
         if not overwrite:
             raise FileExistsError(f"{ckpt_dir} holds checkpoints of an earlier run: --resume to continue it, or "
@@ -443,185 +577,164 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         log(f"the earlier run directory is now {aside}")
     if resume and not _checkpoints(ckpt_dir):
         raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
+
+
+def _init_source(init_from, algo, task, trusted, log):
+    """(zip, statistics) of the policy ``init_from`` names, checked to be of ``algo``; a warning
+    for a file outside the package unless ``trusted``."""
+    _, init_zip, init_json, init_vn = _resolve(init_from)
+    if not init_zip.is_file():
+        raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
+    if not trusted and not _in_package(init_zip):
+        warnings.warn(f"init_from: {init_zip} is outside the package: model files can be crafted to run code; "
+                      f"it is read with pickled entries refused, but start only from files you trust "
+                      f"(trusted=True, --trusted, silences this)", UntrustedPolicyWarning, stacklevel=3)
+    init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
+    if init_meta.get("algo", algo) != algo:
+        raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy; this run trains {algo}")
+    if init_meta.get("task", task) != task:
+        # allowed (same observation and action spaces): the last four observations mean
+        # "the angle to steer to" in both tasks, so a track policy is a head start
+        log(f"init_from: {init_zip} was trained for task {init_meta.get('task')!r}; fine-tuning it for {task!r}")
+    return init_zip, init_vn
+
+
+def _resume_newest(raw_venv, ckpt_dir, normalize, algo, extra, log):
+    """(venv, model, checkpoint) of the newest checkpoint that loads: a truncated or corrupt
+    one (the machine died while it was written by an older version) falls back to the one
+    before, with a warning."""
+    for ckpt in _checkpoints(ckpt_dir):
+        try:
+            venv = vec_normalize(load_normalization(_checkpoint_stats(ckpt)), raw_venv, True) \
+                if normalize else raw_venv
+            model = load_model(ckpt, env=venv, algo=algo, extra=extra)
+        except PolicyError as e:
+            warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
+                          RuntimeWarning, stacklevel=3)
+            log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
+            continue
+        log(f"resuming from {ckpt} at {model.num_timesteps} steps")
+        return venv, model, ckpt
+    raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
+
+
+def _history(stem):
+    """The commands of the runs a resumed run continues (from its stem's JSON; [] if none)."""
+    old_json = Path(str(stem) + ".json")
+    if not old_json.is_file():
+        return []
+    try:
+        old = json.loads(old_json.read_text())
+        return list(old.get("history") or [old.get("command")])
+    except (OSError, ValueError):
+        return []
+
+
+def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
+          eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
+          command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
+          log=print, trusted=False):
+    """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
+    (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
+    written into the package: ``install_policy`` does that).
+
+    All arguments are checked (a ValueError names the one at fault: ``n_envs``, a bad
+    ``env_kwargs`` entry, a hyperparameter) before any work. Work directory ``<stem>.run/``
+    keeps the Monitor logs, the checkpoints (every ``checkpoint_freq`` steps, with their
+    VecNormalize statistics) and the best model of the evaluation callback. Ctrl-C saves a
+    checkpoint before leaving; ``resume=True`` continues from the newest checkpoint to the same
+    total ``timesteps``. ``init_from``: a policy stem of the same algorithm (and observation
+    space) whose weights and normalisation statistics start the training (a name of
+    ``available_policies()`` or a path; outside the package an ``UntrustedPolicyWarning`` unless
+    ``trusted``) (fine-tuning: a policy trained on the true attitude adapted to an estimator, or
+    a track policy as the start of a waypoints one); ``timesteps`` then counts the new steps
+    only. ``init_from="pid"`` starts from a behaviour clone of the PID controller
+    (``clone_teacher``, ``bc_steps`` teacher steps; for SAC they also fill the replay buffer).
+    The starting policy (clone or ``init_from``) is evaluated first and kept as the best model
+    unless training beats it. ``hyperparams_override``: a dict replacing entries of the YAML
+    file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
+    """
+    import torch
+    torch.set_num_threads(1)
+    import fusion
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    _check_choice("algorithm", algo, ALGOS)
+    _check_choice("task", task, tuple(TASK_IDS))
+    _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
+    hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
+    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
+    timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
+                                        default_envs if n_envs is None else n_envs,
+                                        eval_freq, checkpoint_freq, eval_episodes)
+    normalize = hp.pop("normalize", True)
+    policy = hp.pop("policy", "MlpPolicy")
+    env_kwargs = _checked_env_kwargs(task, estimator, env_kwargs)
+    stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
+    run_dir = Path(str(stem) + ".run")
+    ckpt_dir = run_dir / "checkpoints"
+    eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
+    checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
+
+    start_ckpt = None
+    _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log)
     init = None
     clone = init_from == TEACHER and not resume
     if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
         raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
     if init_from is not None and init_from != TEACHER and not resume:
-        _, init_zip, init_json, init_vn = _resolve(init_from)
-        if not init_zip.is_file():
-            raise FileNotFoundError(f"init_from: policy file {init_zip} does not exist")
-        if not trusted and not _in_package(init_zip):
-            warnings.warn(f"init_from: {init_zip} is outside the package: model files can be crafted to run code; "
-                          f"it is read with pickled entries refused, but start only from files you trust "
-                          f"(trusted=True, --trusted, silences this)", UntrustedPolicyWarning, stacklevel=2)
-        init_meta = json.loads(init_json.read_text()) if init_json.is_file() else {}
-        if init_meta.get("algo", algo) != algo:
-            raise ValueError(f"init_from: {init_zip} is a {init_meta.get('algo')} policy; this run trains {algo}")
-        if init_meta.get("task", task) != task:
-            # allowed (same observation and action spaces): the last four observations mean
-            # "the angle to steer to" in both tasks, so a track policy is a head start
-            log(f"init_from: {init_zip} was trained for task {init_meta.get('task')!r}; fine-tuning it for {task!r}")
-        init = (init_zip, init_vn)
+        init = _init_source(init_from, algo, task, trusted, log)
     run_dir.mkdir(parents=True, exist_ok=True)
 
     venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
                         append=resume)
     eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
-    cls = _algo_class(algo)
     extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
     try:
         if resume:
-            # the newest checkpoint that loads: a truncated or corrupt one (the machine died
-            # while it was written by an older version) falls back to the one before, with a warning
-            raw_venv = venv
-            for ckpt in _checkpoints(ckpt_dir):
-                try:
-                    venv = vec_normalize(load_normalization(_checkpoint_stats(ckpt)), raw_venv, True) \
-                        if normalize else raw_venv
-                    model = load_model(ckpt, env=venv, algo=algo, extra=extra)
-                    start_ckpt = ckpt
-                    break
-                except PolicyError as e:
-                    warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
-                                  RuntimeWarning, stacklevel=2)
-                    log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
-            if start_ckpt is None:
-                raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
-            log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
-        elif init is not None:
-            if normalize:
-                venv = vec_normalize(load_normalization(init[1]), venv, True)
-            model = load_model(init[0], env=venv, algo=algo, extra=extra)
-            model.set_random_seed(seed)
-            model.num_timesteps = 0
-            log(f"starting from the weights of {init[0]}")
+            venv, model, start_ckpt = _resume_newest(venv, ckpt_dir, normalize, algo, extra, log)
         else:
-            if normalize:
-                venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=hp.get("gamma", 0.99))
-            model = cls(policy, venv, seed=seed, device="cpu", verbose=0, **hp)
+            venv, model = _new_model(venv, init, algo, policy, hp, normalize, extra, seed, log)
         if normalize:
             eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
         bc_collected = 0
         if clone:
-            from controllers.pid import PID
             if not normalize:
                 raise ValueError(f"init_from={TEACHER!r} needs normalize: true in the hyperparameters")
-            # the teacher runs at the training environments' control rate (env_kwargs may set it)
-            teacher = PID.for_env(eval_env.venv.envs[0])
-            bc_collected = clone_teacher(model, venv, teacher, bc_steps, seed=seed, progress=progress, log=log)
+            bc_collected = _clone_pid(model, venv, eval_env, bc_steps, seed, progress, log)
             if "learning_starts" in used_hp:
                 used_hp["learning_starts"] = model.learning_starts     # the JSON says what ran
 
-        class SaveBestStats(BaseCallback):
-            # beside the best model: its normalisation statistics and its score, so that a
-            # resumed run only replaces it with a better one
-            def _on_step(self):
-                save_best(float(self.parent.best_mean_reward))
-                return True
-
-        def save_best(mean_reward):
-            # model, statistics, then the score that names them the best: each file atomic
-            save_model(model, run_dir / "best_model.zip")
-            if normalize:
-                save_normalization(model.get_vec_normalize_env(), run_dir / "best_vecnormalize.npz")
-            atomic_write(run_dir / "best.json", lambda f: f.write(json.dumps(
-                {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps)}).encode()))
-
-        class Checkpoint(BaseCallback):
-            def _on_step(self):
-                if self.n_calls % checkpoint_freq == 0:
-                    save_checkpoint()
-                return True
-
-        ckpt = Checkpoint()
-        class TimedEval(EvalCallback):
-            # the evaluation episodes run inside learn(): time them apart from training
-            eval_time = 0.0
-
-            def _on_step(self):
-                t = time.perf_counter()
-                ok = super()._on_step()
-                TimedEval.eval_time += time.perf_counter() - t
-                return ok
-
-        ev = TimedEval(eval_env, callback_on_new_best=SaveBestStats(), n_eval_episodes=eval_episodes,
-                          eval_freq=eval_freq, best_model_save_path=None, log_path=str(run_dir),
-                          deterministic=True, verbose=0)
+        saver = _RunFiles(model, run_dir, ckpt_dir, normalize)
+        ckpt, ev = _callbacks(saver, eval_env, eval_freq, checkpoint_freq, eval_episodes)
         best_json = run_dir / "best.json"
         if start_ckpt is not None and best_json.is_file() and (run_dir / "best_model.zip").is_file():
             ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
-
-        def save_checkpoint():
-            # statistics first, then the zip: a checkpoint is listed only once both are whole
-            ckpt_dir.mkdir(parents=True, exist_ok=True)
-            path = ckpt_dir / f"ckpt_{model.num_timesteps}_steps.zip"
-            if normalize:
-                save_normalization(model.get_vec_normalize_env(), _checkpoint_stats(path))
-            save_model(model, path)
-            return path
-
         if clone or init is not None:
-            # the starting policy is the first candidate for the best model: training must beat it
-            from stable_baselines3.common.evaluation import evaluate_policy
-            eval_env.obs_rms = venv.obs_rms
-            mean_reward, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
-            save_best(float(mean_reward))
-            ev.best_mean_reward = float(mean_reward)
-            log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+            _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log)
 
-        remaining = timesteps - model.num_timesteps
-        t0, steps0 = time.perf_counter(), model.num_timesteps
-        try:
-            if remaining > 0:
-                model.learn(remaining, callback=CallbackList([ckpt, ev]), reset_num_timesteps=start_ckpt is None and init is None,
-                            progress_bar=progress)
-        except KeyboardInterrupt:
-            path = save_checkpoint()
-            log(f"\ninterrupted at {model.num_timesteps} steps: checkpoint saved to {path}; "
-                f"continue with --resume")
-            raise
-        wall = time.perf_counter() - t0
-        done = model.num_timesteps - steps0
-        rate = done / wall if wall > 0 else float("nan")
-        train_wall = wall - TimedEval.eval_time
-        train_rate = done / train_wall if train_wall > 0 else float("nan")
-        log(f"trained {done} steps in {wall:.0f} s: {train_rate:.0f} environment steps/s of training "
-            f"({n_envs} envs; {rate:.0f}/s including {TimedEval.eval_time:.0f} s of evaluation episodes)")
-        save_checkpoint()
-        best = run_dir / "best_model.zip"
-        if not best.exists():          # no evaluation ran (very short run): ship the last model
-            save_model(model, best)
-            if normalize:
-                save_normalization(model.get_vec_normalize_env(), run_dir / "best_vecnormalize.npz")
+        wall, rate, train_rate = _learn(saver, timesteps, CallbackList([ckpt, ev]), ev,
+                                        start_ckpt is None and init is None, progress, n_envs, log)
+        saver.save_checkpoint()
+        saver.ensure_best()
     finally:
         venv.close()
         eval_env.close()
 
     stem.parent.mkdir(parents=True, exist_ok=True)
-    _copy(best, str(stem) + ".zip")
+    _copy(run_dir / "best_model.zip", str(stem) + ".zip")
     if normalize:
         _copy(run_dir / "best_vecnormalize.npz", str(stem) + NORM_SUFFIX)
-    from envs.sphere import OBS_NAMES
-    # a resumed run keeps the commands of the runs it continues
-    history = []
-    old_json = Path(str(stem) + ".json")
-    if start_ckpt is not None and old_json.is_file():
-        try:
-            old = json.loads(old_json.read_text())
-            history = list(old.get("history") or [old.get("command")])
-        except (OSError, ValueError):
-            history = []
-    meta = {"command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator, "env_id": TASK_IDS[task],
-            "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
-            "hyperparams": used_hp, "normalize": normalize,
-            "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
-                          else None if init is None else str(Path(init[0]).name)),
-            "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
-            "eval_time_s": round(TimedEval.eval_time, 1), "obs_size": len(OBS_NAMES),
-            "best_eval": json.loads(best_json.read_text()) if best_json.is_file() else None,
-            "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
-    atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+    history = _history(stem) if start_ckpt is not None else []
+    _write_run_json(stem, best_json, {
+        "command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator,
+        "env_id": TASK_IDS[task], "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
+        "hyperparams": used_hp, "normalize": normalize,
+        "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
+                      else None if init is None else str(Path(init[0]).name)),
+        "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
+        "eval_time_s": round(ev.eval_time, 1)})
     return stem
 
 
@@ -644,7 +757,7 @@ def _check_env_kwargs(task, estimator, env_kwargs):
     env.close()
 
 
-def install_policy(stem, name=None):
+def install_policy(stem: str | os.PathLike, name: str | None = None) -> Path:
     """Copy the policy ``stem`` (``.zip``, statistics, ``.json``) into the package's policies
     (``POLICY_DIR``) as ``name`` (default: the stem's name), each file atomically; returns the
     installed stem."""
@@ -687,7 +800,7 @@ class PolicyController(Controller):
         return a[0] if single else a
 
 
-def _resolve(path):
+def _resolve(path: Any) -> tuple[Path, Path, Path, Path]:
     """(stem, zip, json, statistics) of a policy: a name of ``available_policies()`` (the
     package's, from any folder) or a path to the stem or the ``.zip``."""
     if path is None or isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
@@ -710,7 +823,7 @@ def _in_package(path):
         return False
 
 
-def load_policy(path, env=None, trusted=False):
+def load_policy(path: str | os.PathLike, env: Any = None, trusted: bool = False) -> PolicyController:
     """Load a policy: ``path`` a name of ``available_policies()`` (shipped in the package) or
     the path of a stem or ``.zip`` saved by ``train``. With ``env``, also check that the policy
     was trained for its task and observation space.
@@ -723,7 +836,8 @@ def load_policy(path, env=None, trusted=False):
     torch.set_num_threads(1)
     stem, zip_path, json_path, vn_path = _resolve(path)
     if not zip_path.is_file():
-        hint = f"; shipped policies: {', '.join(available_policies())}" if Path(os.fspath(path)).name == os.fspath(path) else ""
+        bare = Path(os.fspath(path)).name == os.fspath(path)
+        hint = f"; shipped policies: {', '.join(available_policies())}" if bare else ""
         raise PolicyError(f"policy file {zip_path} does not exist{hint}")
     if not isinstance(trusted, bool):
         raise ValueError(f"trusted must be True or False, got {trusted!r}")

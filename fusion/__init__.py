@@ -7,6 +7,8 @@
 Conventions (docs/estimators.md): Hamilton quaternions, scalar first, rotating body vectors
 into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI units.
 """
+from typing import Any
+
 from fusion._version import __version__
 from fusion._core import Estimator
 from fusion._gyro import Gyro
@@ -19,18 +21,18 @@ from fusion._aekf import AEKF
 from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
-__all__ = ["__version__", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF",
-           "Butterworth", "SlidingMean"]
+__all__ = ["__version__", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF",
+           "Madgwick", "UKF", "CFEKF", "AEKF", "Butterworth", "SlidingMean"]
 
 _REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
 
 
-def available():
+def available() -> list[str]:
     """Names accepted by make(), in a stable order."""
     return list(_REGISTRY)
 
 
-def make(name, fs, frame="ENU", on_invalid="raise", **params):
+def make(name: str, fs: float, frame: str = "ENU", on_invalid: str = "raise", **params: Any) -> Estimator:
     """Build the estimator called `name` for sample rate `fs` (Hz).
 
     frame: "ENU" (default) or "NED", the navigation frame of quaternions in and out.

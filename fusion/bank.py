@@ -11,7 +11,11 @@ of count separate estimators, bit for bit. The kernels keep their state per obje
 (not yet the structure-of-arrays layout a vectorising compiler would want): the bank is an
 array of pointers to count kernels.
 """
+from __future__ import annotations
+
 import numbers
+from typing import Any
+
 import numpy as np
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
@@ -33,7 +37,8 @@ def _check_count(count):
     return int(count)
 
 
-def make_bank(name, fs, count, frame="ENU", on_invalid="raise", **params):
+def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: str = "raise",
+              **params: Any) -> Bank:
     """count independent estimators `name` at sample rate fs (Hz), as fusion.Bank.
 
     A parameter given as a sequence of length count gives each filter its own value; any

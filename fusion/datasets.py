@@ -16,7 +16,6 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 
@@ -44,34 +43,34 @@ class Trial:
     t: np.ndarray
     gyr: np.ndarray
     acc: np.ndarray
-    mag: Optional[np.ndarray]
+    mag: np.ndarray | None
     quat: np.ndarray
     fs: float
     quality: str
     notes: str
     dt: np.ndarray
-    path: Optional[Path] = None
+    path: Path | None = None
     extra: dict = field(default_factory=dict)
 
     @property
-    def ok(self):
+    def ok(self) -> bool:
         """True when the trial may be scored (``quality == 'ok'``)."""
         return self.quality.strip().lower() == "ok"
 
     @property
-    def has_mag(self):
+    def has_mag(self) -> bool:
         return self.mag is not None
 
     @property
-    def n(self):
+    def n(self) -> int:
         return self.t.shape[0]
 
     @property
-    def duration(self):
+    def duration(self) -> float:
         return float(self.t[-1] - self.t[0]) if self.n else 0.0
 
     @property
-    def key(self):
+    def key(self) -> str:
         """``"<set>/<name>"``, unique within a data folder."""
         return f"{self.set}/{self.name}"
 
@@ -124,7 +123,7 @@ def _rows(d, n, cols, key, path):
     return arr
 
 
-def load_trial(path):
+def load_trial(path: str | os.PathLike) -> Trial:
     """Read one ``.npz`` trial into a ``Trial``. FileNotFoundError for a missing file;
     ValueError naming the file, the key and what it must hold for a missing key, a bad shape
     or a non-numeric array, and for a file numpy cannot read as ``.npz``."""
@@ -171,7 +170,8 @@ def load_trial(path):
                  fs=fs, quality=quality, notes=notes, dt=dt, path=path, extra=extra)
 
 
-def load_folder(folder, only_ok=False, unreadable=None):
+def load_folder(folder: str | os.PathLike, only_ok: bool = False,
+                unreadable: list[tuple[str, str]] | None = None) -> list[Trial]:
     """Every ``*.npz`` trial in ``folder`` and its sub-folders (a set folder, or the data root
     with one sub-folder per set), sorted by set and name. ``only_ok`` drops trials whose
     quality is not 'ok'. ValueError with the path when ``folder`` does not exist or is not a
@@ -194,7 +194,7 @@ def load_folder(folder, only_ok=False, unreadable=None):
     return [tr for tr in trials if tr.ok] if only_ok else trials
 
 
-def default_data_dir():
+def default_data_dir() -> Path | None:
     """The recorded-data folder: ``$FUSION_DATA_DIR`` if set, else ``../shared/data`` beside the
     repository root (``Path(__file__).resolve().parents[2] / "shared" / "data"``). None when
     that folder does not exist (e.g. for an installed package without the data)."""

@@ -1,5 +1,6 @@
-"""``spherebot-estimators`` (``scripts/compare_estimators.py``): score every estimator (default parameters) on the built-in synthetic scenarios and on the
-recorded trials of the data folder; write Markdown + CSV tables and PNG figures.
+"""``spherebot-estimators`` (``scripts/compare_estimators.py``): score every estimator (default
+parameters) on the built-in synthetic scenarios and on the recorded trials of the data folder;
+write Markdown + CSV tables and PNG figures.
 
     spherebot-estimators [--out results/compare] [--data DIR] [--estimators gyro ekf ...] [--quick]
 
@@ -54,27 +55,14 @@ def parse_args(argv=None):
                    help="short scenarios and the first 2 'ok' trials per set (a smoke run)")
     p.add_argument("--plot-trial", default=None, metavar="SET/TRIAL",
                    help="recorded trial for the error figure (default: the first scored one with a magnetometer)")
-    p.add_argument("--seed", type=_seed, default=0, help="synthetic scenario seed, an integer >= 0 (default: %(default)s)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="synthetic scenario seed, an integer >= 0 (default: %(default)s)")
     return p.parse_args(argv)
 
 
-def main(argv=None):
-    args = parse_args(argv)
-    t_start = time.perf_counter()
-    names = [n for arg in (fusion.available() if args.estimators is None else args.estimators)
-             for n in arg.split(",") if n]
-    if not names:
-        sys.exit(f"error: --estimators names no estimator; available: {fusion.available()}")
-    unknown = [n for n in names if n not in fusion.available()]
-    if unknown:
-        sys.exit(f"error: unknown estimator(s) {unknown}; available: {fusion.available()}")
-    out = Path(args.out)
-    problem = _writable(out)
-    if problem:
-        sys.exit(f"error: {problem}")
+def _synthetic(names, args, out):
+    """Score ``names`` on the synthetic scenarios: (score rows, Euler rows, files written)."""
     written = []
-
-    # --- synthetic scenarios -------------------------------------------------------------
     durations = {"static": 30.0, "mixed": 20.0} if args.quick else {"static": 150.0, "mixed": 60.0}
     syn_scores, syn_euler, syn_curves = [], [], {}
     for sname, dur in durations.items():
@@ -91,12 +79,17 @@ def main(argv=None):
                                    digits=4, title="Synthetic scenarios: Euler-angle errors (deg), as the seed papers")
     sc, curves = syn_curves["mixed"]
     written.append(compare.plot_errors(
-        {f"9-axis (gyro + acc + mag)": curves["9-axis"],
-         f"6-axis (gyro + acc), one heading offset removed": curves["6-axis"]},
+        {"9-axis (gyro + acc + mag)": curves["9-axis"],
+         "6-axis (gyro + acc), one heading offset removed": curves["6-axis"]},
         out / "synthetic_mixed_error.png", t=sc.t,
         title=f"Synthetic 'mixed' scenario (seed {args.seed}, {sc.fs:g} Hz, {sc.t[-1] + sc.dt[0]:g} s): total error"))
+    return syn_scores, syn_euler, written
 
-    # --- recorded trials -----------------------------------------------------------------
+
+def _recorded(names, args, out):
+    """Score ``names`` on the recorded trials (if the data folder is there): (aggregate rows,
+    skipped (key, reason), files written)."""
+    written = []
     data_dir = Path(args.data) if args.data else datasets.default_data_dir()
     trial_rows, agg_rows, skipped = [], [], []
     if data_dir is None or not data_dir.is_dir():
@@ -125,7 +118,8 @@ def main(argv=None):
         agg_rows = compare.aggregate(trial_rows)
         written += compare.write_table(trial_rows, out / "trials",
                                        ["set", "trial", "mode", "estimator", "n"] + ERR_COLS + ["heading_offset"],
-                                       title="Recorded trials: RMSE (deg) per trial (6-axis: heading offset removed, deg)")
+                                       title="Recorded trials: RMSE (deg) per trial "
+                                             "(6-axis: heading offset removed, deg)")
         written += compare.write_table(agg_rows, out / "trials_aggregate",
                                        ["set", "mode", "estimator", "n_trials"] + ERR_COLS,
                                        title="Recorded trials: mean RMSE over trials (deg)")
@@ -134,8 +128,11 @@ def main(argv=None):
                       for m, c in tcurves[plot_key].items()}
             written.append(compare.plot_errors(panels, out / f"trial_{plot_key.replace('/', '_')}_error.png",
                                                title=f"Recorded trial {plot_key}: total error"))
+    return agg_rows, skipped, written
 
-    # --- report --------------------------------------------------------------------------
+
+def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
+    """report.md (appended to ``written``); returns the two summary tables (Markdown)."""
     syn_md = compare.markdown_table(syn_scores, ["scenario", "mode", "estimator"] + ERR_COLS)
     agg_md = compare.markdown_table(agg_rows, ["set", "mode", "estimator", "n_trials"] + ERR_COLS) \
         if agg_rows else "(recorded data not found: skipped)\n"
@@ -144,7 +141,8 @@ def main(argv=None):
              "constant heading offset per run removed (least squares) before scoring.\n",
              "## Synthetic scenarios (RMSE)\n", syn_md,
              "## Synthetic scenarios: Euler-angle errors (seed papers' table)\n",
-             compare.markdown_table(syn_euler, ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
+             compare.markdown_table(syn_euler,
+                                    ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
              "## Recorded trials: mean RMSE over trials\n", agg_md]
     if agg_rows:
         parts += ["Reference (../shared/data/README.md, VQF online, default parameters; VQF takes one "
@@ -157,6 +155,27 @@ def main(argv=None):
     report = out / "report.md"
     report.write_text("\n".join(parts))
     written.append(report)
+    return syn_md, agg_md
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    names = [n for arg in (fusion.available() if args.estimators is None else args.estimators)
+             for n in arg.split(",") if n]
+    if not names:
+        sys.exit(f"error: --estimators names no estimator; available: {fusion.available()}")
+    unknown = [n for n in names if n not in fusion.available()]
+    if unknown:
+        sys.exit(f"error: unknown estimator(s) {unknown}; available: {fusion.available()}")
+    out = Path(args.out)
+    problem = _writable(out)
+    if problem:
+        sys.exit(f"error: {problem}")
+    syn_scores, syn_euler, written = _synthetic(names, args, out)
+    agg_rows, skipped, more = _recorded(names, args, out)
+    written += more
+    syn_md, agg_md = _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out)
 
     print("\nSynthetic scenarios, RMSE (deg):\n" + syn_md)
     print("Recorded trials, mean RMSE over trials (deg):\n" + agg_md)

@@ -9,9 +9,13 @@
 
 Rows whose reference quaternion is not finite (a lost reference) are ignored everywhere.
 """
+from typing import Literal, overload
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from fusion import quat
+from fusion.quat import Array
 
 __all__ = ["ANGLES", "euler_errors", "euler_table", "attitude_errors", "heading_offset",
            "remove_heading_offset", "score", "rmse", "spectrum"]
@@ -45,7 +49,7 @@ def _wrap_deg(a):
     return (a + 180.0) % 360.0 - 180.0
 
 
-def euler_errors(q_est, q_true):
+def euler_errors(q_est: ArrayLike, q_true: ArrayLike) -> Array:
     """ZYX Euler-angle differences est - true in degrees, wrapped to [-180, 180), shape (M, 3)
     with columns (yaw, pitch, roll); rows with a non-finite reference dropped."""
     a, b = _pair(q_est, q_true, ("q_est", "q_true"))
@@ -54,7 +58,7 @@ def euler_errors(q_est, q_true):
     return _wrap_deg(d)
 
 
-def euler_table(q_est, q_true):
+def euler_table(q_est: ArrayLike, q_true: ArrayLike) -> dict[str, dict[str, float]]:
     """The seed papers' table: ``{angle: {"mean", "std", "MAE", "RMSE"}}`` in degrees for
     angle in ("yaw", "pitch", "roll"), over the rows with a finite reference.
 
@@ -74,7 +78,7 @@ def _error_quaternion(q_est, q_ref):
     return quat.mul(quat.normalise(a), quat.conj(quat.normalise(b)))
 
 
-def attitude_errors(q_est, q_ref):
+def attitude_errors(q_est: ArrayLike, q_ref: ArrayLike) -> dict[str, Array]:
     """Per-sample errors in degrees, as ../shared/data/README.md scores: with the earth-frame
     error ``e = q_est ⊗ conj(q_ref)`` (both normalised),
 
@@ -95,7 +99,7 @@ def attitude_errors(q_est, q_ref):
             "inclination": np.degrees(2 * np.arctan2(np.hypot(x, y), np.hypot(w, z)))}
 
 
-def heading_offset(q_est, q_ref):
+def heading_offset(q_est: ArrayLike, q_ref: ArrayLike) -> float:
     """The one constant heading offset ``psi`` (rad, in (-pi, pi]) with
     ``q_est ≈ q_z(psi) ⊗ q_ref``, ``q_z`` a rotation about the earth z axis.
 
@@ -118,7 +122,14 @@ def heading_offset(q_est, q_ref):
     return float(2 * np.arctan2(s, c))
 
 
-def remove_heading_offset(q_est, q_ref, return_offset=False):
+@overload
+def remove_heading_offset(q_est: ArrayLike, q_ref: ArrayLike, return_offset: Literal[False] = ...) -> Array: ...
+@overload
+def remove_heading_offset(q_est: ArrayLike, q_ref: ArrayLike, return_offset: Literal[True]) -> tuple[Array, float]: ...
+
+
+def remove_heading_offset(q_est: ArrayLike, q_ref: ArrayLike,
+                          return_offset: bool = False) -> Array | tuple[Array, float]:
     """``q_z(-psi) ⊗ q_est`` with ``psi = heading_offset(q_est, q_ref)``: the estimate turned
     about the earth z axis by the one constant heading offset per trial that fits best (see
     ``heading_offset``). For scoring 6-axis estimators. With ``return_offset`` also ``psi``
@@ -130,27 +141,25 @@ def remove_heading_offset(q_est, q_ref, return_offset=False):
     return (out, psi) if return_offset else out
 
 
-def rmse(x):
+def rmse(x: ArrayLike) -> float:
     """Root mean square over the finite entries (NaN if none)."""
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+    a = np.asarray(x, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
 
 
-def score(q_est, q_ref, six_axis=False):
+def score(q_est: ArrayLike, q_ref: ArrayLike, six_axis: bool = False) -> dict[str, float]:
     """RMSE in degrees of the total, heading and inclination errors over the rows with a
     finite reference: ``{"total", "heading", "inclination"}``. With ``six_axis=True`` one
     constant heading offset is removed first (``remove_heading_offset``), as
     ../shared/data/README.md asks for estimators without a magnetometer."""
-    if six_axis:
-        q_est = remove_heading_offset(q_est, q_ref)
-    err = attitude_errors(q_est, q_ref)
+    err = attitude_errors(remove_heading_offset(q_est, q_ref) if six_axis else q_est, q_ref)
     if not np.isfinite(err["total"]).any():
         raise ValueError("no rows with a finite reference quaternion to score")
     return {k: rmse(v) for k, v in err.items()}
 
 
-def spectrum(signal, fs, detrend=True):
+def spectrum(signal: ArrayLike, fs: float, detrend: bool = True) -> tuple[NDArray[np.floating], NDArray[np.floating]]:
     """One-sided amplitude spectrum along axis 0: ``(freqs (M,), amplitude (M, ...))`` with
     ``M = N//2 + 1``, ``freqs`` in Hz, via ``numpy.fft.rfft``.
 

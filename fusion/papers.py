@@ -28,6 +28,7 @@ import numpy as np
 
 import fusion
 from fusion import compare, imu, metrics, quat, scenarios
+from fusion.constants import GRAVITY
 
 __all__ = ["SECTIONS", "PAPER", "SEEDS", "QUICK_SEEDS", "reproduce", "run_section"]
 
@@ -134,7 +135,8 @@ def _section_000(seeds, out, tick):
     names = ("mahony", "ekf")
     case, diag = "seed000-static", "seed000-static (no gyro turn-on bias)"
     runs, keep = _euler_runs([(case, False), (case, True)], names, seeds, tick, "mpu6050+mag3110")
-    get = lambda c, n, a, k: [r[k] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a]
+    def get(c, n, a, k):
+        return [r[k] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a]
     table, lines = [], []
     for a in ORDER:
         for i, k in enumerate(metrics.STATS):
@@ -170,7 +172,8 @@ def _section_000(seeds, out, tick):
           "errors in degrees against the truth, the paper's against its 0° ideal; ours mean ± std over "
           "seeds. The last two columns are a diagnosis, not the experiment: the same scenario with the "
           "gyro's turn-on bias residual set to 0.\n",
-          "| angle | stat | paper CF | ours `mahony` | paper EKF | ours `ekf` | `mahony`, no gyro bias | `ekf`, no gyro bias |",
+          "| angle | stat | paper CF | ours `mahony` | paper EKF | ours `ekf` "
+          "| `mahony`, no gyro bias | `ekf`, no gyro bias |",
           "|---|---|---:|---:|---:|---:|---:|---:|", *lines, "",
           "Verdicts (paired over seeds):\n", *verdicts, "",
           "Why our means are larger than the paper's: the calibrated MPU-6050 keeps a 2 % "
@@ -190,9 +193,13 @@ def _section_000(seeds, out, tick):
 
 # --- 001 -----------------------------------------------------------------------------------
 
-def _section_001(seeds, out, tick):
-    names = ("ekf", "aekf")
-    cases = ("seed001-slow", "seed001-fast", "seed001-faster")
+def _frac(x, m):
+    """Fraction of the samples in mask ``m`` where ``x`` holds (NaN for an empty mask)."""
+    return float(x[m].mean()) if m.any() else math.nan
+
+
+def _runs_001(cases, names, seeds, tick):
+    """(Euler rows, switching rows, the first seed001-faster run kept for the figure)."""
     runs, sw = [], []
     keep = None
     for case in cases:
@@ -204,14 +211,22 @@ def _section_001(seeds, out, tick):
                 for ang, st in metrics.euler_table(qs[n], s.q_true).items():
                     runs.append(dict(scenario=case, seed=seed, estimator=n, angle=ang, RMSE=st["RMSE"]))
             acc_rej, mag_rej = (dec & 1) > 0, (dec & 2) > 0
-            frac = lambda x, m: float(x[m].mean()) if m.any() else math.nan
             sw.append(dict(scenario=case, seed=seed,
-                           acc_rej_in=frac(acc_rej, s.acc_disturbed), acc_rej_out=frac(acc_rej, ~s.acc_disturbed),
-                           mag_rej_in=frac(mag_rej, s.mag_disturbed), mag_rej_out=frac(mag_rej, ~s.mag_disturbed)))
+                           acc_rej_in=_frac(acc_rej, s.acc_disturbed), acc_rej_out=_frac(acc_rej, ~s.acc_disturbed),
+                           mag_rej_in=_frac(mag_rej, s.mag_disturbed), mag_rej_out=_frac(mag_rej, ~s.mag_disturbed)))
             if case == "seed001-faster" and keep is None:
                 keep = (s, qs, dec)
             tick()
-    get = lambda c, n, a: [r["RMSE"] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a]
+    return runs, sw, keep
+
+
+def _section_001(seeds, out, tick):
+    names = ("ekf", "aekf")
+    cases = ("seed001-slow", "seed001-fast", "seed001-faster")
+    runs, sw, keep = _runs_001(cases, names, seeds, tick)
+
+    def get(c, n, a):
+        return [r["RMSE"] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a]
     table, lines, verdicts = [], [], []
     for c in cases:
         for a in ("yaw", "pitch", "roll"):
@@ -226,12 +241,14 @@ def _section_001(seeds, out, tick):
             if c != "seed001-slow":
                 verdicts.append(f"- {c} {a}: " + _verdict(e - ae, "aekf below ekf"))
     sw_lines = []
+
+    def cell(rs, k):
+        col = [100 * r[k] for r in rs if not math.isnan(r[k])]
+        return _pm(col, 1) if col else "(none disturbed)"
     for c in cases:
         rs = [r for r in sw if r["scenario"] == c]
-        col = lambda k: [100 * r[k] for r in rs if not math.isnan(r[k])]
-        cell = lambda k: _pm(col(k), 1) if col(k) else "(none disturbed)"
-        sw_lines.append(f"| {c} | {cell('acc_rej_in')} | {cell('acc_rej_out')} | "
-                        f"{cell('mag_rej_in')} | {cell('mag_rej_out')} |")
+        sw_lines.append(f"| {c} | {cell(rs, 'acc_rej_in')} | {cell(rs, 'acc_rej_out')} | "
+                        f"{cell(rs, 'mag_rej_in')} | {cell(rs, 'mag_rej_out')} |")
     fig_path = _plot_switching(*keep, out / "seed001_switching.png")
     md = [f"## {SECTIONS['001']}\n",
           f"Scenarios `seed001-slow`, `-fast`, `-faster` ({scenarios.SEED_SCENARIOS['seed001-fast']}); "
@@ -242,7 +259,8 @@ def _section_001(seeds, out, tick):
           "|---|---|---:|---:|---:|---:|---:|", *lines, "",
           "How the aekf switches (percentage of samples whose variance was raised): inside / outside "
           "the true disturbances (|a_lin| > 0.5 m/s²; magnet field > 5 % of the earth field).\n",
-          "| scenario | acc rejected, disturbed | acc rejected, quiet | mag rejected, disturbed | mag rejected, quiet |",
+          "| scenario | acc rejected, disturbed | acc rejected, quiet "
+          "| mag rejected, disturbed | mag rejected, quiet |",
           "|---|---:|---:|---:|---:|", *sw_lines, "",
           "Verdicts (paired over seeds):\n", *verdicts, "",
           "Our absolute errors are smaller than the paper's: our reference is the simulation's exact "
@@ -256,10 +274,11 @@ def _section_001(seeds, out, tick):
 def _plot_switching(s, qs, dec, path):
     fig, axes = _subplots(4, 1, figsize=(10, 10), sharex=True)
     t = s.t
-    shade = lambda ax, mask, color, label: ax.fill_between(t, 0, 1, where=mask, color=color, alpha=0.25,
-                                                            transform=ax.get_xaxis_transform(), label=label)
+    def shade(ax, mask, color, label):
+        return ax.fill_between(t, 0, 1, where=mask, color=color, alpha=0.25,
+                               transform=ax.get_xaxis_transform(), label=label)
     ax = axes[0]
-    ax.plot(t, np.linalg.norm(s.acc, axis=1) - scenarios.G, lw=0.7, label="|a| - g (m/s²)")
+    ax.plot(t, np.linalg.norm(s.acc, axis=1) - GRAVITY, lw=0.7, label="|a| - g (m/s²)")
     ax.plot(t, np.linalg.norm(s.a_lin, axis=1), lw=0.7, label="|true linear acceleration| (m/s²)")
     shade(ax, s.acc_disturbed, "tab:red", "acc disturbed (truth)")
     ax.set_ylabel("m/s²")
@@ -293,9 +312,9 @@ def _plot_switching(s, qs, dec, path):
 
 # --- 003 -----------------------------------------------------------------------------------
 
-def _section_003(seeds, out, tick):
-    names = ("ekf", "ukf", "iir-ekf")
-    cases = ("static", "dynamic", "vibration")
+def _runs_003(cases, names, seeds, tick):
+    """(roll-error rows, per vibration seed the share of accelerometer tones aliased below the
+    IIR-EKF's cut-off, the first vibration run kept for the figure)."""
     runs, alias_share, keep = [], [], None
     for case in cases:
         for seed in seeds:
@@ -311,7 +330,16 @@ def _section_003(seeds, out, tick):
                 if keep is None:
                     keep = (s, qs)
             tick()
-    get = lambda c, n, k: np.array([r[k] for r in runs if r["case"] == c and r["estimator"] == n])
+    return runs, alias_share, keep
+
+
+def _section_003(seeds, out, tick):
+    names = ("ekf", "ukf", "iir-ekf")
+    cases = ("static", "dynamic", "vibration")
+    runs, alias_share, keep = _runs_003(cases, names, seeds, tick)
+
+    def get(c, n, k):
+        return np.array([r[k] for r in runs if r["case"] == c and r["estimator"] == n])
     table, lines, verdicts = [], [], []
     for c in cases:
         p = PAPER["003"][c]
@@ -389,7 +417,9 @@ def _section_004(seeds, out, tick):
     cases = [("seed004-static", False), ("seed004-fast", False), ("seed004-static", True)]
     runs, keep = _euler_runs(cases, names, seeds, tick, "mpu9250")
     labels = list(dict.fromkeys(r["scenario"] for r in runs))
-    get = lambda c, n, a, k: np.array([r[k] for r in runs if r["scenario"] == c and r["estimator"] == n and r["angle"] == a])
+    def get(c, n, a, k):
+        return np.array([r[k] for r in runs
+                         if r["scenario"] == c and r["estimator"] == n and r["angle"] == a])
     table, lines, verdicts = [], [], []
     for c in labels:
         for a in ORDER:
@@ -411,7 +441,8 @@ def _section_004(seeds, out, tick):
           "accuracy improves by 71 % (roll), 74 % (pitch), 66 % (yaw) over a plain EKF; it does not say "
           "which statistic. The last block is a diagnosis, not the experiment: the same static scenario "
           "with the gyro's turn-on bias residual set to 0.\n",
-          "| scenario | angle | `ekf` RMSE | `cf-ekf` RMSE | improvement | `ekf` std | `cf-ekf` std | improvement | claimed |",
+          "| scenario | angle | `ekf` RMSE | `cf-ekf` RMSE | improvement "
+          "| `ekf` std | `cf-ekf` std | improvement | claimed |",
           "|---|---|---:|---:|---:|---:|---:|---:|---:|", *lines, "",
           "Verdicts on RMSE (paired over seeds):\n", *verdicts, "",
           "Why: the cf-ekf's measurement is the complementary filter's quaternion, followed with a time "
@@ -491,7 +522,8 @@ def reproduce(out="results/papers", sections=tuple(_RUNNERS), seeds=None, quick=
     seeds = tuple(seeds) if seeds is not None else (QUICK_SEEDS if quick else SEEDS)
     out = Path(out)
     bar = None
-    tick = lambda: None
+    def tick():
+        return None
     if progress:
         from tqdm.auto import tqdm
         bar = tqdm(total=sum(_UNITS[k] for k in sections) * len(seeds), desc="papers", unit="scenario")

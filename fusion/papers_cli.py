@@ -1,5 +1,6 @@
-"""``spherebot-papers`` (``scripts/reproduce_papers.py``): re-run the four source documents' experiments in simulation, each on its seed scenario and
-IMU preset, and write Markdown + CSV tables (beside the documents' own numbers) and PNG figures.
+"""``spherebot-papers`` (``scripts/reproduce_papers.py``): re-run the four source documents'
+experiments in simulation, each on its seed scenario and IMU preset, and write Markdown + CSV
+tables (beside the documents' own numbers) and PNG figures.
 
     spherebot-papers [--out results/papers] [--sections 000 001 003 004] [--seeds N] [--quick]
 

@@ -8,6 +8,9 @@ Every function broadcasts over leading axes, e.g. ``mul(q_ref, q_rows)`` with ``
 shape (4,) and ``q_rows`` of shape (N, 4).
 """
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
 
 __all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "to_matrix", "to_rotvec",
            "to_euler", "from_euler", "from_rotvec", "exp", "from_axis_angle", "angle"]
@@ -15,7 +18,7 @@ __all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "t
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def as_quat(q, name="q"):
+def as_quat(q: ArrayLike, name: str = "q") -> Array:
     """``q`` as a float array with last axis 4, else ValueError naming ``name``."""
     q = np.asarray(q, dtype=float)
     if q.ndim == 0 or q.shape[-1] != 4:
@@ -30,7 +33,7 @@ def _as_vec(v, name="v"):
     return v
 
 
-def mul(p, q):
+def mul(p: ArrayLike, q: ArrayLike) -> Array:
     """Hamilton product ``p ⊗ q``."""
     p, q = as_quat(p, "p"), as_quat(q, "q")
     w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
@@ -41,12 +44,12 @@ def mul(p, q):
                      w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
 
 
-def conj(q):
+def conj(q: ArrayLike) -> Array:
     """Conjugate (the inverse for unit quaternions)."""
     return as_quat(q) * _CONJ
 
 
-def normalise(q):
+def normalise(q: ArrayLike) -> Array:
     """Unit-norm copy; zero rows become NaN rather than silently passing."""
     q = as_quat(q)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
@@ -54,7 +57,7 @@ def normalise(q):
         return np.where(n > 0, q / n, np.nan)
 
 
-def to_matrix(q):
+def to_matrix(q: ArrayLike) -> Array:
     """Rotation matrices (..., 3, 3) body -> navigation, ``R(q)`` of docs/estimators.md
     (homogeneous form; ``q`` is normalised first)."""
     w, x, y, z = np.moveaxis(normalise(q), -1, 0)
@@ -65,17 +68,17 @@ def to_matrix(q):
     ], axis=-2)
 
 
-def rotate(q, v):
+def rotate(q: ArrayLike, v: ArrayLike) -> Array:
     """``R(q) v``: body-frame vectors (..., 3) into the navigation frame."""
     return np.einsum("...ij,...j->...i", to_matrix(q), _as_vec(v))
 
 
-def rotate_inverse(q, v):
+def rotate_inverse(q: ArrayLike, v: ArrayLike) -> Array:
     """``R(q)ᵀ v``: navigation-frame vectors (..., 3) into the body frame."""
     return np.einsum("...ji,...j->...i", to_matrix(q), _as_vec(v))
 
 
-def to_euler(q):
+def to_euler(q: ArrayLike) -> Array:
     """ZYX Euler angles ``[..., (yaw, pitch, roll)]`` in radians (docs/estimators.md)."""
     w, x, y, z = np.moveaxis(normalise(q), -1, 0)
     yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
@@ -84,7 +87,7 @@ def to_euler(q):
     return np.stack([yaw, pitch, roll], axis=-1)
 
 
-def from_euler(euler):
+def from_euler(euler: ArrayLike) -> Array:
     """Quaternion (``w >= 0`` for |angles| within ±pi) from ZYX Euler angles
     ``[..., (yaw, pitch, roll)]`` in radians: ``q = q_z(yaw) ⊗ q_y(pitch) ⊗ q_x(roll)``."""
     e = _as_vec(euler, "euler")
@@ -96,7 +99,7 @@ def from_euler(euler):
                      cr * cp * sy - sr * sp * cy], axis=-1)
 
 
-def from_rotvec(rv):
+def from_rotvec(rv: ArrayLike) -> Array:
     """Quaternion of the rotation vector ``rv`` (..., 3) (axis times angle, rad), exact:
     ``[cos(|rv|/2), sin(|rv|/2) rv/|rv|]`` (Taylor series for tiny angles)."""
     rv = _as_vec(rv, "rv")
@@ -108,7 +111,7 @@ def from_rotvec(rv):
     return np.concatenate([np.cos(h)[..., None], k[..., None] * rv], axis=-1)
 
 
-def to_rotvec(q):
+def to_rotvec(q: ArrayLike) -> Array:
     """Rotation vector (..., 3) of the quaternion ``q`` (..., 4): the inverse of
     ``from_rotvec``, angle in [0, pi] (``q`` and ``-q`` give the same vector)."""
     q = normalise(as_quat(q))
@@ -121,21 +124,21 @@ def to_rotvec(q):
     return k[..., None] * q[..., 1:]
 
 
-def exp(omega, dt):
+def exp(omega: ArrayLike, dt: float | ArrayLike) -> Array:
     """Increment of a constant body rate ``omega`` (..., 3) over ``dt`` (scalar or (...,)):
     ``q⁺ = q ⊗ exp(omega, dt)``, the exact exponential (``Φ`` of docs/estimators.md)."""
     omega = _as_vec(omega, "omega")
     return from_rotvec(omega * np.asarray(dt, dtype=float)[..., None])
 
 
-def from_axis_angle(axis, angle):
+def from_axis_angle(axis: ArrayLike, angle: float | ArrayLike) -> Array:
     """Quaternion of a rotation by ``angle`` (rad) about ``axis`` (normalised here)."""
     axis = _as_vec(axis, "axis")
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     return from_rotvec(axis * np.asarray(angle, dtype=float)[..., None])
 
 
-def angle(p, q):
+def angle(p: ArrayLike, q: ArrayLike) -> Array:
     """Rotation angle (rad, in [0, pi]) between attitudes ``p`` and ``q``, per row;
     ``2 atan2(|e_xyz|, |e_w|)`` with ``e = p ⊗ conj(q)`` (exact near zero, sign-blind)."""
     e = mul(normalise(p), conj(normalise(q)))

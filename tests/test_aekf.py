@@ -11,7 +11,7 @@ import fusion
 import reference as ref
 import reference_aekf as ra
 from fusion._aekf import quest
-from test_reference import compare_state, count_invalid, inject_invalid, qdiff
+from _helpers import compare_state, count_invalid, inject_invalid, qdiff
 
 FS = 100.0
 N = 10_000
@@ -42,7 +42,7 @@ def scenario(n=N, fs=FS, seed=21, turn=1.0, burst_amp=6.0, n_bursts=14, disturb=
              disturb_field=(0.3, 0.1, 0.1), acc_noise=0.05, mag_noise=0.5):
     """A turning body with linear-acceleration bursts and a magnetic disturbance episode.
 
-    Returns (q_true, gyr, acc, mag, burst, dist): readings as in test_reference.synthetic
+    Returns (q_true, gyr, acc, mag, burst, dist): readings as in _helpers.synthetic
     (exact attitude, gyro = rate + bias + noise) with Hann bursts of linear acceleration up to
     burst_amp per axis, 0.5-2.5 s long, and from disturb[0] to disturb[1] s a disturbing field
     disturb_field * MAG_SCALE (navigation frame, ramped in and out over 1 s) added to the
@@ -196,41 +196,7 @@ def test_quiet_body_is_the_ekf():
     assert np.abs(a.bias - e.bias).max() < 1e-13
 
 
-# --- run == repeated update -----------------------------------------------------------------
-
-@pytest.mark.parametrize("measurement", MODES)
-@pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])
-def test_run_equals_repeated_update(data, measurement, variant):
-    _, gyr, acc, mag, *_ = data
-    n = 2000
-    gyr, acc, mag = gyr[:n], acc[:n], mag[:n]
-    kw = {"measurement": measurement}
-    dt = None
-    if variant == "6axis":
-        mag = None
-    elif variant == "dt":
-        dt = np.random.default_rng(6).uniform(0.002, 0.03, n)
-    elif variant == "skip":
-        gyr, acc, mag = inject_invalid(gyr, acc, mag)
-        kw["on_invalid"] = "skip"
-    elif variant == "ned":
-        kw["frame"] = "NED"
-    a, b = fusion.make("aekf", FS, **kw), fusion.make("aekf", FS, **kw)
-    a.record_decisions()
-    b.record_decisions()
-    q = a.run(gyr, acc, mag, dt=dt)
-    codes = []
-    qu = []
-    for i in range(n):
-        qu.append(b.update(gyr[i], acc[i], None if mag is None else mag[i],
-                           dt=None if dt is None else dt[i]))
-        codes.append(b.last_decision)
-    assert np.abs(q - np.array(qu)).max() <= 1e-15
-    assert np.array_equal(a.decisions, codes) and np.array_equal(b.decisions, codes)
-    assert a.skipped == b.skipped and a.rejected == b.rejected and a.tested == b.tested
-    assert a.quest_updates == b.quest_updates
-    assert np.abs(a.covariance - b.covariance).max() <= 1e-15 * np.abs(a.covariance).max()
-
+# (run equals repeated update, decisions included: tests/test_contract.py)
 
 def test_decision_record_and_counters_reset():
     _, gyr, acc, mag, *_ = scenario(n=1500)

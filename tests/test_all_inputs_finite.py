@@ -23,11 +23,8 @@ def test_seed_scenarios(scenario):
             _check(name, sc.fs, sc.gyr, sc.acc, mag, sc.dt)
 
 
-def test_recorded_trials():
-    root = datasets.default_data_dir()
-    if root is None:
-        pytest.skip("recorded data folder not found (../shared/data or $FUSION_DATA_DIR)")
-    trials = datasets.load_folder(root)
+def test_recorded_trials(data_dir):
+    trials = datasets.load_folder(data_dir)
     assert trials
     for tr in trials:           # every trial, the excluded (saturated) ones too
         for name in fusion.available():

@@ -125,8 +125,9 @@ def test_resume_continues_from_checkpoint(tiny_policy):
 
 def test_init_from_fine_tunes(tmp_path, tiny_policy):
     stem = tmp_path / "ppo-track-gyro"
-    rl.train("ppo", "track", "gyro", timesteps=300, seed=2, out=stem, n_envs=1, progress=False, init_from=tiny_policy, trusted=True,
-             eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    rl.train("ppo", "track", "gyro", timesteps=300, seed=2, out=stem, n_envs=1, progress=False, init_from=tiny_policy,
+             trusted=True, eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0},
+             log=lambda *a: None)
     meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
     assert meta["init_from"] == "ppo-track-truth.zip" and meta["estimator"] == "gyro"
     with pytest.raises(ValueError, match="ppo policy"):

@@ -1,6 +1,5 @@
 """fusion.datasets (skipped without the recorded data), fusion.scenarios and the comparison
 loops of fusion.compare."""
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -85,7 +85,7 @@ def test_latency_delays_the_command():
         log = env.enable_signal_log()
         env.step((0.0, 1.0))
         env.close()
-        ang = np.array([np.linalg.norm(l[3]) for l in log])
+        ang = np.array([np.linalg.norm(row[3]) for row in log])
         return int(np.argmax(ang > 1e-3))
     assert first_motion(0.01) - first_motion(0.0) == 4        # 10 ms = 4 steps at 400 Hz
 

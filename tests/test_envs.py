@@ -11,10 +11,8 @@ import pytest
 gym = pytest.importorskip("gymnasium")
 pytest.importorskip("pybullet")
 
-import envs  # noqa: E402  (registers the ids)
 from envs.sphere import SphereRobotEnv  # noqa: E402
-
-G = 9.81
+from fusion.constants import GRAVITY as G  # noqa: E402
 
 
 def qmul(a, b):
@@ -143,13 +141,13 @@ def test_magnetometer_is_earth_field_in_body_frame_outside_zones():
     env = SphereRobotEnv(estimator="truth", imu="ideal", mag_zones=[(0.0, 0.0, 40.0)], realism="ideal")
     env.reset(seed=7, options={"start_xy": (0.0, 0.0)})
     log = env.enable_signal_log()
-    for i in range(200):                              # start in the zone, drive out of it
+    for _ in range(200):                              # start in the zone, drive out of it
         env.step([0.8, 0.0])
     env.close()
     zone = np.array([0.0, 0.0, 0.0])
     earth = np.array(env.earth_field)
     outside = inside = 0
-    for pos, orn, lin, ang, gyr, acc, mag, s in log:
+    for pos, orn, _lin, _ang, _gyr, _acc, mag, s in log:
         expect = rot(orn).T @ earth
         d = np.linalg.norm(np.array(pos) - zone)
         if d > math.sqrt(env._zones[0][6]):
@@ -234,7 +232,7 @@ def test_reset_with_same_seed_in_one_env_repeats():
     for _ in range(2):
         obs, _ = env.reset(seed=21)
         seq = [obs]
-        for i in range(30):
+        for _ in range(30):
             seq.append(env.step([0.5, 0.3])[0])
         runs.append(np.array(seq))
     env.close()
@@ -250,7 +248,7 @@ def test_gymnasium_env_checker():
 
 
 def test_sb3_env_checker():
-    sb3 = pytest.importorskip("stable_baselines3")
+    pytest.importorskip("stable_baselines3")
     from stable_baselines3.common.env_checker import check_env
     env = SphereRobotEnv(task="waypoints", estimator="mahony")
     check_env(env, warn=True)
@@ -300,13 +298,13 @@ def test_observation_info_and_action_clipping():
 def test_truncation_at_time_limit_and_termination_out_of_arena():
     env = gym.make("SphereBotTrack-v0", estimator="truth", imu="ideal", episode_s=1.0)
     env.reset(seed=0)
-    for i in range(50):
+    for _ in range(50):
         _, _, term, trunc, _ = env.step([0.0, 0.0])
     assert trunc and not term
     env.close()
     env = SphereRobotEnv(estimator="truth", imu="ideal", arena_size=2.0)
     env.reset(seed=0)
-    for i in range(400):
+    for _ in range(400):
         _, _, term, trunc, info = env.step([1.0, 0.0])
         if term or trunc:
             break

@@ -8,22 +8,18 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
 import fusion
 from fusion._core import PARAM_RANGES, DT_MIN, DT_MAX
+from _helpers import SETTINGS, bad_message, check_output
 
 NAMES = fusion.available()
 EXAMPLES = collections.Counter()          # (test, estimator) -> examples run
-SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 
 SPECIAL = [0.0, -0.0, math.nan, math.inf, -math.inf, 1e150, -1e155, 1e-160, 5e-324, 1e200, 3e153]
 values = st.one_of(st.floats(-30.0, 30.0), st.sampled_from(SPECIAL))
-
-
-def bad_message(exc):
-    assert isinstance(exc, ValueError) and len(str(exc)) > 10, repr(exc)
 
 
 # --- construction ---------------------------------------------------------------------
@@ -116,17 +112,6 @@ def dt_ok(dt):
         return True
     d = np.asarray(dt, dtype=np.float64)
     return bool(np.all((d >= DT_MIN) & (d <= DT_MAX)))
-
-
-def check_output(est, q, n):
-    assert q.shape == (n, 4)
-    assert np.isfinite(q).all()
-    assert np.abs(np.linalg.norm(q, axis=1) - 1.0).max(initial=0.0) < 1e-9
-    P = est.covariance
-    if P is not None:
-        assert np.isfinite(P).all()
-        assert np.array_equal(P, P.T) or np.abs(P - P.T).max() <= 1e-12 * np.abs(P).max()
-        assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0.0
 
 
 # --- the properties -----------------------------------------------------------------------

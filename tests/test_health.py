@@ -5,9 +5,10 @@ import pytest
 
 import fusion
 from fusion._core import DT_MIN, DT_MAX
+from fusion.constants import GRAVITY
 
 FILTERS = [n for n in fusion.available() if fusion.make(n, 100.0).covariance is not None]
-G = np.array([0.0, 0.0, 9.81])
+G = np.array([0.0, 0.0, GRAVITY])
 FIELD = np.array([0.0, 0.4, -0.3])
 
 

@@ -96,7 +96,10 @@ def test_extras_cover_the_imports():
     if tomllib is None:
         pytest.skip("tomllib: Python 3.11+")
     opt = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
-    names = lambda extra: {re.split(r"[<>=!\[ ]", r, maxsplit=1)[0] for r in opt[extra]}
+
+    def names(extra):
+        return {re.split(r"[<>=!\[ ]", r, maxsplit=1)[0] for r in opt[extra]}
+
     assert {"gymnasium", "pybullet", "scipy", "spherebot-fusion"} <= names("sim")
     assert "spherebot-fusion[plot]" in opt["sim"]
     assert {"matplotlib", "tqdm"} <= names("plot")

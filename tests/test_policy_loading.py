@@ -16,7 +16,6 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 from controllers import rl                       # noqa: E402
-from controllers import policy_io               # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = "ppo-waypoints-truth"

@@ -6,7 +6,7 @@ from scipy import signal
 
 import fusion
 import reference as ref
-from test_reference import synthetic
+from _helpers import synthetic
 
 
 @pytest.mark.parametrize("fs, fc", [(200.0, 40.0), (100.0, 5.0), (500.0, 240.0), (256.0, 0.5)])

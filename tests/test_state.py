@@ -14,7 +14,8 @@ NAMES = fusion.available()
 # non-default settings that add state: a learned magnetic reference (aekf), a filtered
 # magnetometer (iir-ekf), a sliding-mean window that is mid-lap at the cut (cf-ekf), a
 # raised gain after saturated samples (gyro_range: the recording turns faster than 0.5 rad/s)
-EXTRA = {"iir-ekf": dict(filter_mag=True, acc_lowpass=1.0), "ekf": dict(acc_lowpass=1.0), "cf-ekf": dict(window=7, gyro_range=0.5, bias_feedback=True),
+EXTRA = {"iir-ekf": dict(filter_mag=True, acc_lowpass=1.0), "ekf": dict(acc_lowpass=1.0),
+         "cf-ekf": dict(window=7, gyro_range=0.5, bias_feedback=True),
          "madgwick": dict(zeta=0.01, gyro_range=0.5), "mahony": dict(gyro_range=0.5),
          "aekf": dict(measurement="quest")}
 

@@ -9,8 +9,8 @@ import pytest
 import fusion
 import reference as ref
 import reference_more as rm
-from test_reference import (FS, N, TOL, compare_state, count_invalid, inject_invalid, qdiff,
-                            synthetic)
+from _helpers import (FS, N, TOL, compare_state, count_invalid, inject_invalid, qdiff, recovery_data, rest_data,
+                      synthetic)
 
 N_SHORT = 600       # dt / NED / skip variants (the UKF reference takes ~0.5 ms per sample)
 NAMES = ["madgwick", "ukf", "cf-ekf"]
@@ -28,8 +28,8 @@ def ids(cases):
 
 
 @pytest.fixture(scope="module")
-def data():
-    return synthetic()
+def data(synthetic_data):
+    return synthetic_data
 
 
 def compare_more(est, r):
@@ -49,7 +49,6 @@ def compare_more(est, r):
 def test_recovery_after_a_saturated_gyro_equals_reference(data, name):
     """docs/robustness.md, "Recovery": madgwick raises beta and holds its bias learning;
     cf-ekf restarts its complementary filter's ramp and grows its covariance as the ekf."""
-    from test_reference import recovery_data
     gyr, acc, mag, dt = recovery_data(data)
     params = {"gyro_range": 0.5, **({"zeta": 0.05} if name == "madgwick" else {})}
     est = fusion.make(name, FS, on_invalid="skip", **params)
@@ -143,34 +142,6 @@ def test_skip_invalid_samples(data, name, frame):
     assert est.skipped == r.skipped == expected
     identity = ref.C_NED if frame == "NED" else ref.IDENTITY
     assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
-
-
-@pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])
-@pytest.mark.parametrize("name", NAMES)
-def test_run_equals_repeated_update(data, name, variant):
-    _, gyr, acc, mag = data
-    n = 2000
-    gyr, acc, mag = gyr[:n], acc[:n], mag[:n]
-    kw, dt = {}, None
-    if variant == "6axis":
-        mag = None
-    elif variant == "dt":
-        dt = np.random.default_rng(6).uniform(0.002, 0.03, n)
-    elif variant == "skip":
-        gyr, acc, mag = inject_invalid(gyr, acc, mag)
-        kw["on_invalid"] = "skip"
-    elif variant == "ned":
-        kw["frame"] = "NED"
-    a, b = fusion.make(name, FS, **kw), fusion.make(name, FS, **kw)
-    q = a.run(gyr, acc, mag, dt=dt)
-    qu = np.array([b.update(gyr[i], acc[i], None if mag is None else mag[i],
-                            dt=None if dt is None else dt[i]) for i in range(n)])
-    assert np.abs(q - qu).max() <= 1e-15
-    assert np.array_equal(a.quaternion, b.quaternion)
-    assert a.skipped == b.skipped
-    assert np.abs(a.bias - b.bias).max() <= 1e-15
-    if a.covariance is not None:
-        assert np.abs(a.covariance - b.covariance).max() <= 1e-15 * np.abs(a.covariance).max()
 
 
 # --- madgwick against the peer library ahrs -------------------------------------------------
@@ -373,7 +344,6 @@ def test_rest_update_equals_the_reference(data, name, nine_axis):
     """The rest detector and the zero-rate update (and cf-ekf's quiet-filter gate of
     bias_feedback), on a record with still spells, linear-acceleration bursts (the gate
     closes) and fast turns: kernel and reference, by the batch and by the per-sample path."""
-    from test_reference import rest_data
     gyr, acc, mag = rest_data(data)
     m = mag if nine_axis else None
     est, r = fusion.make(name, FS), rm.make(name, FS)
@@ -428,7 +398,6 @@ def test_out_of_range_gyro_is_a_dropped_sample(data, name):
     measurement; the Kalman filters hold their propagation over it (no integration, the
     covariance grows) exactly as over a dropped sample, in kernel and reference alike."""
     import reference_aekf as ra
-    from test_reference import recovery_data
     gyr, acc, mag, dt = recovery_data(data)
     gyr[500] = [5.0, -0.1, 0.2]             # ten times the range, one axis
     dropped = gyr.copy()

@@ -1,4 +1,4 @@
-"""Property tests of the input classes that found the defects of tests/test_adversarial.py
+"""Property tests of the input classes that found the defects of tests/test_crash_reproducers.py
 (docs/robustness.md, "Adversarial inputs"): threads sharing one estimator, subclasses that skip
 or botch __init__, samples in any byte order and alignment, tampered states, and single gyro
 samples beyond the range. Any of them gives the right answer, or a ValueError / RuntimeError
@@ -12,12 +12,13 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import fusion
-from test_fuzz import SETTINGS, bad_message, check_output
+from fusion.constants import GRAVITY
+from _helpers import SETTINGS, bad_message, check_output
 
 NAMES = fusion.available()
 KALMAN = ["ekf", "iir-ekf", "aekf", "ukf"]
 MSG = "estimator in use by another thread"
-UP = np.array([0.0, 0.0, 9.81])
+UP = np.array([0.0, 0.0, GRAVITY])
 FIELD = np.array([0.0, 20.0, -40.0])
 # max_examples of each property below (docs/robustness.md counts the inputs from these)
 EXAMPLES = {"threads": 40, "subclasses": 150, "byte_order": 300, "tampered": 400, "out_of_range": 150}

@@ -259,7 +259,8 @@ def test_big_endian_samples_in_update():
             G, A, M = (np.tile(v, (3, 1)).astype(">f8") for v in (g, a, m))
             assert np.array_equal(est.run(G, A, M), np.array(q_ref))
         est = fusion.make("ekf", 100.0)
-        with pytest.raises(ValueError, match=r"mag must be finite and non-zero, got array\\(\\[ *inf, +20\\., +-40\\.\\]"):
+        with pytest.raises(ValueError,
+                           match=r"mag must be finite and non-zero, got array\\(\\[ *inf, +20\\., +-40\\.\\]"):
             est.update(g, a, np.array([np.inf, 20.0, -40.0], dtype=">f8"))
         with pytest.raises(ValueError, match=r"acc must be finite and non-zero, got array\\(\\[0\\., 0\\., 0\\.\\]"):
             est.update(g, np.zeros(3, dtype=">f8"), m)

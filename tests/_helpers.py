@@ -1,0 +1,151 @@
+"""Helpers shared by the test modules (imported as ``from _helpers import ...``; fixtures are
+in conftest.py). The synthetic run, the invalid-sample injection and the comparisons against
+the numpy references of reference.py."""
+import numpy as np
+from hypothesis import HealthCheck
+
+import reference as ref
+
+FS = 100.0
+N = 10_000          # the main runs
+TOL = 1e-9
+GYRO_BIAS = np.array([0.01, -0.02, 0.015])
+FIELD = np.array([0.0, 0.4, -0.3])     # ENU, times MAG_SCALE
+
+# hypothesis settings of the property tests
+SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+
+
+# --- synthetic data -----------------------------------------------------------------------
+
+def synthetic(n=N, fs=FS, seed=11, mag_scale=50.0):
+    """Noisy readings of a body turning with a smooth rate (peaks of a few rad/s).
+
+    Returns (q_true, gyr, acc, mag). The true attitude is integrated exactly for a rate held
+    over each sample interval; gyro = rate + constant bias + noise; accelerometer =
+    R^T [0, 0, 9.81] + linear-acceleration bursts + noise; magnetometer = R^T FIELD * scale + noise.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    w = np.zeros((n, 3))
+    for k in range(3):                       # slow sinusoids
+        for _ in range(4):
+            w[:, k] += rng.uniform(0.2, 1.0) * np.sin(2 * np.pi * rng.uniform(0.02, 0.5) * t
+                                                      + rng.uniform(0, 2 * np.pi))
+    for c in rng.uniform(0.05, 0.95, 8) * t[-1]:       # bursts of fast turning
+        w += np.exp(-0.5 * ((t - c) / 0.3) ** 2)[:, None] * rng.uniform(-3, 3, 3)
+    # exact per-sample increments, chained
+    th = np.linalg.norm(w, axis=1) / fs
+    axis = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+    dq = np.column_stack([np.cos(th / 2), np.sin(th / 2)[:, None] * axis])
+    q = np.empty((n, 4))
+    qk = ref.normalise(np.array([0.9, 0.1, -0.3, 0.2]))
+    for i in range(n):
+        qk = ref.qmul(qk, dq[i])
+        q[i] = qk
+    # R(q)^T v for all rows at once
+    Rt = np.stack([ref.rotmat(qi).T for qi in q])
+    lin = np.zeros((n, 3))
+    for c in rng.uniform(0.05, 0.95, 12) * t[-1]:      # linear-acceleration bursts
+        lin += np.exp(-0.5 * ((t - c) / 0.2) ** 2)[:, None] * rng.uniform(-5, 5, 3)
+    acc = Rt @ np.array([0.0, 0.0, ref.G]) + lin + 0.05 * rng.standard_normal((n, 3))
+    mag = (Rt @ FIELD) * mag_scale + 0.5 * rng.standard_normal((n, 3))
+    gyr = w + GYRO_BIAS + 0.005 * rng.standard_normal((n, 3))
+    return q, gyr, acc, mag
+
+
+def qdiff(qk, qr):
+    """Max abs difference over all quaternion components (no sign alignment: the spec fixes
+    the sign, w >= 0 at initialisation and then as propagated)."""
+    d = np.abs(np.asarray(qk) - np.asarray(qr)).max(initial=0.0)
+    if d > TOL:     # say whether it is only the sign
+        s = np.sign(np.sum(qk * qr, axis=-1, keepdims=True))
+        d_aligned = np.abs(qk - s * qr).max()
+        print(f"quaternions differ by {d:.3g}; after sign alignment {d_aligned:.3g}")
+    return d
+
+
+def compare_state(est, r, rel_cov=TOL):
+    """Final euler, bias and covariance of kernel `est` and reference `r`."""
+    assert np.abs(est.quaternion - r.quaternion).max() < TOL
+    # euler: wrap the difference (yaw/roll near ±pi)
+    de = np.angle(np.exp(1j * (est.euler - r.euler)))
+    assert np.abs(de).max() < TOL
+    if r.bias is None:
+        assert est.bias is None
+    else:
+        assert np.abs(est.bias - r.bias).max() < TOL
+    if r.covariance is None:
+        assert est.covariance is None
+    else:
+        P, Pr = est.covariance, r.covariance
+        assert P.shape == (7, 7)
+        assert np.abs(P - Pr).max() < rel_cov * np.abs(Pr).max()
+
+
+def inject_invalid(gyr, acc, mag):
+    """Copies (of 2000 samples) with NaN / inf / all-zero rows, also before the first valid
+    accelerometer."""
+    gyr, acc, mag = gyr[:2000].copy(), acc[:2000].copy(), mag[:2000].copy()
+    acc[0:4] = np.nan                 # not initialised until row 4
+    acc[[7, 300, 301]] = 0.0
+    acc[[450, 1700]] = [np.inf, 0, 0]
+    gyr[1] = np.nan                   # invalid gyro before initialisation
+    gyr[[5, 120, 121, 122, 1900]] = np.nan
+    gyr[900] = [0.0, -np.inf, 1.0]
+    gyr[[60, 61]] = 0.0               # zero rate: valid
+    mag[2] = 0.0                      # invalid magnetometer before initialisation
+    mag[[4, 250, 800, 801, 1999]] = np.nan   # row 4: initialisation without magnetometer
+    mag[1100] = 0.0
+    acc[[500, 1500]] = np.nan         # both invalid in the same sample
+    mag[[500, 1500]] = 0.0
+    gyr[1500] = np.nan
+    return gyr, acc, mag
+
+
+def count_invalid(gyr, acc, mag):
+    """What est.skipped must hold: every invalid vector (gyro: non-finite; acc/mag: non-finite
+    or all zero), the samples before initialisation included."""
+    bad_g = ~np.isfinite(gyr).all(axis=1)
+    bad_a = ~np.isfinite(acc).all(axis=1) | ~acc.any(axis=1)
+    bad_m = ~np.isfinite(mag).all(axis=1) | ~mag.any(axis=1)
+    return {"gyr": int(bad_g.sum()), "acc": int(bad_a.sum()), "mag": int(bad_m.sum())}
+
+
+def bad_message(exc):
+    assert isinstance(exc, ValueError) and len(str(exc)) > 10, repr(exc)
+
+
+def check_output(est, q, n):
+    assert q.shape == (n, 4)
+    assert np.isfinite(q).all()
+    assert np.abs(np.linalg.norm(q, axis=1) - 1.0).max(initial=0.0) < 1e-9
+    P = est.covariance
+    if P is not None:
+        assert np.isfinite(P).all()
+        assert np.array_equal(P, P.T) or np.abs(P - P.T).max() <= 1e-12 * np.abs(P).max()
+        assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0.0
+
+
+def recovery_data(data, n=2000):
+    """Saturated samples (at 0.5 rad/s), a run of dropped samples and a time gap."""
+    _, gyr, acc, mag = data
+    gyr, acc, mag = gyr[:n].copy(), acc[:n].copy(), mag[:n]
+    gyr[300:350] = np.clip(gyr[300:350], -0.5, 0.5)
+    gyr[800:850] = np.nan
+    acc[800:850] = np.nan
+    dt = np.full(n, 1 / FS)
+    dt[1200] = 0.7
+    return gyr, acc, mag, dt
+
+
+def rest_data(data, n_still=400, n=2000):
+    """The synthetic run, its first n_still samples replaced by a still sensor (gyro = bias
+    + noise, level accelerometer and constant field + noise), and a still spell in the middle."""
+    _, gyr, acc, mag = (x[:n].copy() for x in data)
+    rng = np.random.default_rng(8)
+    for a, b in ((0, n_still), (1200, 1800)):
+        gyr[a:b] = GYRO_BIAS + 0.005 * rng.standard_normal((b - a, 3))
+        acc[a:b] = acc[a] + 0.05 * rng.standard_normal((b - a, 3))
+        mag[a:b] = mag[a] + 0.5 * rng.standard_normal((b - a, 3))
+    return gyr, acc, mag

@@ -1,0 +1,162 @@
+"""The contract every estimator of fusion.available() keeps (docs/estimators.md): its
+interface (attributes, PARAMS, repr), run equal to repeated update, the state round trip and
+pickling, and a clear ValueError for bad input. Estimator-specific behaviour is tested in the
+estimator's own module; this one holds what all of them share, parametrised over the registry."""
+import pickle
+
+import numpy as np
+import pytest
+from _helpers import FS, inject_invalid
+
+import fusion
+from fusion.constants import GRAVITY as G
+
+NAMES = fusion.available()
+# settings beyond the defaults that change what run and update do (other branches, counters)
+CASES = [(name, {}) for name in NAMES] + [
+    ("mahony", {"kp": 2.0, "ki": 0.1}),
+    ("ekf", {"gyro_noise": 0.003, "bias_noise": 1e-3, "acc_noise": 0.3, "mag_noise": 0.1,
+             "q_init_std": 0.2, "bias_init_std": 0.05}),
+    ("ekf", {"mag_update": "heading"}),
+    ("ekf", {"acc_lowpass": 0.5}),
+    ("aekf", {"measurement": "quest"}),
+]
+CASE_IDS = [name + ("-" + "-".join(f"{k}={v}" for k, v in p.items()) if p else "-defaults") for name, p in CASES]
+
+
+def _close(x, y):
+    """Equal, or arrays within 1e-15 of the larger magnitude (the order of float operations
+    may differ between the batch loop and one call per sample)."""
+    if isinstance(x, dict):
+        return x.keys() == y.keys() and all(_close(x[k], y[k]) for k in x)
+    x, y = np.asarray(x), np.asarray(y)
+    if x.dtype.kind not in "fc" or x.size == 0:
+        return x.shape == y.shape and np.array_equal(x, y)
+    scale = np.abs(y).max()
+    return x.shape == y.shape and np.abs(x - y).max() <= 1e-15 * scale if scale > 0 else np.array_equal(x, y)
+
+
+# --- interface ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", NAMES)
+def test_interface(name, make_estimator):
+    est = make_estimator(name)
+    cls = type(est)
+    assert isinstance(est, fusion.Estimator) and cls.name == est.name == name
+    assert est.fs == FS and est.frame == "ENU" and est.on_invalid == "raise"
+    assert isinstance(cls.PARAMS, dict)
+    assert set(est.params) == set(cls.PARAMS)          # every parameter, defaults filled in
+    assert est.quaternion.shape == (4,) and not est.initialised and est.skipped == {"gyr": 0, "acc": 0, "mag": 0}
+    assert est.bias is None or est.bias.shape == (3,)
+    assert est.covariance is None or est.covariance.shape[0] == est.covariance.shape[1]
+    again = eval(repr(est), {"fusion": fusion})       # repr is the call that builds it
+    assert type(again) is cls and again.params == est.params and again.fs == est.fs
+
+
+# --- run is N updates -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])
+@pytest.mark.parametrize("name, params", CASES, ids=CASE_IDS)
+def test_run_equals_repeated_update(synthetic_data, name, params, variant):
+    _, gyr, acc, mag = synthetic_data
+    n = 2000
+    gyr, acc, mag = gyr[:n], acc[:n], mag[:n]
+    kw = dict(params)
+    dt = None
+    if variant == "6axis":
+        mag = None
+    elif variant == "dt":
+        dt = np.random.default_rng(6).uniform(0.002, 0.03, n)
+    elif variant == "skip":
+        gyr, acc, mag = inject_invalid(gyr, acc, mag)
+        kw["on_invalid"] = "skip"
+    elif variant == "ned":
+        kw["frame"] = "NED"
+    a, b = fusion.make(name, FS, **kw), fusion.make(name, FS, **kw)
+    decisions = hasattr(a, "record_decisions")
+    if decisions:
+        a.record_decisions()
+        b.record_decisions()
+    q = a.run(gyr, acc, mag, dt=dt)
+    qu, codes = [], []
+    for i in range(n):
+        qu.append(b.update(gyr[i], acc[i], None if mag is None else mag[i], dt=None if dt is None else dt[i]))
+        if decisions:
+            codes.append(b.last_decision)
+    assert np.abs(q - np.array(qu)).max() <= 1e-15
+    assert np.array_equal(a.quaternion, b.quaternion)
+    assert a.skipped == b.skipped
+    if decisions:
+        assert np.array_equal(a.decisions, codes) and np.array_equal(b.decisions, codes)
+    # the whole state (bias, covariance, counters, filters' memories) agrees, not only q
+    sa, sb = a.state()["fields"], b.state()["fields"]
+    assert sa.keys() == sb.keys()
+    bad = [k for k in sa if not _close(sa[k], sb[k])]
+    assert not bad, f"state fields differ between run and update: {bad}"
+
+
+# --- state round trip and pickling ------------------------------------------------------------
+
+@pytest.mark.parametrize("name", NAMES)
+def test_state_round_trip_and_pickle_resume_identically(synthetic_data, name):
+    _, gyr, acc, mag = synthetic_data
+    est = fusion.make(name, FS, on_invalid="skip")
+    est.run(gyr[:700], acc[:700], mag[:700])
+    loaded = fusion.make(name, FS, on_invalid="skip")
+    loaded.load_state(est.state())
+    copies = [loaded, fusion.Estimator.from_state(est.state()), pickle.loads(pickle.dumps(est))]
+    tail = slice(700, 1400)
+    expected = est.run(gyr[tail], acc[tail], mag[tail])
+    for other in copies:
+        assert type(other) is type(est)
+        assert np.array_equal(other.run(gyr[tail], acc[tail], mag[tail]), expected)
+        assert other.state() == est.state() or _close(other.state()["fields"], est.state()["fields"])
+
+
+# --- bad input ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", NAMES)
+def test_bad_shapes_dtypes_lengths_and_dt(name):
+    est = fusion.make(name, 100.0)
+    ok = np.zeros((10, 3)) + [0, 0, G]
+    cases = [
+        (dict(gyr=np.zeros((10, 2)), acc=ok), "gyr must have shape"),
+        (dict(gyr=np.zeros(30), acc=ok), "gyr must have shape"),
+        (dict(gyr=ok, acc=ok[:9]), "acc has 9 samples"),
+        (dict(gyr=ok, acc=ok, mag=ok[:, :2]), "mag must have shape"),
+        (dict(gyr=ok.astype(object), acc=ok), "gyr must be a real numeric"),
+        (dict(gyr=ok + 0j, acc=ok), "gyr must be a real numeric"),
+        (dict(gyr=ok, acc=ok, dt=0.0), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=-0.01), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=np.full(9, 0.01)), "dt must be"),
+        (dict(gyr=ok, acc=ok, dt=np.r_[np.full(9, 0.01), 0.0]), r"dt\[9\]"),
+    ]
+    for kwargs, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            est.run(**kwargs)
+        assert not est.initialised      # nothing was processed
+    with pytest.raises(ValueError, match="acc must have shape"):
+        est.update([0, 0, 0], [0, 0])
+    with pytest.raises(ValueError, match="dt must be"):
+        est.update([0, 0, 0], [0, 0, G], dt=0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("which", ["gyr", "acc", "mag"])
+def test_non_finite_input_is_named(name, which, make_estimator):
+    est = make_estimator(name)
+    rows = {"gyr": np.zeros((5, 3)), "acc": np.tile([0.0, 0.0, G], (5, 1)), "mag": np.tile([0.0, 20.0, -40.0], (5, 1))}
+    rows[which][3, 1] = np.nan
+    with pytest.raises(ValueError, match=which):
+        est.run(rows["gyr"], rows["acc"], rows["mag"])
+    assert not est.initialised
+    assert np.isfinite(est.quaternion).all()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_unknown_parameter_is_named_with_the_accepted_ones(name):
+    accepted = sorted(type(fusion.make(name, FS)).PARAMS)
+    with pytest.raises(ValueError, match="no_such_param") as info:
+        fusion.make(name, FS, no_such_param=1.0)
+    msg = str(info.value)
+    assert all(p in msg for p in accepted) if accepted else "accepted" in msg or "no parameters" in msg
