@@ -51,7 +51,7 @@ def main():
     out = {}
     cases = [c + (False,) for c in CASES] + [c + (True,) for c in PID_CASES]
     for i, (env_id, kw, seed, pid) in enumerate(cases):
-        for name, arr in zip(("obs", "rew", "flags", "pos"), record(env_id, kw, seed, pid=pid)):
+        for name, arr in zip(("obs", "rew", "flags", "pos"), record(env_id, kw, seed, pid=pid), strict=True):
             out[f"{i}_{name}"] = arr
     tmp = PATH + ".tmp.npz"
     np.savez(tmp, **out)
