@@ -30,6 +30,11 @@ _SPECS = {
     "SphereBotTrack-v0": dict(entry_point=_TRACK, kwargs={"realism": "ideal"}, max_episode_steps=1500),
     "SphereBotWaypoints-v0": dict(entry_point=_WAYPOINTS, kwargs={"realism": "ideal"}, max_episode_steps=3000),
 }
+# N robots in one process and one physics client (envs/vector.py): gymnasium.make_vec(id,
+# num_envs=N, vectorization_mode="vector_entry_point")
+_VECTOR = {"SphereBotTrack": "envs.vector:make_track_vec", "SphereBotWaypoints": "envs.vector:make_waypoints_vec"}
+for _id, _spec in _SPECS.items():
+    _spec["vector_entry_point"] = _VECTOR[_id.split("-")[0]]
 
 for _id, _spec in _SPECS.items():
     if _id not in _gym.registry:

@@ -38,6 +38,7 @@ BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
 RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
 START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
+_JOINTS = (DRIVE_JOINT, STEER_JOINT)
 
 
 def ESTIMATORS():
@@ -205,6 +206,9 @@ class SphereRobotBase(gym.Env):
         self._p = None
         self._client = None
         self._body = None
+        self._bodies = []
+        #: None, or the PyBullet client of a world shared with other robots (envs/vector.py)
+        self._shared = None
         self._needs_reset = True
         #: None, or a list that receives one tuple per physics step (see enable_signal_log)
         self.signal_log = None
@@ -278,6 +282,8 @@ class SphereRobotBase(gym.Env):
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
+        self._spin = spin_torque(rp)
+        self._i_servo = SERVO_STALL_CURRENT / rp.steer_torque if self._servo is not None else 0.0
 
     def _make_spaces(self):
         parts = BASE_OBS + self.TASK_OBS
@@ -293,6 +299,9 @@ class SphereRobotBase(gym.Env):
     def _connect(self):
         import pybullet as p
         self._p = p
+        if self._shared is not None:
+            self._client = self._shared
+            return
         if self.render_mode == "human":
             # without a display PyBullet's GUI ends the whole process from C; fail in Python
             if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
@@ -325,10 +334,12 @@ class SphereRobotBase(gym.Env):
 
     def _build_world(self, start_xy, start_yaw, bumps, ramps):
         p, c = self._p, self._client
-        p.resetSimulation(physicsClientId=c)
-        p.setGravity(0.0, 0.0, -G, physicsClientId=c)
-        p.setPhysicsEngineParameter(fixedTimeStep=self._dt, numSubSteps=0, deterministicOverlappingPairs=1,
-                                    physicsClientId=c)
+        if self._shared is None:
+            p.resetSimulation(physicsClientId=c)
+            self._world_settings()
+        else:           # a robot of envs/vector.py's shared world: only its own bodies go
+            for body in self._bodies:
+                p.removeBody(body, physicsClientId=c)
         visual = self.render_mode is not None
         plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
         floor = p.createMultiBody(0, plane, physicsClientId=c)
@@ -353,12 +364,20 @@ class SphereRobotBase(gym.Env):
                                           physicsClientId=c)
             orn = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
             statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
+        self._bodies = statics
         for b in statics:
             p.changeDynamics(b, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0,
                              restitution=0.0, physicsClientId=c)
         if visual:
             self._add_floor_visual()
         self._body = build_robot(p, c, self.robot, start_xy, start_yaw, visual=visual)
+        self._bodies.append(self._body)
+
+    def _world_settings(self):
+        p, c = self._p, self._client
+        p.setGravity(0.0, 0.0, -G, physicsClientId=c)
+        p.setPhysicsEngineParameter(fixedTimeStep=self._dt, numSubSteps=0, deterministicOverlappingPairs=1,
+                                    physicsClientId=c)
 
     def _add_floor_visual(self):
         import pybullet_data
@@ -583,53 +602,48 @@ class SphereRobotBase(gym.Env):
         """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
         steering ``target`` (rad); the previous command holds for the first
         ``latency_s`` of them (actuation latency)."""
-        p, c, b = self._p, self._client, self._body
-        rp = self.robot
-        motor, servo = self._motor, self._servo
-        torque = motor.torque
-        torque_mode = p.TORQUE_CONTROL
-        step, sense = p.stepSimulation, self._sense
-        getjs, setm = p.getJointStates, p.setJointMotorControlArray
-        ext, world = p.applyExternalTorque, p.WORLD_FRAME
-        joints = (DRIVE_JOINT, STEER_JOINT)
-        v_old, t_old = self._cmd_prev
-        lat = self._lat_steps
-        stiction = rp.drive_stiction
-        spin, inv_eps, roll_c = spin_torque(rp), 1.0 / SPIN_EPS, rp.rolling_damping
-        if servo is not None:
-            stort = servo.torque
-            i_servo = SERVO_STALL_CURRENT / rp.steer_torque
-        tau = ts = 0.0
+        step, c, actuate, sense = self._p.stepSimulation, self._client, self._actuate, self._sense
         for i in range(n):
-            v, tgt = (v_old, t_old) if i < lat else (voltage, target)
-            js = getjs(b, joints, c)
-            self._qd, wd = js[0][0], js[0][1]
-            self._qs = js[1][0]
-            self._wd_last = wd
-            tau = torque(v, wd)
-            if servo is not None:
-                ts = stort(tgt, js[1][0], js[1][1])
-                motor.i_other = i_servo * abs(ts)
-            elif i == lat:
-                set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
-            setm(b, joints, torque_mode, forces=(tau, ts), physicsClientId=c)
-            if spin or roll_c:
-                # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
-                # rolling damping about x and y, spinning friction about z
-                w, a = self._wb, self._axle
-                e = (w[2] + wd * a[2]) * inv_eps
-                ext(b, DRIVE_JOINT, (-roll_c * (w[0] + wd * a[0]), -roll_c * (w[1] + wd * a[1]),
-                                     -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
-                    world, physicsClientId=c)
-            if stiction:
-                stuck = -0.05 < wd < 0.05
-                if stuck != self._stuck_gear:
-                    self._stuck_gear = stuck
-                    set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
+            actuate(i, voltage, target)
             step(c)
             sense()
         self._cmd_prev = (voltage, target)
-        self._tau = tau
+
+    def _actuate(self, i, voltage, target):
+        """Before physics step ``i`` of ``_advance``: read the joints, command the drive's and
+        the servo's torques and apply the floor's losses on the shell."""
+        p, c, b = self._p, self._client, self._body
+        rp = self.robot
+        motor, servo = self._motor, self._servo
+        lat = self._lat_steps
+        v, tgt = self._cmd_prev if i < lat else (voltage, target)
+        js = p.getJointStates(b, _JOINTS, c)
+        self._qd, wd = js[0][0], js[0][1]
+        self._qs = js[1][0]
+        self._wd_last = wd
+        self._tau = tau = motor.torque(v, wd)
+        ts = 0.0
+        if servo is not None:
+            ts = servo.torque(tgt, js[1][0], js[1][1])
+            motor.i_other = self._i_servo * abs(ts)
+        elif i == lat:
+            set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
+        p.setJointMotorControlArray(b, _JOINTS, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+        spin, roll_c = self._spin, rp.rolling_damping
+        if spin or roll_c:
+            # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
+            # rolling damping about x and y, spinning friction about z
+            w, a = self._wb, self._axle
+            e = (w[2] + wd * a[2]) * (1.0 / SPIN_EPS)
+            p.applyExternalTorque(b, DRIVE_JOINT, (-roll_c * (w[0] + wd * a[0]), -roll_c * (w[1] + wd * a[1]),
+                                                   -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
+                                  p.WORLD_FRAME, physicsClientId=c)
+        stiction = rp.drive_stiction
+        if stiction:
+            stuck = -0.05 < wd < 0.05
+            if stuck != self._stuck_gear:
+                self._stuck_gear = stuck
+                set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
 
     # ------------------------------------------------------------------------------------
     # Gymnasium API
@@ -694,13 +708,22 @@ class SphereRobotBase(gym.Env):
             self._yaw0 = float(yaw)
 
     def step(self, action):
+        a0, a1 = self._begin_step(action)
+        rp = self.robot
+        self._advance(self._n_sub, a0 * rp.motor_voltage, a1 * rp.steer_max)
+        return self._end_step(a0, a1)
+
+    def _begin_step(self, action):
+        """The checked action (a0, a1) of a step, before its physics."""
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (and after an episode ended)")
         a0, a1 = self._check_action(action)
         self._action = (a0, a1)
-        rp = self.robot
         self._gyr_sum_y, self._gyr_n = 0.0, 0
-        self._advance(self._n_sub, a0 * rp.motor_voltage, a1 * rp.steer_max)
+        return a0, a1
+
+    def _end_step(self, a0, a1):
+        """(obs, reward, terminated, truncated, info) of a step, after its physics."""
         self._steps += 1
         self._t = self._steps / self.control_hz
         self._odometry()
@@ -918,7 +941,7 @@ class SphereRobotBase(gym.Env):
         return np.ascontiguousarray(rgba[:, :, :3])
 
     def close(self):
-        if self._client is not None and self._p is not None:
+        if self._client is not None and self._p is not None and self._shared is None:
             try:
                 self._p.disconnect(physicsClientId=self._client)
             except Exception:   # already gone (e.g. the GUI window was closed)
