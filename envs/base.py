@@ -652,6 +652,12 @@ class SphereRobotBase(gym.Env):
     # Gymnasium API
 
     def reset(self, *, seed=None, options=None):
+        self._reset_begin(seed, options)
+        self._advance(self._settle_steps, 0.0, 0.0)
+        return self._reset_end()
+
+    def _reset_begin(self, seed, options):
+        """A reset up to the settling: the episode's draws, the new world, the first sensing."""
         super().reset(seed=seed)
         if self._client is None:
             self._connect()
@@ -677,8 +683,9 @@ class SphereRobotBase(gym.Env):
         self._sense(first=True)
         self._cmd_prev = (0.0, 0.0)
         self._stuck_gear = False
-        self._advance(self._settle_steps, 0.0, 0.0)
-        # episode state
+
+    def _reset_end(self):
+        """A reset after the settling: the episode's state, the first observation and info."""
         self._t = 0.0
         self._steps = 0
         self._action = (0.0, 0.0)
