@@ -98,3 +98,14 @@ def test_sb3_adapter_runs_and_reports_terminal_observations():
             assert infos[i]["terminal_observation"].shape == (14,) and infos[i]["TimeLimit.truncated"]
     assert done_seen and rew.shape == (2,)
     venv.close()
+
+
+def test_train_cli_trains_on_the_batched_vector_env(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from controllers import train_cli
+    out = tmp_path / "ppo-track"
+    rc = train_cli.main(["--algo", "ppo", "--env", "track", "--estimator", "truth", "-n", "128", "--n-envs", "2",
+                         "--vec-env", "batched", "--out", str(out), "--eval-episodes", "0", "--n-eval-episodes", "1",
+                         "--no-progress", "--hyperparams", "n_steps:64", "batch_size:64", "--env-kwargs", "episode_s:1"])
+    assert rc in (0, None) and out.with_suffix(".zip").is_file()
+    assert (tmp_path / "ppo-track.run" / "monitor" / "0.monitor.csv").is_file()
