@@ -457,23 +457,32 @@ class SphereRobotBase(gym.Env):
 
     def _sense(self, first=False):
         """One physics step's sensing: the true signals -> the IMU model -> the estimator."""
+        s = self._measure(first)
+        if s is not None:
+            self._on_sample(s, self._est.update(s.gyr, s.acc, s.mag) if self._est is not None else None)
+
+    def _measure(self, first=False):
+        """The true signals -> the IMU model: its sample if one is due, else None."""
         gyr, acc, mag = self._true_signals(first)
         s = self._imu.step(gyr, acc, mag)
         if self.signal_log is not None:
             pos, orn, lin = self._true[0], self._true[1], self._true[2]
             self.signal_log.append((pos, orn, lin, self._wb, gyr, acc, mag, s))
-        if s is not None:
-            self._n_samples += 1
-            x, y, z, w = self._true[1]
-            self._q_true_s = (w, x, y, z)
-            if self._est is not None:
-                self._q_est = self._est.update(s.gyr, s.acc, s.mag)
-                g = s.gyr
-            else:
-                g = gyr
-            self._gyr_last = g
-            self._gyr_sum_y += g[1]
-            self._gyr_n += 1
+        return s
+
+    def _on_sample(self, s, q):
+        """An IMU sample ``s`` and the estimator's quaternion ``q`` after it (None for "truth")."""
+        self._n_samples += 1
+        x, y, z, w = self._true[1]
+        self._q_true_s = (w, x, y, z)
+        if self._est is not None:
+            self._q_est = q
+            g = s.gyr
+        else:
+            g = self._true[3]
+        self._gyr_last = g
+        self._gyr_sum_y += g[1]
+        self._gyr_n += 1
 
     def _true_signals(self, first=False):
         """The true IMU signals at the current physics step: (gyro (rad/s), specific force

@@ -36,6 +36,13 @@ def test_same_seeds_give_the_episodes_of_single_environments_bit_for_bit(env_id,
     n, steps = 3, 40
     acts = np.random.default_rng(0).uniform(-1, 1, size=(steps, n, 2)).astype(np.float32)
     venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kw)
+    bank, calls = venv._bank, []
+
+    class Counting:        # the bank's updates, counted: the robots' estimators run in it
+        def update(self, *a):
+            calls.append(1)
+            return bank.update(*a)
+    venv._bank = Counting()
     o, _ = venv.reset(seed=20)
     obs, rew, ends = [o], [], 0
     for a in acts:
@@ -45,6 +52,7 @@ def test_same_seeds_give_the_episodes_of_single_environments_bit_for_bit(env_id,
         if np.any(term | trunc):
             assert "final_obs" in info
     venv.close()
+    assert calls           # the bank ran (when every robot had a sample in the same physics step)
     want_obs, want_rew = _single_runs(env_id, n, 20, acts, **kw)
     np.testing.assert_array_equal(np.array(obs), want_obs)
     np.testing.assert_array_equal(np.array(rew), want_rew)
