@@ -109,10 +109,9 @@ class SphereBotVectorEnv(VectorEnv):
         return np.stack([o for o, _ in out]), infos
 
     def _reset_some(self, index, seeds, options=None):
-        """Reset the robots ``index`` (with ``seeds``): their settling runs together while
-        the other robots sleep (PyBullet does not move a sleeping body). Returns
-        [(obs, info), ...]."""
-        p, c = self._p, self._client
+        """Reset the robots ``index`` (with ``seeds``): their settling runs together, and the
+        other robots' positions, velocities and joints are put back after it (the module
+        docstring says what that does not restore). Returns [(obs, info), ...]."""
         resetting = [self.envs[i] for i in index]
         for i, s in zip(index, seeds, strict=True):
             self.envs[i]._reset_begin(s, options)
