@@ -341,9 +341,8 @@ class SphereRobotBase(gym.Env):
             for body in self._bodies:
                 p.removeBody(body, physicsClientId=c)
         visual = self.render_mode is not None
-        plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
-        floor = p.createMultiBody(0, plane, physicsClientId=c)
-        statics = [floor]
+        # the floor: the shared world's one floor is made by envs/vector.py (not removed here)
+        statics = [self._make_floor()] if self._shared is None else []
         for (x, y, yaw) in bumps:
             h = self.bump_height
             col = p.createCollisionShape(p.GEOM_CAPSULE, radius=h, height=BUMP_LENGTH, physicsClientId=c)
@@ -372,6 +371,13 @@ class SphereRobotBase(gym.Env):
             self._add_floor_visual()
         self._body = build_robot(p, c, self.robot, start_xy, start_yaw, visual=visual)
         self._bodies.append(self._body)
+
+    def _make_floor(self):
+        p, c = self._p, self._client
+        floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+        p.changeDynamics(floor, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0,
+                         restitution=0.0, physicsClientId=c)
+        return floor
 
     def _world_settings(self):
         p, c = self._p, self._client

@@ -22,10 +22,10 @@ robot's filter is updated alone (the same numbers: tested). The IMU model's samp
 have per-device jitter and error, so the robots' samples seldom coincide (3 robots, 40
 steps: 51 bank calls against about 160 samples each). Not done: one IMU-model kernel for
 all robots (each still has its own ``fusion.imu.IMU``). Speed: 16 robots ran
-0.74-0.83x the robot steps/s per core of one environment, same run (target 3x; measured by
+0.71-0.87x the robot steps/s per core of one environment, same run (target 3x; measured by
 benchmarks/env_speed.py): PyBullet's world step costs the same per robot with 16 as with one
-(about 27 us: the robots' overlapping floors and shapes all meet in the broadphase before
-the filter drops them), and the per-robot Python of each physics step (the IMU model's
+(about 27-33 us per robot against about 15 us for a one-robot world: the robots' shapes
+overlap in the broadphase before the filter drops the pairs; the robots share one floor), and the per-robot Python of each physics step (the IMU model's
 ``step``, the true signals, sensing, actuation: about 60 % of the time, profiled) is not
 shared by batching.
 """
@@ -79,6 +79,7 @@ class SphereBotVectorEnv(VectorEnv):
             e._shared = self._client
             e._connect()
         self.envs[0]._world_settings()
+        self._floor = self.envs[0]._make_floor()        # one floor for every robot
 
     def _filter(self, i):
         """No collisions between robot ``i``'s bodies and the other robots' bodies."""
