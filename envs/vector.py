@@ -23,11 +23,11 @@ have per-device jitter and error, so the robots' samples seldom coincide (3 robo
 steps: 51 bank calls against about 160 samples each). Not done: one IMU-model kernel for
 all robots (each still has its own ``fusion.imu.IMU``). Speed: 16 robots ran
 0.71-0.87x the robot steps/s per core of one environment, same run (target 3x; measured by
-benchmarks/env_speed.py): PyBullet's world step costs the same per robot with 16 as with one
-(about 27-33 us per robot against about 15 us for a one-robot world: the robots' shapes
-overlap in the broadphase before the filter drops the pairs; the robots share one floor), and the per-robot Python of each physics step (the IMU model's
-``step``, the true signals, sensing, actuation: about 60 % of the time, profiled) is not
-shared by batching.
+benchmarks/env_speed.py): PyBullet's world step costs more per robot with 16 than with one
+(about 27-33 us per robot against about 15 us: the robots' shapes overlap in the
+broadphase before the filter drops the pairs; the robots share one floor), and the
+per-robot Python of each physics step (the IMU model's ``step``, the true signals, sensing,
+actuation: about 60 % of the time, profiled) is not shared by batching.
 """
 from __future__ import annotations
 
