@@ -22,7 +22,7 @@ robot's filter is updated alone (the same numbers: tested). The IMU model's samp
 have per-device jitter and error, so the robots' samples seldom coincide (3 robots, 40
 steps: 51 bank calls against about 160 samples each). Not done: one IMU-model kernel for
 all robots (each still has its own ``fusion.imu.IMU``). Speed: 16 robots ran
-0.71-0.87x the robot steps/s per core of one environment, same run (target 3x; measured by
+0.71-0.93x the robot steps/s per core of one environment, same run (target 3x; measured by
 benchmarks/env_speed.py): PyBullet's world step costs more per robot with 16 than with one
 (about 27-33 us per robot against about 15 us: the robots' shapes overlap in the
 broadphase before the filter drops the pairs; the robots share one floor), and the
