@@ -11,6 +11,7 @@ Prints, in one run on one core:
     with estimator="ekf" and with "truth", and the estimator's share of the step time;
   - the share of that limit the env reaches with "ekf" and "truth" (issue 16: >= 75 %),
     by wall clock and by CPU time;
+  - robot steps per second of the batched vector env of 16 robots against one environment;
   - reset() time (mean, median, 99th percentile);
   - resident memory before and after N resets in one process, and whether physics clients
     leak (1,000 environments created and closed, 100 with --quick: the client slot must be
@@ -108,6 +109,34 @@ class _TimedUpdate:
 
     def __getattr__(self, name):
         return getattr(self.inner, name)
+
+
+def vector_rates(n=16, steps=200, repeats=3):
+    """Best robot steps/s of one environment and of the batched vector env of ``n`` robots
+    (envs/vector.py), runs interleaved, waypoints task with ekf (CPU time of this process)."""
+    import gymnasium as gym
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (steps, n, 2)).astype(np.float32)
+    actions[..., 0] = np.abs(actions[..., 0]) * 0.8
+    single = gym.make("SphereBotWaypoints-v1", estimator="ekf")
+    batched = gym.make_vec("SphereBotWaypoints-v1", num_envs=n, vectorization_mode="vector_entry_point",
+                           estimator="ekf")
+    best = [0.0, 0.0]
+    for r in range(repeats):
+        single.reset(seed=r)
+        t = time.process_time()
+        for a in actions:
+            if any(single.step(a[0])[2:4]):
+                single.reset()
+        best[0] = max(best[0], steps / (time.process_time() - t))
+        batched.reset(seed=r)
+        t = time.process_time()
+        for a in actions:
+            batched.step(a)
+        best[1] = max(best[1], n * steps / (time.process_time() - t))
+    single.close()
+    batched.close()
+    return best
 
 
 def env_rates(estimators, steps, repeats=5):
@@ -292,6 +321,11 @@ def main():
           f"truth {rates_cpu['truth']:,.0f} ({8 * rates_cpu['truth'] / with_motor_cpu:.1%})")
     print(f"  target >= 2,000 with ekf: {'met' if r_ekf >= 2000 else 'NOT met'}; "
           f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+
+    one, many = vector_rates(16, 100 if args.quick else 300)
+    print(f"batched vector env (envs/vector.py), 16 robots in one client, waypoints, ekf: {many:,.0f} robot steps/s "
+          f"against {one:,.0f} for one environment: {many / one:.2f}x per core (target >= 3x: "
+          f"{'met' if many / one >= 3 else 'NOT met'})")
 
     mean, med, p99 = reset_times()
     print(f"reset(): mean {mean:.2f} ms, median {med:.2f} ms, p99 {p99:.2f} ms  "

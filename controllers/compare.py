@@ -187,7 +187,7 @@ def run_job(job):
         row.update({k: v for k, v in ep.items() if k in EPISODE_METRICS[job["task"]] or k == "steps"})
         if record_path:
             row.update(path=ep["path"], start=ep["start"], waypoints=ep["waypoints"],
-                       waypoint_radius=env.waypoint_radius)
+                       waypoint_radius=getattr(env, "waypoint_radius", None))   # the waypoints task only
         rows.append(row)
     return rows
 

@@ -44,7 +44,6 @@ class PIDGains:
     speed_i_limit: float = 0.4     # [1]
     pitch_damping: float = 0.02    # [s/rad] on the frame's pitch rate
     top_speed: float = 1.0         # [m/s] feed-forward: speed at full voltage
-    shell_radius: float = 0.125    # [m] encoder rate -> ground speed
     # waypoints: the speed commanded from the distance and the bearing to the next point
     wp_speed: float = 0.5          # [m/s] cruise speed
     wp_slow_radius: float = 1.0    # [m] slow down linearly inside this distance
@@ -55,18 +54,22 @@ class PIDGains:
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"PIDGains.{f.name} must be a finite number >= 0, got {v!r}")
-        for name in ("top_speed", "shell_radius", "wp_slow_radius"):
+        for name in ("top_speed", "wp_slow_radius"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"PIDGains.{name} must be > 0, got {getattr(self, name)!r}")
 
 
 class PID(Controller):
     """Cascaded PID (see the module docstring). ``task``: "track" or "waypoints" (the
-    meaning of the observation's last four values); ``control_hz``: the environment's rate."""
+    meaning of the observation's last four values, read by name from the task's ``OBS``);
+    ``control_hz``: the environment's rate; ``shell_radius`` (m, encoder rate -> ground
+    speed): the robot's, default ``RobotParams``'s (``for_env`` reads the environment's)."""
 
-    def __init__(self, task="track", gains=None, control_hz=50.0):
-        if task not in ("track", "waypoints"):
-            raise ValueError(f"unknown task {task!r}; accepted: track, waypoints")
+    def __init__(self, task="track", gains=None, control_hz=50.0, shell_radius=None):
+        from envs.robot import RobotParams
+        from envs.sphere import TASK_CLASSES
+        if task not in TASK_CLASSES:
+            raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASK_CLASSES)}")
         if gains is None:
             gains = PIDGains()
         elif isinstance(gains, dict):
@@ -80,19 +83,27 @@ class PID(Controller):
         if isinstance(control_hz, bool) or not isinstance(control_hz, (int, float)) or \
                 not math.isfinite(control_hz) or control_hz <= 0:
             raise ValueError(f"control_hz must be a positive number (Hz), got {control_hz!r}")
+        if shell_radius is None:
+            shell_radius = RobotParams().shell_radius
+        elif isinstance(shell_radius, bool) or not isinstance(shell_radius, (int, float)) or \
+                not math.isfinite(shell_radius) or shell_radius <= 0:
+            raise ValueError(f"shell_radius must be a positive number (m), got {shell_radius!r}")
         self.task = task
+        self.obs_index = TASK_CLASSES[task].OBS
         self.gains = gains
         self.dt = 1.0 / float(control_hz)
+        self.shell_radius = float(shell_radius)
         self._n = None
 
     @classmethod
     def for_env(cls, env, gains=None):
         """A PID matching ``env``'s task and control rate (``env`` may be wrapped)."""
         base = env.unwrapped
-        return cls(task=base.task, gains=gains, control_hz=base.control_hz)
+        return cls(task=base.task, gains=gains, control_hz=base.control_hz, shell_radius=base.robot.shell_radius)
 
     def __repr__(self):
-        return f"PID(task={self.task!r}, gains={asdict(self.gains)!r}, control_hz={1.0 / self.dt:g})"
+        return (f"PID(task={self.task!r}, gains={asdict(self.gains)!r}, control_hz={1.0 / self.dt:g}, "
+                f"shell_radius={self.shell_radius:g})")
 
     def reset(self, index=None):
         """Clear the integrators: all rows, or only row(s) ``index`` (a vector env's done envs)."""
@@ -114,21 +125,21 @@ class PID(Controller):
     def act(self, obs):
         o, single = obs_batch(obs)
         self._ensure(o.shape[0])
-        g, dt = self.gains, self.dt
-        w, x, y, z = o[:, 0], o[:, 1], o[:, 2], o[:, 3]
-        gx, gy, gz = o[:, 4], o[:, 5], o[:, 6]
+        g, dt, k = self.gains, self.dt, self.obs_index
+        w, x, y, z = o[:, k["q_w"]], o[:, k["q_x"]], o[:, k["q_y"]], o[:, k["q_z"]]
+        gx, gy, gz = o[:, k["rate_x"]], o[:, k["rate_y"]], o[:, k["rate_z"]]
         # world-frame yaw rate: third row of R(q) times the body rate
         yaw_rate = 2 * (x * z - w * y) * gx + 2 * (y * z + w * x) * gy + (1 - 2 * (x * x + y * y)) * gz
         # sideways rocking: steering *with* the frame's roll rate about its forward axis damps
         # it (the opposite sign drives it; measured in the gain search, docs/controllers.md)
         roll_rate = -gx
-        v_meas = g.shell_radius * (o[:, 7] + gy)
+        v_meas = self.shell_radius * (o[:, k["encoder_speed"]] + gy)
         if self.task == "track":
-            v_cmd = o[:, 10]
-            e_head = np.arctan2(o[:, 12], o[:, 13])
+            v_cmd = o[:, k["speed_cmd"]]
+            e_head = np.arctan2(o[:, k["sin_heading_error"]], o[:, k["cos_heading_error"]])
         else:
-            fwd, left = o[:, 10], o[:, 11]
-            e_head = np.arctan2(o[:, 12], o[:, 13])
+            fwd, left = o[:, k["target_forward"]], o[:, k["target_left"]]
+            e_head = np.arctan2(o[:, k["sin_bearing"]], o[:, k["cos_bearing"]])
             dist = np.hypot(fwd, left)
             v_cmd = np.clip(g.wp_speed * dist / g.wp_slow_radius, g.wp_min_speed, g.wp_speed) \
                 * np.clip(np.cos(e_head), 0.2, 1.0)

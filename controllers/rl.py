@@ -42,6 +42,9 @@ TASK_IDS = {"track": "SphereBotTrack-v0", "waypoints": "SphereBotWaypoints-v0"}
 HYPERPARAMS_DIR = Path(str(resources.files("controllers") / "hyperparams"))
 POLICY_DIR = Path(str(resources.files("controllers") / "policies"))
 NORM_SUFFIX = ".vecnormalize.npz"
+#: how the training environments run: one process each (subproc), all in this process one
+#: after another (single), or all in one process and one physics client (batched, envs/vector.py)
+VEC_ENVS = ("single", "subproc", "batched")
 
 
 class UntrustedPolicyWarning(UserWarning):
@@ -167,10 +170,22 @@ def _interrupt_safe_subproc_vec_env(fns):
     return InterruptSafeSubprocVecEnv(fns, start_method="forkserver" if sys.platform != "win32" else "spawn")
 
 
-def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True, append=False):
-    """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``);
+def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=None, subprocess=True, append=False,
+                 batched=False):
+    """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``;
+    ``batched``: all in one process and one physics client, envs/vector.py);
     ``append``: the Monitor files are continued, not overwritten."""
     from stable_baselines3.common.vec_env import DummyVecEnv
+    if batched:
+        import gymnasium as gym
+
+        import envs  # noqa: F401  (registers the ids)
+        from envs.vector import SB3VecEnv
+        from stable_baselines3.common.vec_env import VecMonitor
+        venv = SB3VecEnv(gym.make_vec(TASK_IDS[task], num_envs=n_envs, vectorization_mode="vector_entry_point",
+                                      estimator=estimator, **dict(env_kwargs or {})))
+        venv.seed(seed)
+        return VecMonitor(venv, _monitor_file(monitor_dir, 0, append) if monitor_dir else None)
     sub = subprocess and n_envs > 1
     fns = [_make_env_fn(task, estimator, dict(env_kwargs or {}), i, seed, monitor_dir, worker=sub, append=append)
            for i in range(n_envs)]
@@ -633,7 +648,7 @@ def _history(stem):
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
           command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print, trusted=False):
+          log=print, trusted=False, vec_env="subproc"):
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
     (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
     written into the package: ``install_policy`` does that).
@@ -687,8 +702,10 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         init = _init_source(init_from, algo, task, trusted, log)
     run_dir.mkdir(parents=True, exist_ok=True)
 
+    if vec_env not in VEC_ENVS:
+        raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
     venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
-                        append=resume)
+                        append=resume, subprocess=vec_env == "subproc", batched=vec_env == "batched")
     eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
     extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
     try:

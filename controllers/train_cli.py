@@ -104,6 +104,9 @@ def parser():
     ap.add_argument("--seed", type=_int(0), default=0, help="random seed, an integer >= 0 (default: %(default)s)")
     ap.add_argument("--n-envs", type=_int(1), default=None, metavar="N",
                     help="parallel environments, >= 1 (default: the YAML file's n_envs)")
+    ap.add_argument("--vec-env", choices=rl.VEC_ENVS, default="subproc",
+                    help="the training environments: one process each, all in this process, or batched in "
+                         "one physics client (default: %(default)s)")
     ap.add_argument("--eval-freq", type=_int(1), default=None, metavar="STEPS",
                     help="evaluate (and keep the best model) every STEPS environment steps "
                          "(default: max(10000, n / 10))")
@@ -165,7 +168,8 @@ def main(argv=None):
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
                         command=command, init_from=a.init_from, overwrite=a.overwrite, eval_freq=a.eval_freq,
                         checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes,
-                        bc_steps=a.bc_steps, hyperparams_override=override, trusted=a.trusted)
+                        bc_steps=a.bc_steps, hyperparams_override=override, trusted=a.trusted,
+                        vec_env=a.vec_env)
     except KeyboardInterrupt:
         return 130
     except (ValueError, FileNotFoundError, FileExistsError) as e:

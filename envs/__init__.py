@@ -4,8 +4,9 @@
     import envs                                  # registers the ids below
     env = gym.make("SphereBotTrack-v1", estimator="ekf", imu="mpu9250")
 
-Ids: ``SphereBotTrack-v1`` (follow a commanded speed and heading) and
-``SphereBotWaypoints-v1`` (drive through waypoints by dead reckoning): the real robot
+Ids: ``SphereBotTrack-v1`` (follow a commanded speed and heading; class
+``envs.SphereBotTrackEnv``) and ``SphereBotWaypoints-v1`` (drive through waypoints by dead
+reckoning; ``envs.SphereBotWaypointsEnv``), both on ``envs.base.SphereRobotBase``: the real robot
 (damping, compliant servo and contact, friction, deadband, latency, battery sag, drive
 vibration). ``-v0`` ids: the same environments with ``realism="ideal"`` (none of those;
 not bit-identical to the environments that were called v0 before v1: docs/envs/robot.md,
@@ -15,27 +16,33 @@ Docs: docs/envs/.
 """
 import gymnasium as _gym
 
-__all__ = ["SphereRobotEnv", "RobotParams", "ENV_IDS"]
+__all__ = ["SphereBotTrackEnv", "SphereBotWaypointsEnv", "SphereRobotBase", "SphereRobotEnv", "RobotParams",
+           "ENV_IDS"]
+_LAZY = {"SphereBotTrackEnv": "envs.track", "SphereBotWaypointsEnv": "envs.waypoints",
+         "SphereRobotBase": "envs.base", "SphereRobotEnv": "envs.sphere", "RobotParams": "envs.robot"}
 
 ENV_IDS = ("SphereBotTrack-v1", "SphereBotWaypoints-v1", "SphereBotTrack-v0", "SphereBotWaypoints-v0")
 
+_TRACK, _WAYPOINTS = "envs.track:SphereBotTrackEnv", "envs.waypoints:SphereBotWaypointsEnv"
 _SPECS = {
-    "SphereBotTrack-v1": dict(kwargs={"task": "track"}, max_episode_steps=1500),       # 30 s at 50 Hz
-    "SphereBotWaypoints-v1": dict(kwargs={"task": "waypoints"}, max_episode_steps=3000),  # 60 s at 50 Hz
-    "SphereBotTrack-v0": dict(kwargs={"task": "track", "realism": "ideal"}, max_episode_steps=1500),
-    "SphereBotWaypoints-v0": dict(kwargs={"task": "waypoints", "realism": "ideal"}, max_episode_steps=3000),
+    "SphereBotTrack-v1": dict(entry_point=_TRACK, kwargs={}, max_episode_steps=1500),          # 30 s at 50 Hz
+    "SphereBotWaypoints-v1": dict(entry_point=_WAYPOINTS, kwargs={}, max_episode_steps=3000),  # 60 s at 50 Hz
+    "SphereBotTrack-v0": dict(entry_point=_TRACK, kwargs={"realism": "ideal"}, max_episode_steps=1500),
+    "SphereBotWaypoints-v0": dict(entry_point=_WAYPOINTS, kwargs={"realism": "ideal"}, max_episode_steps=3000),
 }
+# N robots in one process and one physics client (envs/vector.py): gymnasium.make_vec(id,
+# num_envs=N, vectorization_mode="vector_entry_point")
+_VECTOR = {"SphereBotTrack": "envs.vector:make_track_vec", "SphereBotWaypoints": "envs.vector:make_waypoints_vec"}
+for _id, _spec in _SPECS.items():
+    _spec["vector_entry_point"] = _VECTOR[_id.split("-")[0]]
 
 for _id, _spec in _SPECS.items():
     if _id not in _gym.registry:
-        _gym.register(id=_id, entry_point="envs.sphere:SphereRobotEnv", **_spec)
+        _gym.register(id=_id, **_spec)
 
 
 def __getattr__(name):
-    if name == "SphereRobotEnv":
-        from envs.sphere import SphereRobotEnv
-        return SphereRobotEnv
-    if name == "RobotParams":
-        from envs.robot import RobotParams
-        return RobotParams
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'envs' has no attribute {name!r}")

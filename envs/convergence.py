@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from envs.sphere import SphereRobotEnv
+from envs.track import SphereBotTrackEnv
 
 #: name -> action(t) for t in s; 10 s each
 SCENARIOS = {
@@ -24,7 +24,7 @@ SCENARIOS = {
 DURATION_S = 10.0
 
 
-class _Env(SphereRobotEnv):
+class _Env(SphereBotTrackEnv):
     """The bumps (if any) across the path: 1.2 cm capsules at x = 1, 2, ... m."""
 
     def _draw_layout(self):
@@ -47,8 +47,8 @@ def run(name, physics_hz, seed=0, imu="ideal"):
     ideal IMU's |acc| std, gyro-norm std and peak |acc - g| over the run."""
     act = SCENARIOS[name]
     bumps = 8 if name.startswith("bumps") else 0
-    env = _Env(task="track", estimator="truth", imu=imu, physics_hz=physics_hz,
-                         episode_s=DURATION_S + 1.0, arena_size=60.0, bumps=bumps)
+    env = _Env(estimator="truth", imu=imu, physics_hz=physics_hz, episode_s=DURATION_S + 1.0, arena_size=60.0,
+               bumps=bumps)
     env.reset(seed=seed, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
     log = env.enable_signal_log()
     rolls = []

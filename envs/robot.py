@@ -331,48 +331,33 @@ class Servo:
         return s if t > s else (-s if t < -s else t)
 
 
-def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
-    """Create the robot in ``client`` with the shell's centre at ``position`` (x, y) on the
-    floor and heading ``yaw`` (rad, ENU: 0 = facing east). Returns the body id. Joint
-    motors: the drive joint is torque-controlled by the caller every physics step; the
-    steering joint is a position servo (``set_steer``)."""
+def _robot_visuals(p, client, params):
+    """The visual shapes of the shell, the frame with its axle and the pendulum."""
     r = params.shell_radius
-    col = p.createCollisionShape(p.GEOM_SPHERE, radius=r, physicsClientId=client)
-    vis_shell = vis_frame = vis_pend = -1
-    if visual:
-        import pybullet_data
-        data = pybullet_data.getDataPath()
-        # TinyRenderer draws no transparency: the shell is an opaque textured sphere (its
-        # rotation shows), the axle pokes out of it on both sides (heading and steering tilt)
-        vis_shell = p.createVisualShape(p.GEOM_MESH, fileName=data + "/sphere_smooth.obj", meshScale=[r] * 3,
-                                        rgbaColor=[0.75, 0.9, 1.0, 1.0], physicsClientId=client)
-        vis_frame = p.createVisualShapeArray(
-            shapeTypes=[p.GEOM_BOX, p.GEOM_CYLINDER],
-            halfExtents=[[s / 2 for s in params.frame_size], [0, 0, 0]],
-            radii=[0, 0.012], lengths=[0, 2 * r + 0.08],
-            rgbaColors=[[0.25, 0.25, 0.3, 1.0], [0.85, 0.2, 0.15, 1.0]],
-            visualFramePositions=[[0, 0, 0], [0, 0, 0]],
-            visualFrameOrientations=[[0, 0, 0, 1], [math.sin(math.pi / 4), 0, 0, math.cos(math.pi / 4)]],
-            physicsClientId=client)
-        vis_pend = p.createVisualShape(p.GEOM_BOX, halfExtents=[s / 2 for s in params.pendulum_size],
-                                       rgbaColor=[0.9, 0.45, 0.1, 1.0],
-                                       visualFramePosition=[0, 0, -params.pendulum_length],
-                                       physicsClientId=client)
-    half = 0.5 * yaw
-    orn = [0.0, 0.0, math.sin(half), math.cos(half)]
-    # a compliant contact carries the weight at its static compression: start there
-    sink = params.total_mass * 9.81 / params.contact_stiffness if params.contact_stiffness > 0 else 0.0
-    body = p.createMultiBody(
-        baseMass=params.frame_mass, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vis_frame,
-        basePosition=[float(position[0]), float(position[1]), r - sink], baseOrientation=orn,
-        baseInertialFramePosition=[0, 0, 0], baseInertialFrameOrientation=[0, 0, 0, 1],
-        linkMasses=[params.shell_mass, params.pendulum_mass],
-        linkCollisionShapeIndices=[col, -1], linkVisualShapeIndices=[vis_shell, vis_pend],
-        linkPositions=[[0, 0, 0], [0, 0, 0]], linkOrientations=[[0, 0, 0, 1], [0, 0, 0, 1]],
-        linkInertialFramePositions=[[0, 0, 0], [0, 0, -params.pendulum_length]],
-        linkInertialFrameOrientations=[[0, 0, 0, 1], [0, 0, 0, 1]],
-        linkParentIndices=[0, 0], linkJointTypes=[p.JOINT_REVOLUTE, p.JOINT_REVOLUTE],
-        linkJointAxis=[[0, 1, 0], [1, 0, 0]], physicsClientId=client)
+    import pybullet_data
+    data = pybullet_data.getDataPath()
+    # TinyRenderer draws no transparency: the shell is an opaque textured sphere (its
+    # rotation shows), the axle pokes out of it on both sides (heading and steering tilt)
+    vis_shell = p.createVisualShape(p.GEOM_MESH, fileName=data + "/sphere_smooth.obj", meshScale=[r] * 3,
+                                    rgbaColor=[0.75, 0.9, 1.0, 1.0], physicsClientId=client)
+    vis_frame = p.createVisualShapeArray(
+        shapeTypes=[p.GEOM_BOX, p.GEOM_CYLINDER],
+        halfExtents=[[s / 2 for s in params.frame_size], [0, 0, 0]],
+        radii=[0, 0.012], lengths=[0, 2 * r + 0.08],
+        rgbaColors=[[0.25, 0.25, 0.3, 1.0], [0.85, 0.2, 0.15, 1.0]],
+        visualFramePositions=[[0, 0, 0], [0, 0, 0]],
+        visualFrameOrientations=[[0, 0, 0, 1], [math.sin(math.pi / 4), 0, 0, math.cos(math.pi / 4)]],
+        physicsClientId=client)
+    vis_pend = p.createVisualShape(p.GEOM_BOX, halfExtents=[s / 2 for s in params.pendulum_size],
+                                   rgbaColor=[0.9, 0.45, 0.1, 1.0],
+                                   visualFramePosition=[0, 0, -params.pendulum_length],
+                                   physicsClientId=client)
+    return vis_shell, vis_frame, vis_pend
+
+
+def _robot_dynamics(p, client, body, params):
+    """The robot's inertias, friction, contact, drive friction and steering servo."""
+    r = params.shell_radius
     # inertias (PyBullet would take them from the collision shapes), no artificial damping
     p.changeDynamics(body, -1, localInertiaDiagonal=list(params.frame_inertia), linearDamping=0.0,
                      angularDamping=0.0, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
@@ -402,8 +387,37 @@ def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
             p.changeDynamics(body, STEER_JOINT, jointLowerLimit=-lim, jointUpperLimit=lim, physicsClientId=client)
     else:
         set_steer(p, client, body, params, 0.0)
+
+
+def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
+    """Create the robot in ``client`` with the shell's centre at ``position`` (x, y) on the
+    floor and heading ``yaw`` (rad, ENU: 0 = facing east). Returns the body id. Joint
+    motors: the drive joint is torque-controlled by the caller every physics step; the
+    steering joint is a position servo (``set_steer``)."""
+    r = params.shell_radius
+    col = p.createCollisionShape(p.GEOM_SPHERE, radius=r, physicsClientId=client)
+    vis_shell = vis_frame = vis_pend = -1
     if visual:
-        tex = p.loadTexture(data + "/checker_grid.jpg", physicsClientId=client)
+        vis_shell, vis_frame, vis_pend = _robot_visuals(p, client, params)
+    half = 0.5 * yaw
+    orn = [0.0, 0.0, math.sin(half), math.cos(half)]
+    # a compliant contact carries the weight at its static compression: start there
+    sink = params.total_mass * 9.81 / params.contact_stiffness if params.contact_stiffness > 0 else 0.0
+    body = p.createMultiBody(
+        baseMass=params.frame_mass, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vis_frame,
+        basePosition=[float(position[0]), float(position[1]), r - sink], baseOrientation=orn,
+        baseInertialFramePosition=[0, 0, 0], baseInertialFrameOrientation=[0, 0, 0, 1],
+        linkMasses=[params.shell_mass, params.pendulum_mass],
+        linkCollisionShapeIndices=[col, -1], linkVisualShapeIndices=[vis_shell, vis_pend],
+        linkPositions=[[0, 0, 0], [0, 0, 0]], linkOrientations=[[0, 0, 0, 1], [0, 0, 0, 1]],
+        linkInertialFramePositions=[[0, 0, 0], [0, 0, -params.pendulum_length]],
+        linkInertialFrameOrientations=[[0, 0, 0, 1], [0, 0, 0, 1]],
+        linkParentIndices=[0, 0], linkJointTypes=[p.JOINT_REVOLUTE, p.JOINT_REVOLUTE],
+        linkJointAxis=[[0, 1, 0], [1, 0, 0]], physicsClientId=client)
+    _robot_dynamics(p, client, body, params)
+    if visual:
+        import pybullet_data
+        tex = p.loadTexture(pybullet_data.getDataPath() + "/checker_grid.jpg", physicsClientId=client)
         p.changeVisualShape(body, DRIVE_JOINT, textureUniqueId=tex, physicsClientId=client)
     return body
 

@@ -1,5 +1,6 @@
 """Type stub of the compiled IMU step (fusion/_imu.pyx): the streaming step of fusion.imu.IMU."""
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 class StepKernel:
     def load(self, imu: Any) -> None: ...

@@ -196,7 +196,7 @@ def test_bumps_and_ramps_leave_the_start_clear():
     # a small arena draws many obstacles near the start; the robot must not begin its
     # episode against one (it cannot climb a bump from standstill)
     import pybullet as p
-    from envs.sphere import START_CLEARANCE
+    from envs.base import START_CLEARANCE
     env = SphereRobotEnv(task="waypoints", estimator="truth", arena_size=4.0, bumps=12, ramps=3)
     try:
         gap = START_CLEARANCE - env.robot.shell_radius

@@ -1,0 +1,270 @@
+"""N robots of one task in one process and one PyBullet client: a Gymnasium ``VectorEnv``
+(``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``) and an
+SB3 ``VecEnv`` adapter (``SB3VecEnv``).
+
+Every robot has its own floor and obstacles at the same place in the one world, and the
+collisions between one robot's bodies and every other robot's are filtered out, so the
+robots never meet; positions keep the single environment's coordinates (no far-away
+arenas, whose large coordinates would round differently). Each physics step commands every
+robot, steps the world once and senses every robot.
+
+Resets: ``reset()`` resets every robot, their settling (``_reset_some``) interleaved as a
+step is, so each robot's episode is its single environment's bit for bit (test, also with
+ekf and obstacles). An auto-reset of some robots settles them while PyBullet (which cannot
+step a subset of its bodies) also moves the others; their positions, velocities and joints
+are put back afterwards, but not PyBullet's contact caches: the reset robot's new episode is
+bit for bit its single environment's, the others' episodes from then on are not (they
+differ at rounding level at first, then drift apart as any chaotic system does).
+
+Estimators: one bank (``fusion.make_bank``) holds every robot's filter; it steps them all
+in one call when every robot has an IMU sample in the same physics step, otherwise each
+robot's filter is updated alone (the same numbers: tested). The IMU model's sample clocks
+have per-device jitter and error, so the robots' samples seldom coincide (3 robots, 40
+steps: 51 bank calls against about 160 samples each). Not done: one IMU-model kernel for
+all robots (each still has its own ``fusion.imu.IMU``). Speed: 16 robots ran
+0.71-0.93x the robot steps/s per core of one environment, same run (target 3x; measured by
+benchmarks/env_speed.py): PyBullet's world step costs more per robot with 16 than with one
+(about 27-33 us per robot against about 15 us: the robots' shapes overlap in the
+broadphase before the filter drops the pairs; the robots share one floor), and the
+per-robot Python of each physics step (the IMU model's ``step``, the true signals, sensing,
+actuation: about 60 % of the time, profiled) is not shared by batching.
+"""
+from __future__ import annotations
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+__all__ = ["SphereBotVectorEnv", "SB3VecEnv", "make_track_vec", "make_waypoints_vec"]
+
+
+class SphereBotVectorEnv(VectorEnv):
+    """``num_envs`` robots of the task class ``env_cls`` built with ``kwargs`` (the single
+    environment's arguments; ``render_mode`` is not supported here)."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, env_cls, num_envs, **kwargs):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= 1024:
+            raise ValueError(f"num_envs must be an integer in [1, 1024], got {num_envs!r}")
+        if kwargs.get("render_mode") is not None:
+            raise ValueError("render_mode must be None for the batched vector environment")
+        kwargs.pop("max_episode_steps", None)       # the episode length is the env's episode_s
+        self.num_envs = int(num_envs)
+        self.envs = [env_cls(**kwargs) for _ in range(self.num_envs)]
+        e0 = self.envs[0]
+        self.single_observation_space = e0.observation_space
+        self.single_action_space = e0.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.OBS, self.task, self.control_hz, self.robot = e0.OBS, e0.task, e0.control_hz, e0.robot
+        self._bank = None
+        if e0._est is not None:
+            # one bank steps every robot's estimator when all have a sample (the usual case);
+            # each robot holds its bank filter, for its bias, counters, reset and lone updates
+            import fusion
+            self._bank = fusion.make_bank(e0.estimator_name, e0.imu_hz, self.num_envs, on_invalid="skip",
+                                          **e0._est_params)
+            for e, f in zip(self.envs, self._bank._filters, strict=True):
+                e._est = f
+        self._p = self._client = None
+
+    def _connect(self):
+        import pybullet as p
+        self._p = p
+        self._client = p.connect(p.DIRECT)
+        if self._client < 0:
+            raise RuntimeError("could not connect to PyBullet")
+        for e in self.envs:
+            e._shared = self._client
+            e._connect()
+        self.envs[0]._world_settings()
+        self._floor = self.envs[0]._make_floor()        # one floor for every robot
+
+    def _filter(self, i):
+        """No collisions between robot ``i``'s bodies and the other robots' bodies."""
+        p, c = self._p, self._client
+        mine = [(b, link) for b in self.envs[i]._bodies for link in range(-1, p.getNumJoints(b, physicsClientId=c))]
+        for j, e in enumerate(self.envs):
+            if j == i:
+                continue
+            for b in e._bodies:
+                for link in range(-1, p.getNumJoints(b, physicsClientId=c)):
+                    for (a, la) in mine:
+                        p.setCollisionFilterPair(a, b, la, link, 0, physicsClientId=c)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        if self._client is None:
+            self._connect()
+        if seed is None or isinstance(seed, (int, np.integer)):
+            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed must be None, an int or {self.num_envs} seeds, got {len(seeds)}")
+        infos = {}
+        out = self._reset_some(range(self.num_envs), seeds, options)
+        for i, (_, info) in enumerate(out):
+            infos = self._add_info(infos, info, i)
+        return np.stack([o for o, _ in out]), infos
+
+    def _reset_some(self, index, seeds, options=None):
+        """Reset the robots ``index`` (with ``seeds``): their settling runs together, and the
+        other robots' positions, velocities and joints are put back after it (the module
+        docstring says what that does not restore). Returns [(obs, info), ...]."""
+        resetting = [self.envs[i] for i in index]
+        for i, s in zip(index, seeds, strict=True):
+            self.envs[i]._reset_begin(s, options)
+            self._filter(i)
+        others = [e for j, e in enumerate(self.envs) if j not in set(index)]
+        saved = [self._kinematic_state(e._body) for e in others]
+        self._physics(resetting, [(0.0, 0.0)] * len(resetting), resetting[0]._settle_steps)
+        for e, st in zip(others, saved, strict=True):
+            self._restore_kinematic_state(e._body, st)
+        return [e._reset_end() for e in resetting]
+
+    def _kinematic_state(self, b):
+        p, c = self._p, self._client
+        joints = range(p.getNumJoints(b, physicsClientId=c))
+        return (p.getBasePositionAndOrientation(b, c), p.getBaseVelocity(b, c),
+                [p.getJointState(b, j, c)[:2] for j in joints])
+
+    def _restore_kinematic_state(self, b, st):
+        p, c = self._p, self._client
+        (pos, orn), (lin, ang), js = st
+        p.resetBasePositionAndOrientation(b, pos, orn, physicsClientId=c)
+        p.resetBaseVelocity(b, lin, ang, physicsClientId=c)
+        for j, (q, w) in enumerate(js):
+            p.resetJointState(b, j, q, w, physicsClientId=c)
+
+    def _physics(self, envs, commands, n):
+        """n physics steps of ``envs`` with the commands (voltage, steering target): each
+        robot's ``_advance`` interleaved with the others' around one world step."""
+        step, c = self._p.stepSimulation, self._client
+        pairs = [(e._actuate, v, t) for e, (v, t) in zip(envs, commands, strict=True)]
+        bank = self._bank if len(envs) == self.num_envs else None
+        for k in range(n):
+            for actuate, v, t in pairs:
+                actuate(k, v, t)
+            step(c)
+            self._sense(envs, bank)
+        for e, cmd in zip(envs, commands, strict=True):
+            e._cmd_prev = cmd
+
+    @staticmethod
+    def _sense(envs, bank):
+        """Every robot's sensing after a world step; one bank update when all have a sample."""
+        samples = [e._measure() for e in envs]
+        if bank is not None and all(s is not None for s in samples):
+            mag = None if samples[0].mag is None else np.array([s.mag for s in samples])
+            q = bank.update(np.array([s.gyr for s in samples]), np.array([s.acc for s in samples]), mag)
+            for i, (e, s) in enumerate(zip(envs, samples, strict=True)):
+                e._on_sample(s, q[i].copy())
+            return
+        for e, s in zip(envs, samples, strict=True):
+            if s is not None:
+                e._on_sample(s, e._est.update(s.gyr, s.acc, s.mag) if e._est is not None else None)
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        envs = self.envs
+        cmd = []
+        for e, a in zip(envs, actions, strict=True):
+            a0, a1 = e._begin_step(a)
+            cmd.append((a0, a1, a0 * e.robot.motor_voltage, a1 * e.robot.steer_max))
+        self._physics(envs, [(v, t) for _, _, v, t in cmd], envs[0]._n_sub)
+        return self._finish(cmd)
+
+    def _finish(self, cmd):
+        n = self.num_envs
+        obs = np.empty((n,) + self.single_observation_space.shape, dtype=np.float32)
+        rew, term, trunc = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        infos = {}
+        ends = []
+        for i, (e, (a0, a1, _, _)) in enumerate(zip(self.envs, cmd, strict=True)):
+            obs[i], rew[i], term[i], trunc[i], ends_info = e._end_step(a0, a1)
+            ends.append(ends_info)
+        done = [i for i in range(n) if term[i] or trunc[i]]
+        fresh = dict(zip(done, self._reset_some(done, [None] * len(done)), strict=True)) if done else {}
+        for i in range(n):
+            info = ends[i]
+            if i in fresh:
+                info = {"final_obs": obs[i].copy(), "final_info": info, **fresh[i][1]}
+                obs[i] = fresh[i][0]
+            infos = self._add_info(infos, info, i)
+        return obs, rew, term, trunc, infos
+
+    def close_extras(self, **kwargs):
+        for e in self.envs:
+            e.close()
+        if self._client is not None:
+            self._p.disconnect(physicsClientId=self._client)
+        self._client = None
+
+
+def make_track_vec(num_envs, **kwargs):
+    """The ``vector_entry_point`` of ``SphereBotTrack``."""
+    from envs.track import SphereBotTrackEnv
+    return SphereBotVectorEnv(SphereBotTrackEnv, num_envs, **kwargs)
+
+
+def make_waypoints_vec(num_envs, **kwargs):
+    """The ``vector_entry_point`` of ``SphereBotWaypoints``."""
+    from envs.waypoints import SphereBotWaypointsEnv
+    return SphereBotVectorEnv(SphereBotWaypointsEnv, num_envs, **kwargs)
+
+
+def SB3VecEnv(venv):  # noqa: N802  (a class factory: SB3 is imported only here)
+    """A stable-baselines3 ``VecEnv`` over a ``SphereBotVectorEnv`` (terminal observations
+    in ``infos[i]["terminal_observation"]``, ``"TimeLimit.truncated"`` as SB3 expects)."""
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class _SB3(VecEnv):
+        def __init__(self, venv):
+            self.venv = venv
+            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+            self._seed = None
+
+        def reset(self):
+            obs, _ = self.venv.reset(seed=self._seed)
+            self._seed = None
+            return obs
+
+        def step_async(self, actions):
+            self._actions = actions
+
+        def step_wait(self):
+            obs, rew, term, trunc, infos = self.venv.step(self._actions)
+            out = []
+            for i in range(self.num_envs):
+                done = bool(term[i] or trunc[i])
+                info = {"TimeLimit.truncated": bool(trunc[i] and not term[i])}
+                if done:
+                    info["terminal_observation"] = infos["final_obs"][i]
+                out.append(info)
+            return obs, rew.astype(np.float32), term | trunc, out
+
+        def seed(self, seed=None):
+            self._seed = seed
+            return [None if seed is None else seed + i for i in range(self.num_envs)]
+
+        def close(self):
+            self.venv.close()
+
+        def get_attr(self, name, indices=None):
+            return [getattr(self.venv.envs[i], name) for i in self._get_indices(indices)]
+
+        def set_attr(self, name, value, indices=None):
+            for i in self._get_indices(indices):
+                setattr(self.venv.envs[i], name, value)
+
+        def env_method(self, name, *args, indices=None, **kwargs):
+            return [getattr(self.venv.envs[i], name)(*args, **kwargs) for i in self._get_indices(indices)]
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False for _ in self._get_indices(indices)]
+
+    return _SB3(venv)
