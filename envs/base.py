@@ -20,6 +20,7 @@ from gymnasium import spaces
 
 import fusion
 from fusion import imu as fimu
+from fusion.constants import GRAVITY as G
 
 from envs import _signals
 from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
@@ -27,7 +28,6 @@ from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, 
 
 __all__ = ["SphereRobotBase", "ESTIMATORS", "BASE_OBS", "obs_layout"]
 
-G = 9.81
 #: Earth field (uT, ENU) of the seeds' region (Nanjing, WMM: total 50.6 uT, inclination
 #: 48 deg); declination set to 0 so that magnetic north is the world's +y and the estimated
 #: heading has the same zero as the true one.
@@ -314,7 +314,8 @@ class SphereRobotBase(gym.Env):
             return
         if self.render_mode == "human":
             # without a display PyBullet's GUI ends the whole process from C; fail in Python
-            if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            headless = not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+            if sys.platform.startswith("linux") and headless:
                 raise RuntimeError("render_mode='human' opens PyBullet's window and needs a display "
                                    "(DISPLAY is not set); use render_mode='rgb_array' for headless frames")
             self._client = p.connect(p.GUI)
@@ -982,7 +983,8 @@ class SphereRobotBase(gym.Env):
             p.resetDebugVisualizerCamera(1.2, 45.0, -30.0, pos, physicsClientId=c)
             return None
         w, h = self.render_size
-        view = p.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=pos, distance=0.9, yaw=self._heading_true() * 180.0 / math.pi - 60.0, pitch=-20.0,
+        view = p.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=pos, distance=0.9,
+                                                   yaw=self._heading_true() * 180.0 / math.pi - 60.0, pitch=-20.0,
                                                    roll=0.0, upAxisIndex=2, physicsClientId=c)
         proj = p.computeProjectionMatrixFOV(fov=60.0, aspect=w / h, nearVal=0.02, farVal=50.0, physicsClientId=c)
         img = p.getCameraImage(w, h, view, proj, renderer=p.ER_TINY_RENDERER, shadow=1,

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 
 from envs.track import SphereBotTrackEnv
+from fusion.constants import GRAVITY
 
 #: name -> action(t) for t in s; 10 s each
 SCENARIOS = {
@@ -67,7 +68,7 @@ def run(name, physics_hz, seed=0, imu="ideal"):
     return {"position": st["position"][:2].copy(), "heading": math.atan2(-st["rotation"][0, 1], st["rotation"][1, 1]),
             "roll_pp_deg": float(np.ptp(r)), "acc_std": float(an.std()),
             "gyr_std": float(np.linalg.norm(gyr, axis=1).std()),
-            "acc_peak": float(np.abs(an - 9.81).max())}
+            "acc_peak": float(np.abs(an - GRAVITY).max())}
 
 
 def compare(name, hz=400.0, factor=4):

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, fields, replace
+from fusion.constants import GRAVITY
 
 __all__ = ["RobotParams", "DCMotor", "Servo", "build_robot", "spin_torque", "DRIVE_JOINT", "STEER_JOINT", "REALISM"]
 
@@ -230,7 +231,7 @@ class RobotParams:
     @property
     def righting_moment(self):
         """N m: the pendulum's largest gravity moment about the axle, m g L."""
-        return self.pendulum_mass * 9.81 * self.pendulum_length
+        return self.pendulum_mass * GRAVITY * self.pendulum_length
 
     @property
     def top_speed(self):
@@ -402,7 +403,7 @@ def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
     half = 0.5 * yaw
     orn = [0.0, 0.0, math.sin(half), math.cos(half)]
     # a compliant contact carries the weight at its static compression: start there
-    sink = params.total_mass * 9.81 / params.contact_stiffness if params.contact_stiffness > 0 else 0.0
+    sink = params.total_mass * GRAVITY / params.contact_stiffness if params.contact_stiffness > 0 else 0.0
     body = p.createMultiBody(
         baseMass=params.frame_mass, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vis_frame,
         basePosition=[float(position[0]), float(position[1]), r - sink], baseOrientation=orn,
@@ -427,7 +428,7 @@ def spin_torque(params):
     the shell about the vertical: PyBullet's own spinningFriction constraint pumps the
     sideways rocking in a turn (roll peak to peak grows to 60-80 deg with 3e-4 m even at
     1600 Hz; with none it decays). Normal force: the robot's weight."""
-    return params.spinning_friction * params.total_mass * 9.81
+    return params.spinning_friction * params.total_mass * GRAVITY
 
 
 #: (rad/s) the spin rate over which the spinning friction ramps to its full value. A rolling
