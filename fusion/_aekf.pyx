@@ -10,6 +10,7 @@ from libc.stdlib cimport realloc, free
 
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
+from fusion._magdist cimport magd_check
 from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT
 from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated
 from fusion._wahba cimport quest2
@@ -235,7 +236,9 @@ cdef class AEKF(EKF):
         # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
         if acc != NULL:
             self.acc_update(acc, dt / self.reject_factor if acc_rej else dt)
-        if mag != NULL:
+        # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
+        # re-learned, the document's gate's is not
+        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
             self.mag_update(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 

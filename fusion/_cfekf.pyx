@@ -9,7 +9,7 @@ from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, FLAG
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, MAGDIST_PARAMS, FLAG
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
 from libc.math cimport sqrt, fabs
@@ -41,8 +41,8 @@ cdef class CFEKF(EKF):
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
               "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": True,
-              **REST_PARAMS}
+              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading",
+              **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -76,7 +76,10 @@ cdef class CFEKF(EKF):
         # filter's gain ramp, and the EKF's attitude covariance grows as the ekf's does, so
         # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"])
+        # the complementary filter takes the magnetometer: its heading-only correction and
+        # disturbance detection are the cf-ekf's
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
+                          **{k: p[k] for k in MAGDIST_PARAMS})
         self.reset()
 
     cdef list _state_fields(self):
@@ -156,6 +159,31 @@ cdef class CFEKF(EKF):
     def window(self):
         """Sliding-mean window, samples."""
         return (<object>self.pre_gyr).window
+
+    @property
+    def mag_rejected(self):
+        """Magnetometer samples the complementary filter rejected as disturbed."""
+        return self.cf.mag_rejected
+
+    @property
+    def mag_update(self):
+        return self.cf.mag_update
+
+    @property
+    def magdist_time(self):
+        return self.cf.magdist_time
+
+    @property
+    def magdist_norm_tol(self):
+        return self.cf.magdist_norm_tol
+
+    @property
+    def magdist_dip_tol(self):
+        return self.cf.magdist_dip_tol
+
+    @property
+    def magdist_new_time(self):
+        return self.cf.magdist_new_time
 
     @property
     def kp(self):

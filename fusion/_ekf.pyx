@@ -5,9 +5,10 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
+from fusion._magdist cimport magd_check, magd_set
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_rest_params, REST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
+from fusion._core import check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated)
@@ -402,7 +403,7 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
         acc = af
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, b, P, acc, dt)
-    if mag != NULL:
+    if mag != NULL and magd_check(&e.magd, q, mag, gyr, dt):
         ekf_mag_update(e, q, b, P, mag, dt)
     quat_normalise(q)
 
@@ -413,8 +414,8 @@ cdef class EKF(Estimator):
     name = "ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0, "acc_update": "vector",
-              **REST_PARAMS}
+              "mag_update": "heading", "acc_lowpass": 0.0, "acc_update": "vector",
+              **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -431,6 +432,7 @@ cdef class EKF(Estimator):
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
         self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
+        magd_set(&self.magd, check_magdist_params(p))
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.reset()
 
@@ -440,7 +442,7 @@ cdef class EKF(Estimator):
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
-                + self._rest_fields())
+                + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i

@@ -6,11 +6,12 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import check_positive, check_param, check_gyro_range
+from fusion._core import check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS
+from fusion._ekf import check_choice, MAG_UPDATES
+from fusion._magdist cimport magd_check, magd_set
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
-
 
 
 cdef double RECOVERY_STEP_MAX = 0.5    # share of the error one recovery step may correct
@@ -95,9 +96,10 @@ cdef inline void half_angle_fast(double wx, double wy, double wz, double dt, dou
 
 cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
                              const double* gyr, const double* acc, const double* mag,
-                             double dt) noexcept nogil:
+                             double dt, bint heading) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL), q and eint in place: Mahony._step and the
-    batch loop both run this."""
+    batch loop both run this. heading (mag_update="heading"): the magnetometer's error
+    keeps only its component about the vertical, so that it turns the heading alone."""
     # Propagate with the integral-corrected gyro, q1 = q ⊗ p, then correct with this
     # sample's vectors: the measurements belong to the attitude after the step, as in the
     # EKF. The error (mahony_error at q1) is evaluated in the navigation frame, with one
@@ -157,9 +159,10 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         # -h0 h2, h0 rho], over |mag|^2 (the folded field is linear in mag)
         k = 1.0 / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         mat_vec(R1, mag, h)
-        W[0] += (h[2] * k) * h[1]
-        W[1] -= (h[0] * k) * h[2]
-        G[0] = -(h[2] * k)      # G = [G0, 0, G1]
+        if not heading:         # heading: only the vertical component, h0 rho
+            W[0] += (h[2] * k) * h[1]
+            W[1] -= (h[0] * k) * h[2]
+            G[0] = -(h[2] * k)  # G = [G0, 0, G1]
         G[1] = h[0] * k
         rho2 = h[0] * h[0] + h[1] * h[1]
         rho = sqrt(rho2)
@@ -207,7 +210,7 @@ cdef class Mahony(Estimator):
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"
-    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None}
+    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None, "mag_update": "heading", **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -215,11 +218,14 @@ cdef class Mahony(Estimator):
         self.kp = check_param("kp", p["kp"], allow_zero=True)
         self.ki = check_param("ki", p["ki"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
+        magd_set(&self.magd, check_magdist_params(p))
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None),
+        return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None),
                                                  ("t_recover", <double[:1]>&self.t_recover, None)]
+                + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
@@ -236,8 +242,10 @@ cdef class Mahony(Estimator):
         """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
         cdef double eint[3]
+        if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
+            mag = NULL
         if f == 1.0:
-            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
+            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
             return
         # recovering: the large error is the attitude's, not the gyro's bias. At low rates
         # the raised gain would turn by more than the error in one step and overshoot: at
@@ -245,7 +253,7 @@ cdef class Mahony(Estimator):
         if f * self.kp * dt > RECOVERY_STEP_MAX:
             f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
         memcpy(eint, self.eint, 3 * sizeof(double))
-        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt)
+        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
         memcpy(self.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
@@ -256,6 +264,7 @@ cdef class Mahony(Estimator):
         cdef double q[4]
         cdef double eint[3]
         cdef double kp = self.kp, ki = self.ki
+        cdef bint heading = self.mag_heading
         cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
@@ -266,7 +275,9 @@ cdef class Mahony(Estimator):
         for i in range(n):
             mi = m + 3 * i if m != NULL else NULL
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
+                if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
+                    mi = NULL
+                mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt, heading)
             else:
                 if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
                     return i
@@ -279,6 +290,11 @@ cdef class Mahony(Estimator):
         memcpy(self.q, q, 4 * sizeof(double))
         memcpy(self.eint, eint, 3 * sizeof(double))
         return n
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector" (Mahony's)."""
+        return "heading" if self.mag_heading else "vector"
 
     @property
     def bias(self):

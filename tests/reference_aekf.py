@@ -185,7 +185,7 @@ class RefAEKF(ref.RefEKF):
             f = self.reject_factor if acc_rej else 1.0
             self._correct(normalise(acc), ref.acc_model, (self.acc_noise / G) ** 2 / dt * f * I3,
                           "tilt" if self.acc_update == "tilt" else "full")
-        if mag is not None:
+        if mag is not None and self.magd(self.q, mag, gyr, dt):      # the shared detector
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
