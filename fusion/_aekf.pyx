@@ -76,7 +76,7 @@ cdef class AEKF(EKF):
     name = "aekf"
     # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer); the
     # accelerometer corrects the inclination only (docs/aekf.md, "Rest and tilt")
-    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_update="tilt", acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -126,10 +126,12 @@ cdef class AEKF(EKF):
             ("n_acc_rej", <long long[:1]>&self.n_acc_rej, COUNT),
             ("n_mag_tested", <long long[:1]>&self.n_mag_tested, COUNT),
             ("n_mag_rej", <long long[:1]>&self.n_mag_rej, COUNT),
-            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7))]
+            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7)),
+            ("g_ref", <double[:1]>&self.g_ref, None)]
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
+        self.g_ref = G0
         self.n_learned = 0
         self.t_dir = 0.0
         self.norm_sum = 0.0
@@ -157,16 +159,24 @@ cdef class AEKF(EKF):
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
+        cdef long long n_rest = self.rest.n
+        cdef double g
         self.propagate(gyr, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
         self.rest_update(gyr, acc, dt)
+        if self.rest.n > n_rest:
+            # at rest the accelerometer's low-passed norm is this sensor's g (a scale error of
+            # a few % would otherwise fail the norm test on every sample of a still sensor)
+            self.g_ref = sqrt(self.rest.acc[0] * self.rest.acc[0] + self.rest.acc[1] * self.rest.acc[1]
+                              + self.rest.acc[2] * self.rest.acc[2])
+        g = self.g_ref
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:
             na = sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-            dx = acc[0] - G0 * u[0]
-            dy = acc[1] - G0 * u[1]
-            dz = acc[2] - G0 * u[2]
-            if fabs(na - G0) > self.acc_norm_tol:
+            dx = acc[0] - g * u[0]
+            dy = acc[1] - g * u[1]
+            dz = acc[2] - g * u[2]
+            if fabs(na - g) > self.acc_norm_tol:
                 acc_rej = True
                 self.t_dir = 0.0
             elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:

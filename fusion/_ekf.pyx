@@ -346,15 +346,27 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_gain)
 
 
-cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
-                          double* out) noexcept nogil:
-    """acc_lowpass (docs/estimators.md): the sample turned into the navigation frame with the
-    predicted attitude q, low-passed there (first order, time constant acc_lowpass; the
-    first sample starts it), and turned back: a vertical the linear acceleration of a
-    shaken body averages out of."""
+cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
+                          double dt, double* out) noexcept nogil:
+    """acc_lowpass (docs/estimators.md): the sample turned into a frame that turns with the
+    gyro alone (qg, the bias-corrected gyro integrated from the first sample, never
+    corrected), low-passed there (first order, time constant acc_lowpass; the first sample
+    starts it), and turned back with qg: a body-frame vertical that the linear acceleration
+    of a shaken body averages out of, and that does not depend on the filter's corrections
+    (as VQF's accelerometer low-pass, Laidig & Seel 2023)."""
     cdef double an[3]
+    cdef double A[16]
+    cdef double qn[4]
+    cdef double* qg = e.acc_qg
     cdef double k = dt / (e.acc_lowpass + dt)
-    rot_to_nav(q, acc, an)
+    cdef int i
+    if gyr != NULL and e.acc_lp_started:
+        phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
+        for i in range(4):
+            qn[i] = A[i * 4] * qg[0] + A[i * 4 + 1] * qg[1] + A[i * 4 + 2] * qg[2] + A[i * 4 + 3] * qg[3]
+        memcpy(qg, qn, 4 * sizeof(double))
+        quat_normalise(qg)
+    rot_to_nav(qg, acc, an)
     if not e.acc_lp_started:
         e.acc_lp[0] = an[0]
         e.acc_lp[1] = an[1]
@@ -364,7 +376,7 @@ cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
         e.acc_lp[0] += k * (an[0] - e.acc_lp[0])
         e.acc_lp[1] += k * (an[1] - e.acc_lp[1])
         e.acc_lp[2] += k * (an[2] - e.acc_lp[2])
-    rot_to_body(q, e.acc_lp, out)
+    rot_to_body(qg, e.acc_lp, out)
 
 
 cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
@@ -399,7 +411,7 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:
-        acc_nav_lowpass(e, q, acc, dt, af)
+        acc_nav_lowpass(e, gyr, b, acc, dt, af)
         acc = af
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, b, P, acc, dt)
@@ -412,9 +424,10 @@ cdef class EKF(Estimator):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+    # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", "acc_lowpass": 0.0, "acc_update": "vector",
+              "mag_update": "heading", "acc_lowpass": 1.0, "acc_update": "vector",
               **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -441,7 +454,8 @@ cdef class EKF(Estimator):
                                                 ("P", <double[:49]>self.P, None),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
+                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -461,6 +475,10 @@ cdef class EKF(Estimator):
         self.acc_lp[0] = 0.0
         self.acc_lp[1] = 0.0
         self.acc_lp[2] = 0.0
+        self.acc_qg[0] = 1.0
+        self.acc_qg[1] = 0.0
+        self.acc_qg[2] = 0.0
+        self.acc_qg[3] = 0.0
 
     # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

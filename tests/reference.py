@@ -507,14 +507,15 @@ class RefRest:
 
 
 class RefEKF(RefEstimator):
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", "acc_lowpass": 0.0, "rest_time": 1.5,
+              "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
               "acc_update": "vector", **MAGDIST_PARAMS}
 
     def _reset_state(self):
-        self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, navigation frame
+        self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, in the frame acc_qg
+        self.acc_qg = IDENTITY.copy()   # the bias-corrected gyro integrated (never corrected)
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.magd = make_magdist(self)
         self.b = np.zeros(3)
@@ -610,10 +611,13 @@ class RefEKF(RefEstimator):
         self._propagate(gyr, dt)                                         # 1.
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
-            an = rotmat(self.q) @ acc
+            # low-passed in a frame that turns with the bias-corrected gyro alone
+            if gyr is not None and self.acc_lp is not None:
+                self.acc_qg = normalise(phi(gyr - self.b, dt) @ self.acc_qg)
+            an = rotmat(self.acc_qg) @ acc
             self.acc_lp = an if self.acc_lp is None else \
                 self.acc_lp + dt / (self.acc_lowpass + dt) * (an - self.acc_lp)
-            acc = rotmat(self.q).T @ self.acc_lp
+            acc = rotmat(self.acc_qg).T @ self.acc_lp
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm, "tilt" if self.acc_update == "tilt" else "full")

@@ -155,7 +155,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = {k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update", "acc_lowpass")}
+    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update", "acc_lowpass")}, acc_noise=1.0)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
