@@ -6,6 +6,7 @@ from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
@@ -348,35 +349,8 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
 
 cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
                           double dt, double* out) noexcept nogil:
-    """acc_lowpass (docs/estimators.md): the sample turned into a frame that turns with the
-    gyro alone (qg, the bias-corrected gyro integrated from the first sample, never
-    corrected), low-passed there (first order, time constant acc_lowpass; the first sample
-    starts it), and turned back with qg: a body-frame vertical that the linear acceleration
-    of a shaken body averages out of, and that does not depend on the filter's corrections
-    (as VQF's accelerometer low-pass, Laidig & Seel 2023)."""
-    cdef double an[3]
-    cdef double A[16]
-    cdef double qn[4]
-    cdef double* qg = e.acc_qg
-    cdef double k = dt / (e.acc_lowpass + dt)
-    cdef int i
-    if gyr != NULL and e.acc_lp_started:
-        phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-        for i in range(4):
-            qn[i] = A[i * 4] * qg[0] + A[i * 4 + 1] * qg[1] + A[i * 4 + 2] * qg[2] + A[i * 4 + 3] * qg[3]
-        memcpy(qg, qn, 4 * sizeof(double))
-        quat_normalise(qg)
-    rot_to_nav(qg, acc, an)
-    if not e.acc_lp_started:
-        e.acc_lp[0] = an[0]
-        e.acc_lp[1] = an[1]
-        e.acc_lp[2] = an[2]
-        e.acc_lp_started = True
-    else:
-        e.acc_lp[0] += k * (an[0] - e.acc_lp[0])
-        e.acc_lp[1] += k * (an[1] - e.acc_lp[1])
-        e.acc_lp[2] += k * (an[2] - e.acc_lp[2])
-    rot_to_body(qg, e.acc_lp, out)
+    """acc_lowpass (fusion/_acclp.pxd) on the ekf's state, out of line."""
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
 
 
 cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
@@ -470,15 +444,8 @@ cdef class EKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
-        self.acc_lp_started = False
         rest_clear(&self.rest)
-        self.acc_lp[0] = 0.0
-        self.acc_lp[1] = 0.0
-        self.acc_lp[2] = 0.0
-        self.acc_qg[0] = 1.0
-        self.acc_qg[1] = 0.0
-        self.acc_qg[2] = 0.0
-        self.acc_qg[3] = 0.0
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

@@ -6,9 +6,10 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS
+from fusion._core import check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG
 from fusion._ekf import check_choice, MAG_UPDATES
 from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -205,12 +206,24 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
+cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, const double* acc,
+                             double dt, double* out) noexcept nogil:
+    """acc_lowpass (fusion/_acclp.pxd) with the integral term's bias, -ki eint (out of line:
+    the batch loop keeps its inlined step)."""
+    cdef double b[3]
+    b[0] = -e.ki * eint[0]
+    b[1] = -e.ki * eint[1]
+    b[2] = -e.ki * eint[2]
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"
-    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None, "mag_update": "heading", **MAGDIST_PARAMS}
+    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 0.0,
+              **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -219,12 +232,16 @@ cdef class Mahony(Estimator):
         self.ki = check_param("ki", p["ki"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
         self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
+        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
         magd_set(&self.magd, check_magdist_params(p))
         self.reset()
 
     cdef list _state_fields(self):
         return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, None),
-                                                 ("t_recover", <double[:1]>&self.t_recover, None)]
+                                                 ("t_recover", <double[:1]>&self.t_recover, None),
+                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
+                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -232,6 +249,7 @@ cdef class Mahony(Estimator):
         self.eint[1] = 0.0
         self.eint[2] = 0.0
         self.t_recover = 0.0
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -242,8 +260,12 @@ cdef class Mahony(Estimator):
         """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
         cdef double eint[3]
+        cdef double af[3]
         if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
             mag = NULL
+        if acc != NULL and self.acc_lowpass > 0.0:
+            mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
+            acc = af
         if f == 1.0:
             mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
             return
@@ -268,6 +290,8 @@ cdef class Mahony(Estimator):
         cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
+        cdef const double* ai
+        cdef double af[3]
         if not run_fast(self) or self.gyro_range_ > 0.0:     # recovery: step by step
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
@@ -277,7 +301,11 @@ cdef class Mahony(Estimator):
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
                 if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
                     mi = NULL
-                mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt, heading)
+                ai = a + 3 * i
+                if self.acc_lowpass > 0.0:
+                    mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
+                    ai = af
+                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading)
             else:
                 if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
                     return i

@@ -6,8 +6,9 @@ from libc.math cimport sqrt
 
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, FLAG
 from fusion._ekf import check_choice, MAG_UPDATES
 from fusion._ekf import check_recovery_params
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
@@ -78,7 +79,7 @@ cdef class UKF(Estimator):
     name = "ukf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", **REST_PARAMS, **MAGDIST_PARAMS}
+              "mag_update": "heading", "acc_lowpass": 0.0, **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -94,12 +95,16 @@ cdef class UKF(Estimator):
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
         magd_set(&self.magd, check_magdist_params(p))
         self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
+        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
         self.reset()
 
     cdef list _state_fields(self):
         return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, None),
                                                 ("P", <double[:36]>self.P, None),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, None)]
+                + [("acc_lp", <double[:3]>self.acc_lp, None),
+                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -116,6 +121,7 @@ cdef class UKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(&self.rest)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -370,6 +376,7 @@ cdef class UKF(Estimator):
         # the ekf's time update (EKF.propagate): unmeasured motion grows the attitude error
         # variance, here directly in rad² (the error p is the angle to first order)
         cdef bint measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
+        cdef double af[3]
         cdef double v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured,
                                             self.motion_rate)
         if gyr != NULL:
@@ -380,6 +387,10 @@ cdef class UKF(Estimator):
             self.P[14] += v
         if rest_detect(&self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
+        if acc != NULL and self.acc_lowpass > 0.0:
+            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+                             gyr, self.b, acc, dt, af)
+            acc = af
         if acc != NULL:
             self.acc_update(acc, dt)
         if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):

@@ -391,17 +391,29 @@ class RefMagDist:
         return False
 
 
+def acc_lowpass_step(est, gyr, b, acc, dt):
+    """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
+    (never corrected), turned back into the body frame; est.acc_lp None before the first."""
+    if gyr is not None and est.acc_lp is not None:
+        est.acc_qg = normalise(phi(gyr - b, dt) @ est.acc_qg)
+    an = rotmat(est.acc_qg) @ acc
+    est.acc_lp = an if est.acc_lp is None else est.acc_lp + dt / (est.acc_lowpass + dt) * (an - est.acc_lp)
+    return rotmat(est.acc_qg).T @ est.acc_lp
+
+
 def make_magdist(est):
     return RefMagDist(est.magdist_time, est.magdist_norm_tol, est.magdist_dip_tol, est.magdist_new_time)
 
 
 class RefMahony(RefEstimator):
-    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None, "mag_update": "heading", **MAGDIST_PARAMS}
+    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 0.0,
+              **MAGDIST_PARAMS}
 
     def _reset_state(self):
         self.eps = np.zeros(3)
         self.t_recover = 0.0
         self.magd = make_magdist(self)
+        self.acc_lp, self.acc_qg = None, IDENTITY.copy()
 
     @property
     def mag_rejected(self):
@@ -422,6 +434,8 @@ class RefMahony(RefEstimator):
         q = self.q
         if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
             mag = None
+        if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
+            acc = acc_lowpass_step(self, gyr, -self.ki * self.eps, acc, dt)
         if gyr is not None:                                              # 1.
             q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
         e = np.zeros(3)
@@ -611,13 +625,7 @@ class RefEKF(RefEstimator):
         self._propagate(gyr, dt)                                         # 1.
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
-            # low-passed in a frame that turns with the bias-corrected gyro alone
-            if gyr is not None and self.acc_lp is not None:
-                self.acc_qg = normalise(phi(gyr - self.b, dt) @ self.acc_qg)
-            an = rotmat(self.acc_qg) @ acc
-            self.acc_lp = an if self.acc_lp is None else \
-                self.acc_lp + dt / (self.acc_lowpass + dt) * (an - self.acc_lp)
-            acc = rotmat(self.acc_qg).T @ self.acc_lp
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm, "tilt" if self.acc_update == "tilt" else "full")

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
+from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
                        recovery_factor, is_saturated,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
@@ -155,7 +155,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update", "acc_lowpass")}, acc_noise=1.0)
+    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=1.0, acc_lowpass=0.0)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
@@ -178,6 +178,7 @@ class RefUKF(RefEstimator):
         self.t_run = 0.0
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.magd = make_magdist(self)
+        self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
 
     @property
     def rest_samples(self):
@@ -257,6 +258,8 @@ class RefUKF(RefEstimator):
             self.b = self.b + K[3:] @ (gyr - self.b)
             IKH = np.eye(6) - K @ H
             self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
+        if acc is not None and self.acc_lowpass > 0:
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
         if acc is not None:
             self._correct(normalise(acc), acc_model_rows, (self.acc_noise / G) ** 2 / dt * I3)
         if mag is not None and self.magd(self.q, mag, gyr, dt):
