@@ -78,7 +78,7 @@ cdef class CFEKF(EKF):
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"], acc_lowpass=0.0,
                           **{k: p[k] for k in MAGDIST_PARAMS})
         self.reset()
 

@@ -155,7 +155,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=1.0, acc_lowpass=0.0)
+    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=0.5, acc_lowpass=1.0)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
@@ -304,7 +304,7 @@ class RefCFEKF(RefEKF):
     def _reset_state(self):
         super()._reset_state()
         self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range,
-                            mag_update=self.mag_update,
+                            mag_update=self.mag_update, acc_lowpass=0.0,
                             **{k: getattr(self, k) for k in MAGDIST_PARAMS})
         self.cf_started = False
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]
