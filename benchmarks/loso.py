@@ -204,6 +204,37 @@ def loso(name, grid, cells, base=None, log=print):
     return points, folds
 
 
+def ratio_chart(results, cells, path):
+    """One bar per estimator: its mean ours / VQF figure (objective); one marker per cell on
+    it (total ratio; inclination ratio for INCLINATION_ONLY cells). 1 = VQF."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    names = list(results)
+    fig, ax = plt.subplots(figsize=(1.3 * len(names) + 3, 4.5))
+    x = np.arange(len(names))
+    ax.bar(x, [objective(results[n], cells) for n in names], color="lightsteelblue",
+           label="mean figure (total + inclination ratio) / 2")
+    markers = "osD^vP*X"
+    for j, c in enumerate(cells):
+        k = "inclination" if (c.set, c.mode) in INCLINATION_ONLY else "total"
+        ys = [ratio(results[n][c.key], c, k) for n in names]
+        ax.scatter(x + (j - len(cells) / 2) * 0.06, ys, marker=markers[j % len(markers)], zorder=3,
+                   label=f"{c.key} ({k})")
+    ax.axhline(1.0, color="k", lw=1, ls="--")
+    ax.set_xticks(x, names)
+    ax.set_ylabel("ours / VQF (same run)")
+    ax.set_yscale("log")
+    ax.set_title("Defaults on every recorded set: ratio to VQF (below the dashed line: better than VQF)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("estimator", nargs="+", help="fusion.available() names")
@@ -214,6 +245,8 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=None, help="first S s of each trial")
     ap.add_argument("--categories", action="store_true", help="per motion category rows")
     ap.add_argument("--data", default=None)
+    ap.add_argument("--png", default=None, metavar="PATH",
+                    help="bar chart of the defaults' ratios to VQF, one marker per cell (no --grid)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     cells = load_cells(args.data, args.quick, args.seconds)
@@ -223,6 +256,7 @@ def main(argv=None):
     print(f"{len(cells)} cells: " + ", ".join(f"{c.key} ({len(c.data)})" for c in cells)
           + f"; VQF scored in {time.perf_counter() - t0:.0f} s", flush=True)
     base = {k: v[0] for k, v in parse_grid(args.set).items()}
+    results = {}
     for name in args.estimator:
         if args.grid:
             grid = parse_grid(args.grid)
@@ -231,9 +265,11 @@ def main(argv=None):
             print("\nleave-one-set-out (chosen on the other sets by mean ours/VQF ratio of total and inclination):")
             print(compare.markdown_table(folds, None, 3))
         else:
-            res = evaluate(name, base, cells)
+            res = results[name] = evaluate(name, base, cells)
             print(f"\n## {name} ({fmt_params(base)}): all {objective(res, cells):.3f}")
             print(table(name, res, cells, args.categories))
+    if args.png and results:
+        print(f"wrote {ratio_chart(results, cells, Path(args.png))}")
     print(f"total {time.perf_counter() - t0:.0f} s")
 
 
