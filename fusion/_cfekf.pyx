@@ -16,7 +16,7 @@ from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
-MAHONY_KI = _Mahony.PARAMS["ki"]     # ki's default without bias_feedback
+MAHONY_KI = 0.005     # ki's default without bias_feedback (mahony's before issue 19)
 # bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
 # with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
 # 2 acos(LEARN_COS) = 2 deg of the EKF's prediction

@@ -406,7 +406,7 @@ def make_magdist(est):
 
 
 class RefMahony(RefEstimator):
-    PARAMS = {"kp": 1.0, "ki": 0.005, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
               **MAGDIST_PARAMS}
 
     def _reset_state(self):
