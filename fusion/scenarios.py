@@ -453,7 +453,7 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
 # motion's (a magnet does not turn the body, a linear vibration or a tap does not rotate it).
 
 FAILURE_SCENARIOS = {
-    "fast-rotation": dict(base="mixed", fs=286.0, motion=dict(tilt=60.0, turn=540.0, freq=(0.2, 1.2),
+    "fast-rotation": dict(base="mixed", fs=286.0, motion=dict(tilt=60.0, turn=270.0, freq=(0.1, 0.8),
                                                               bursts_per_min=0.0, burst_acc=0.0),
                           doc="fast hand-held rotation (peaks of about 10 rad/s) sampled at 286 Hz"),
     "magnet-attached": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
