@@ -38,6 +38,14 @@ cdef inline void acc_gyro_lowpass(double tau, double* lp, double* qg, bint* star
     rot_to_body(qg, lp, out)
 
 
+cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:
+    """True when the gyro did not measure this step's motion (no sample, a saturated one, or a
+    gap of more than two nominal periods): the gyro frame is lost, and the low-pass restarts
+    from the next accelerometer sample (the filter's attitude variance has grown for the same
+    reason, so it takes that raw sample as it would without the low-pass)."""
+    return gyr == NULL or sat or dt > 2.0 * dt_nominal
+
+
 cdef inline void acc_lowpass_clear(double* lp, double* qg, bint* started) noexcept nogil:
     lp[0] = 0.0
     lp[1] = 0.0

@@ -6,7 +6,7 @@ from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._magdist cimport magd_check, magd_set
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG
@@ -381,7 +381,10 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
-    ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
+    cdef bint sat = gyr != NULL and saturated(gyr, e.gyro_range_)
+    ekf_propagate(e, q, b, P, t_run, gyr, dt, sat)
+    if e.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, e.dt_nominal):
+        acc_lowpass_clear(e.acc_lp, e.acc_qg, &e.acc_lp_started)
     if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:

@@ -9,7 +9,7 @@ from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_o
 from fusion._core import check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG
 from fusion._ekf import check_choice, MAG_UPDATES
 from fusion._magdist cimport magd_check, magd_set
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -265,6 +265,8 @@ cdef class Mahony(Estimator):
         cdef double af[3]
         if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
             mag = NULL
+        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
         if acc != NULL and self.acc_lowpass > 0.0:
             mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
             acc = af
@@ -304,6 +306,8 @@ cdef class Mahony(Estimator):
                 if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
                     mi = NULL
                 ai = a + 3 * i
+                if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
+                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
                 if self.acc_lowpass > 0.0:
                     mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
                     ai = af

@@ -6,7 +6,7 @@ from libc.math cimport sqrt
 
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._magdist cimport magd_check, magd_set
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
 from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, FLAG
 from fusion._ekf import check_choice, MAG_UPDATES
@@ -388,6 +388,8 @@ cdef class UKF(Estimator):
             self.P[14] += v
         if rest_detect(&self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
+        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
         if acc != NULL and self.acc_lowpass > 0.0:
             acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
                              gyr, self.b, acc, dt, af)

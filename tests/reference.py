@@ -391,6 +391,12 @@ class RefMagDist:
         return False
 
 
+def acc_lowpass_lost(est, gyr, sat, dt):
+    """The gyro did not measure the step (none, saturated, a gap > 2 periods): restart."""
+    if est.acc_lowpass > 0 and (gyr is None or sat or dt > 2.0 / est.fs):
+        est.acc_lp, est.acc_qg = None, IDENTITY.copy()
+
+
 def acc_lowpass_step(est, gyr, b, acc, dt):
     """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
     (never corrected), turned back into the body frame; est.acc_lp None before the first."""
@@ -434,6 +440,7 @@ class RefMahony(RefEstimator):
         q = self.q
         if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
             mag = None
+        acc_lowpass_lost(self, gyr, sat, dt)
         if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
             acc = acc_lowpass_step(self, gyr, -self.ki * self.eps, acc, dt)
         if gyr is not None:                                              # 1.
@@ -623,6 +630,7 @@ class RefEKF(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         self._propagate(gyr, dt)                                         # 1.
+        acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
             acc = acc_lowpass_step(self, gyr, self.b, acc, dt)

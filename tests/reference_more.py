@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
+from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
                        recovery_factor, is_saturated,
                        left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
 
@@ -258,6 +258,7 @@ class RefUKF(RefEstimator):
             self.b = self.b + K[3:] @ (gyr - self.b)
             IKH = np.eye(6) - K @ H
             self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
+        acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
         if acc is not None and self.acc_lowpass > 0:
             acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
         if acc is not None:
