@@ -405,9 +405,9 @@ def main(argv=None):
     # per motion category, where a recorded set's trial names carry one (benchmarks/loso.py)
     cat_rows = []
     for set_ in sorted({r["set"] for r in rows} - {SYNTHETIC, SEED}):
-        names = sorted({r["item"] for r in rows if r["set"] == set_})
-        cat = dict(zip(names, loso.categories(names)))
-        if len(set(cat.values())) < len(names):
+        trial_names = sorted({r["item"] for r in rows if r["set"] == set_})
+        cat = dict(zip(trial_names, loso.categories(trial_names)))
+        if len(set(cat.values())) < len(trial_names):
             sub = [dict(r, category=cat[r["item"]]) for r in rows if r["set"] == set_]
             cat_rows += compare.aggregate(sub, by=("set", "category", "mode", "method", "group"))
     add_ratio(cat_rows, ("set", "category", "mode"))
