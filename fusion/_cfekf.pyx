@@ -40,8 +40,8 @@ cdef class CFEKF(EKF):
     mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading",
+              "window": None, "kp": 1.0, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
               **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -78,7 +78,7 @@ cdef class CFEKF(EKF):
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"], acc_lowpass=0.0,
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"], acc_lowpass=p["acc_lowpass"],
                           **{k: p[k] for k in MAGDIST_PARAMS})
         self.reset()
 
@@ -168,6 +168,11 @@ cdef class CFEKF(EKF):
     @property
     def mag_update(self):
         return self.cf.mag_update
+
+    @property
+    def acc_lowpass(self):
+        """s: the complementary filter's accelerometer low-pass (fusion/_acclp.pxd; 0: off)."""
+        return self.cf.acc_lowpass
 
     @property
     def magdist_time(self):
