@@ -46,7 +46,7 @@ if str(ROOT) not in sys.path:
 
 import fusion                                    # noqa: E402
 from fusion import compare, datasets, scenarios  # noqa: E402
-from benchmarks import peers                     # noqa: E402
+from benchmarks import loso, peers               # noqa: E402
 
 ERRORS = ("total", "heading", "inclination")
 FS = 100.0
@@ -194,8 +194,10 @@ def add_ratio(rows, by):
         prs = [r for r in rs if r["group"] == "peer"]
         bo = min(ours, key=lambda r: r["total"]) if ours else None
         bp = min(prs, key=lambda r: r["total"]) if prs else None
+        vqf = [r for r in rs if r["method"] == VQF]
         for r in rs:
             r["÷ best peer"] = r["total"] / bp["total"] if bp else float("nan")
+            r["÷ VQF"] = r["total"] / vqf[0]["total"] if vqf else float("nan")
         best[key] = (bo, bp)
     return best
 
@@ -400,17 +402,32 @@ def main(argv=None):
                             order[r["method"]]))
     best = add_ratio(agg, ("set", "mode"))
     per_item = [dict(r) for r in rows if r["set"] in (SYNTHETIC, SEED)]
+    # per motion category, where a recorded set's trial names carry one (benchmarks/loso.py)
+    cat_rows = []
+    for set_ in sorted({r["set"] for r in rows} - {SYNTHETIC, SEED}):
+        trial_names = sorted({r["item"] for r in rows if r["set"] == set_})
+        cat = dict(zip(trial_names, loso.categories(trial_names)))
+        if len(set(cat.values())) < len(trial_names):
+            sub = [dict(r, category=cat[r["item"]]) for r in rows if r["set"] == set_]
+            cat_rows += compare.aggregate(sub, by=("set", "category", "mode", "method", "group"))
+    add_ratio(cat_rows, ("set", "category", "mode"))
     add_ratio(per_item, ("set", "item", "mode"))
     overall = overall_rows(best)
     verdicts = seed_verdicts(rows, names)
 
-    cols = ["method", "group", "n_trials"] + list(ERRORS) + ["÷ best peer"]
+    cols = ["method", "group", "n_trials"] + list(ERRORS) + ["÷ best peer", "÷ VQF"]
     written = []
     for (set_, mode) in best:
         sub = [r for r in agg if (r["set"], r["mode"]) == (set_, mode)]
         stem = out / f"accuracy_{set_.replace(' ', '_')}_{mode}"
+        kind = 'trials' if set_ not in (SYNTHETIC, SEED) else 'scenarios'
         written += compare.write_table(sub, stem, cols, title=f"{set_}, {mode}: mean RMSE (deg) over "
-                                       f"{sub[0]['n_trials']} {'trials' if set_ not in (SYNTHETIC, SEED) else 'scenarios'}")
+                                       f"{sub[0]['n_trials']} {kind}")
+    if cat_rows:
+        written += compare.write_table(cat_rows, out / "accuracy_categories",
+                                       ["set", "category", "mode", "method", "group", "n_trials"] + list(ERRORS)
+                                       + ["÷ best peer", "÷ VQF"],
+                                       title="Recorded sets per motion category: mean RMSE (deg)")
     if per_item:
         written += compare.write_table(per_item, out / "accuracy_scenarios",
                                        ["set", "item", "mode", "method", "group", "n"] + list(ERRORS) + ["÷ best peer"],
@@ -423,7 +440,8 @@ def main(argv=None):
                                    title="Every run: RMSE (deg); 6-axis: heading offset removed (deg)")
     written += compare.write_table(ideal_rows, out / "accuracy_ideal_check",
                                    ["method", "group", "mode"] + list(ERRORS) + ["ok"], digits=4,
-                                   title=f"Ideal check: noise-free '{IDEAL['name']}' scenario, RMSE over the second half (deg)")
+                                   title=f"Ideal check: noise-free '{IDEAL['name']}' scenario, "
+                                         "RMSE over the second half (deg)")
     if verdicts:
         written += compare.write_table(verdicts, out / "accuracy_seed_verdicts", list(verdicts[0].keys()),
                                        title="Seed estimators vs gyro and mahony (total RMSE, deg)")

@@ -5,6 +5,7 @@ cdef class AEKF(EKF):
     cdef readonly double acc_norm_tol, acc_pred_tol, mag_norm_tol, mag_dip_tol
     cdef readonly double acc_pred_timeout   # s: a longer disagreement is the estimate's fault
     cdef double t_dir                       # how long the direction test has failed alone
+    cdef double g_ref                       # m/s^2: g for the tests (9.81, then learned at rest)
     cdef readonly double reject_factor, learn_time, quest_mag_weight
     cdef double dip_tol_rad
     cdef bint use_quest              # measurement == "quest"

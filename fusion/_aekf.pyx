@@ -10,6 +10,7 @@ from libc.stdlib cimport realloc, free
 
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
+from fusion._magdist cimport magd_check
 from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT, TIMER, VALUE_MAX
 from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
 from fusion._wahba cimport quest2
@@ -75,7 +76,7 @@ cdef class AEKF(EKF):
     name = "aekf"
     # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer); the
     # accelerometer corrects the inclination only (docs/aekf.md, "Rest and tilt")
-    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_update="tilt", acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -126,10 +127,12 @@ cdef class AEKF(EKF):
             ("n_acc_rej", <long long[:1]>&self.n_acc_rej, COUNT),
             ("n_mag_tested", <long long[:1]>&self.n_mag_tested, COUNT),
             ("n_mag_rej", <long long[:1]>&self.n_mag_rej, COUNT),
-            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7))]
+            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7)),
+            ("g_ref", <double[:1]>&self.g_ref, (1.0, 100.0))]   # m/s^2: the norm a still sensor reads
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
+        self.g_ref = G0
         self.n_learned = 0
         self.t_dir = 0.0
         self.norm_sum = 0.0
@@ -157,18 +160,26 @@ cdef class AEKF(EKF):
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False
+        cdef long long n_rest = self.rest.n
+        cdef double g
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL      # not a measurement: held as a dropped sample (ekf_step)
         self.propagate(gyr, dt, gyr != NULL and saturated(gyr, self.gyro_range_))
         self.rest_update(gyr, acc, dt)
+        if self.rest.n > n_rest:
+            # at rest the accelerometer's low-passed norm is this sensor's g (a scale error of
+            # a few % would otherwise fail the norm test on every sample of a still sensor)
+            self.g_ref = sqrt(self.rest.acc[0] * self.rest.acc[0] + self.rest.acc[1] * self.rest.acc[1]
+                              + self.rest.acc[2] * self.rest.acc[2])
+        g = self.g_ref
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:
             na = sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-            dx = acc[0] - G0 * u[0]
-            dy = acc[1] - G0 * u[1]
-            dz = acc[2] - G0 * u[2]
-            if fabs(na - G0) > self.acc_norm_tol:
+            dx = acc[0] - g * u[0]
+            dy = acc[1] - g * u[1]
+            dz = acc[2] - g * u[2]
+            if fabs(na - g) > self.acc_norm_tol:
                 acc_rej = True
                 self.t_dir = 0.0
             elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
@@ -238,7 +249,9 @@ cdef class AEKF(EKF):
         # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
         if acc != NULL:
             self.acc_update(acc, dt / self.reject_factor if acc_rej else dt)
-        if mag != NULL:
+        # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
+        # re-learned, the document's gate's is not
+        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
             self.mag_update(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 

@@ -9,14 +9,14 @@ from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
 from fusion._prefilter import check_window
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, FLAG, TIMER
+from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, MAGDIST_PARAMS, FLAG, TIMER
 from fusion._ekf import check_recovery_params
 from fusion._mahony import Mahony as _Mahony
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
 WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
-MAHONY_KI = _Mahony.PARAMS["ki"]     # ki's default without bias_feedback
+MAHONY_KI = 0.005     # ki's default without bias_feedback (mahony's before issue 19)
 # bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
 # with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
 # 2 acos(LEARN_COS) = 2 deg of the EKF's prediction
@@ -40,9 +40,9 @@ cdef class CFEKF(EKF):
     mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": True,
-              **REST_PARAMS}
+              "window": None, "kp": 1.0, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
+              **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -72,7 +72,10 @@ cdef class CFEKF(EKF):
         # filter's gain ramp, and the EKF's attitude covariance grows as the ekf's does, so
         # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
         self.gyro_range_, self.motion_rate = check_recovery_params(p)
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"])
+        # the complementary filter takes the magnetometer: its heading-only correction and
+        # disturbance detection are the cf-ekf's
+        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
+                          acc_lowpass=p["acc_lowpass"], **{k: p[k] for k in MAGDIST_PARAMS})
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
@@ -153,6 +156,36 @@ cdef class CFEKF(EKF):
     def window(self):
         """Sliding-mean window, samples."""
         return (<object>self.pre_gyr).window
+
+    @property
+    def mag_rejected(self):
+        """Magnetometer samples the complementary filter rejected as disturbed."""
+        return self.cf.mag_rejected
+
+    @property
+    def mag_update(self):
+        return self.cf.mag_update
+
+    @property
+    def acc_lowpass(self):
+        """s: the complementary filter's accelerometer low-pass (fusion/_acclp.pxd; 0: off)."""
+        return self.cf.acc_lowpass
+
+    @property
+    def magdist_time(self):
+        return self.cf.magdist_time
+
+    @property
+    def magdist_norm_tol(self):
+        return self.cf.magdist_norm_tol
+
+    @property
+    def magdist_dip_tol(self):
+        return self.cf.magdist_dip_tol
+
+    @property
+    def magdist_new_time(self):
+        return self.cf.magdist_new_time
 
     @property
     def kp(self):

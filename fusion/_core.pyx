@@ -6,6 +6,7 @@ import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
+from fusion._magdist cimport magd_clear
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -21,7 +22,7 @@ FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
 # --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
-STATE_VERSION = 2     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover
+STATE_VERSION = 3     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover; 3: magnetic disturbance detection
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter
@@ -53,7 +54,8 @@ PARAM_RANGES = {
     "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
     "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4), "acc_lowpass": (1e-3, 1e4),
     "rest_time": (1e-3, 1e4), "rest_gyro_tol": (1e-6, 10.0), "rest_acc_tol": (1e-6, 100.0),
-    "rest_noise": (1e-7, 1.0),
+    "rest_noise": (1e-7, 1.0), "magdist_time": (1e-3, 1e5), "magdist_norm_tol": (1e-4, 10.0),
+    "magdist_dip_tol": (1e-3, 90.0), "magdist_new_time": (1e-3, 1e5),
 }
 
 
@@ -88,6 +90,21 @@ def check_rest_params(p):
     return (check_param("rest_time", p["rest_time"], allow_zero=True),
             check_param("rest_gyro_tol", p["rest_gyro_tol"]),
             check_param("rest_acc_tol", p["rest_acc_tol"]), check_param("rest_noise", p["rest_noise"]))
+
+
+# magnetic disturbance rejection (docs/estimators.md, "Magnetic disturbances"): VQF's
+# thresholds and times (s; the dip tolerance in degrees)
+MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_tol": 10.0,
+                  "magdist_new_time": 20.0}
+
+
+def check_magdist_params(p):
+    """(magdist_time, magdist_norm_tol, magdist_dip_tol in degrees, magdist_new_time) from
+    the merged parameters p; magdist_time 0 turns the detection off."""
+    return (check_param("magdist_time", p["magdist_time"], allow_zero=True),
+            check_param("magdist_norm_tol", p["magdist_norm_tol"]),
+            check_param("magdist_dip_tol", p["magdist_dip_tol"]),
+            check_param("magdist_new_time", p["magdist_new_time"]))
 
 
 def check_gyro_range(value):
@@ -389,6 +406,15 @@ cdef class Estimator:
                 ("rest_started", <int[:1]><int*>&self.rest.started, FLAG),
                 ("rest_samples", <long long[:1]>&self.rest.n, COUNT)]
 
+    cdef list _magd_fields(self):
+        """The magnetic disturbance detector's state, for the estimators that use it."""
+        return [("magd_cur", <double[:2]>self.magd.cur, None), ("magd_ref", <double[:2]>self.magd.ref, None),
+                ("magd_cand", <double[:2]>self.magd.cand, None),
+                ("magd_t", <double[:3]>&self.magd.t_undist, None),
+                ("magd_disturbed", <int[:1]><int*>&self.magd.disturbed, FLAG),
+                ("magd_started", <int[:1]><int*>&self.magd.started, FLAG),
+                ("mag_rejected", <long long[:1]>&self.magd.n, COUNT)]
+
     cdef list _state_fields(self):
         return [("q", <double[:4]>self.q, "unit"), ("q0", <double[:4]>self.q0, "unit"),
                 ("is_init", <int[:1]><int*>&self.is_init, FLAG), ("has_q0", <int[:1]><int*>&self.has_q0, FLAG),
@@ -452,6 +478,7 @@ cdef class Estimator:
         for pre in (self.pre_gyr, self.pre_acc, self.pre_mag):
             if pre is not None:
                 (<Prefilter>pre).clear()
+        magd_clear(&self.magd)
         self._reset_state()
 
 
@@ -601,6 +628,28 @@ cdef class Estimator:
     def at_rest(self):
         """True while the rest detector holds (the last sample was a zero-rate update)."""
         return self.rest.time > 0.0 and self.rest.t >= self.rest.time
+
+    @property
+    def magdist_time(self):
+        return self.magd.time
+
+    @property
+    def magdist_norm_tol(self):
+        return self.magd.norm_tol
+
+    @property
+    def magdist_dip_tol(self):
+        return self.magd.dip_tol_deg
+
+    @property
+    def magdist_new_time(self):
+        return self.magd.new_time
+
+    @property
+    def mag_rejected(self):
+        """Magnetometer samples rejected as disturbed since the last reset (0 where the
+        estimator has no disturbance detection)."""
+        return self.magd.n
 
     @property
     def rest_samples(self):

@@ -10,9 +10,10 @@ cdef class EKF(Estimator):
     cdef double t_run
     # the vector updates' gains (_ekf.pyx GAIN_*): mag_update="heading", acc_update="tilt"
     cdef int acc_gain, mag_gain
-    # acc_lowpass (s, 0: off): the accelerometer low-passed in the navigation frame
+    # acc_lowpass (s, 0: off): the accelerometer low-passed in a gyro-integrated frame
     cdef readonly double acc_lowpass
-    cdef double acc_lp[3]     # its state, navigation frame
+    cdef double acc_lp[3]     # its state, in the gyro-integrated frame acc_qg
+    cdef double acc_qg[4]     # that frame: the bias-corrected gyro integrated, uncorrected
     cdef bint acc_lp_started
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     # the parts of _step, for subclasses

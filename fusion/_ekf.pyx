@@ -5,9 +5,12 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
+from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_rest_params, REST_PARAMS, check_param, check_fs, check_positive, check_gyro_range, FLAG, BIAS, COV, TIMER
+from fusion._core import (check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, check_param, check_fs,
+                          check_positive, check_gyro_range, FLAG, BIAS, COV, TIMER)
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
@@ -345,25 +348,10 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_gain)
 
 
-cdef void acc_nav_lowpass(EKF e, const double* q, const double* acc, double dt,
-                          double* out) noexcept nogil:
-    """acc_lowpass (docs/estimators.md): the sample turned into the navigation frame with the
-    predicted attitude q, low-passed there (first order, time constant acc_lowpass; the
-    first sample starts it), and turned back: a vertical the linear acceleration of a
-    shaken body averages out of."""
-    cdef double an[3]
-    cdef double k = dt / (e.acc_lowpass + dt)
-    rot_to_nav(q, acc, an)
-    if not e.acc_lp_started:
-        e.acc_lp[0] = an[0]
-        e.acc_lp[1] = an[1]
-        e.acc_lp[2] = an[2]
-        e.acc_lp_started = True
-    else:
-        e.acc_lp[0] += k * (an[0] - e.acc_lp[0])
-        e.acc_lp[1] += k * (an[1] - e.acc_lp[1])
-        e.acc_lp[2] += k * (an[2] - e.acc_lp[2])
-    rot_to_body(q, e.acc_lp, out)
+cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
+                          double dt, double* out) noexcept nogil:
+    """acc_lowpass (fusion/_acclp.pxd) on the ekf's state, out of line."""
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
 
 
 cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
@@ -394,17 +382,21 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
+    cdef bint sat
     if gyr != NULL and out_of_range(gyr, e.gyro_range_):
         gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
-    ekf_propagate(e, q, b, P, t_run, gyr, dt, gyr != NULL and saturated(gyr, e.gyro_range_))
+    sat = gyr != NULL and saturated(gyr, e.gyro_range_)
+    ekf_propagate(e, q, b, P, t_run, gyr, dt, sat)
+    if e.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, e.dt_nominal):
+        acc_lowpass_clear(e.acc_lp, e.acc_qg, &e.acc_lp_started)
     if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:
-        acc_nav_lowpass(e, q, acc, dt, af)
+        acc_nav_lowpass(e, gyr, b, acc, dt, af)
         acc = af
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, b, P, acc, dt)
-    if mag != NULL:
+    if mag != NULL and magd_check(&e.magd, q, mag, gyr, dt):
         ekf_mag_update(e, q, b, P, mag, dt)
     quat_normalise(q)
 
@@ -413,10 +405,11 @@ cdef class EKF(Estimator):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+    # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0, "acc_update": "vector",
-              **REST_PARAMS}
+              "mag_update": "heading", "acc_lowpass": 1.0, "acc_update": "vector",
+              **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -433,6 +426,7 @@ cdef class EKF(Estimator):
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
         self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
+        magd_set(&self.magd, check_magdist_params(p))
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
@@ -442,8 +436,9 @@ cdef class EKF(Estimator):
                                                 ("P", <double[:49]>self.P, COV),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, TIMER),
                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG)]
-                + self._rest_fields())
+                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -457,11 +452,8 @@ cdef class EKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
-        self.acc_lp_started = False
         rest_clear(&self.rest)
-        self.acc_lp[0] = 0.0
-        self.acc_lp[1] = 0.0
-        self.acc_lp[2] = 0.0
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

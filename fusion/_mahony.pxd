@@ -7,5 +7,10 @@ cdef class Mahony(Estimator):
     cdef readonly double kp, ki
     cdef double eint[3]       # integral of the correction error
     cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
+    cdef bint mag_heading     # mag_update="heading"
+    cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
+    cdef double acc_lp[3]
+    cdef double acc_qg[4]
+    cdef bint acc_lp_started
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil

@@ -6,11 +6,14 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import check_positive, check_param, check_gyro_range, BIAS_MAX, RECOVERY
+from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG,
+                          BIAS_MAX, RECOVERY)
+from fusion._ekf import check_choice, MAG_UPDATES
+from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
-
 
 
 cdef double RECOVERY_STEP_MAX = 0.5    # share of the error one recovery step may correct
@@ -95,9 +98,10 @@ cdef inline void half_angle_fast(double wx, double wy, double wz, double dt, dou
 
 cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
                              const double* gyr, const double* acc, const double* mag,
-                             double dt) noexcept nogil:
+                             double dt, bint heading) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL), q and eint in place: Mahony._step and the
-    batch loop both run this."""
+    batch loop both run this. heading (mag_update="heading"): the magnetometer's error
+    keeps only its component about the vertical, so that it turns the heading alone."""
     # Propagate with the integral-corrected gyro, q1 = q ⊗ p, then correct with this
     # sample's vectors: the measurements belong to the attitude after the step, as in the
     # EKF. The error (mahony_error at q1) is evaluated in the navigation frame, with one
@@ -157,9 +161,10 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         # -h0 h2, h0 rho], over |mag|^2 (the folded field is linear in mag)
         k = 1.0 / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         mat_vec(R1, mag, h)
-        W[0] += (h[2] * k) * h[1]
-        W[1] -= (h[0] * k) * h[2]
-        G[0] = -(h[2] * k)      # G = [G0, 0, G1]
+        if not heading:         # heading: only the vertical component, h0 rho
+            W[0] += (h[2] * k) * h[1]
+            W[1] -= (h[0] * k) * h[2]
+            G[0] = -(h[2] * k)  # G = [G0, 0, G1]
         G[1] = h[0] * k
         rho2 = h[0] * h[0] + h[1] * h[1]
         rho = sqrt(rho2)
@@ -202,12 +207,26 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
+cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, const double* acc,
+                             double dt, double* out) noexcept nogil:
+    """acc_lowpass (fusion/_acclp.pxd) with the integral term's bias, -ki eint (out of line:
+    the batch loop keeps its inlined step)."""
+    cdef double b[3]
+    b[0] = -e.ki * eint[0]
+    b[1] = -e.ki * eint[1]
+    b[2] = -e.ki * eint[2]
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"
-    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None}
+    # kp, ki and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md);
+    # kp / ki = 100 s as before, so the integral learns the bias as fast
+    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+              **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -215,20 +234,28 @@ cdef class Mahony(Estimator):
         self.kp = check_param("kp", p["kp"], allow_zero=True)
         self.ki = check_param("ki", p["ki"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
+        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
+        magd_set(&self.magd, check_magdist_params(p))
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
         # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
         eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
-        return Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+        return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
+                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
+                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
         self.eint[1] = 0.0
         self.eint[2] = 0.0
         self.t_recover = 0.0
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -239,8 +266,16 @@ cdef class Mahony(Estimator):
         """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
         cdef double eint[3]
+        cdef double af[3]
+        if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
+            mag = NULL
+        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        if acc != NULL and self.acc_lowpass > 0.0:
+            mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
+            acc = af
         if f == 1.0:
-            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt)
+            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
             return
         # recovering: the large error is the attitude's, not the gyro's bias. At low rates
         # the raised gain would turn by more than the error in one step and overshoot: at
@@ -248,7 +283,7 @@ cdef class Mahony(Estimator):
         if f * self.kp * dt > RECOVERY_STEP_MAX:
             f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
         memcpy(eint, self.eint, 3 * sizeof(double))
-        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt)
+        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
         memcpy(self.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
@@ -259,9 +294,12 @@ cdef class Mahony(Estimator):
         cdef double q[4]
         cdef double eint[3]
         cdef double kp = self.kp, ki = self.ki
+        cdef bint heading = self.mag_heading
         cdef bint ned = self.ned
         cdef Py_ssize_t i
         cdef const double* mi
+        cdef const double* ai
+        cdef double af[3]
         if not run_fast(self) or self.gyro_range_ > 0.0:     # recovery: step by step
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         memcpy(q, self.q, 4 * sizeof(double))
@@ -269,7 +307,15 @@ cdef class Mahony(Estimator):
         for i in range(n):
             mi = m + 3 * i if m != NULL else NULL
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                mahony_step(q, eint, kp, ki, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
+                if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
+                    mi = NULL
+                ai = a + 3 * i
+                if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
+                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+                if self.acc_lowpass > 0.0:
+                    mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
+                    ai = af
+                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading)
             else:
                 if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
                     return i
@@ -282,6 +328,11 @@ cdef class Mahony(Estimator):
         memcpy(self.q, q, 4 * sizeof(double))
         memcpy(self.eint, eint, 3 * sizeof(double))
         return n
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector" (Mahony's)."""
+        return "heading" if self.mag_heading else "vector"
 
     @property
     def bias(self):

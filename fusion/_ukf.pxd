@@ -6,6 +6,12 @@ cdef class UKF(Estimator):
     cdef double P[36]         # covariance of the error [p (attitude, body frame), db], 6x6 row-major
     cdef readonly double motion_rate   # recovery, as the ekf's (fusion/_ekf.pxd)
     cdef double t_run
+    cdef bint mag_heading     # mag_update="heading"
+    cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
+    cdef double acc_lp[3]
+    cdef double acc_qg[4]
+    cdef bint acc_lp_started
+    cdef bint heading_gain    # the update in progress is the magnetometer's, projected
     cdef void sigma_points(self, double* X) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void correct(self, const double* X, const double* Z, const double* z,

@@ -5,8 +5,12 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._rest cimport rest_detect, rest_clear
+from fusion._magdist cimport magd_check, magd_set
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, BIAS, COV, TIMER
+from fusion._core import (check_positive, check_param, check_rest_params, REST_PARAMS, check_magdist_params,
+                          MAGDIST_PARAMS, FLAG, BIAS, COV, TIMER)
+from fusion._ekf import check_choice, MAG_UPDATES
 from fusion._ekf import check_recovery_params
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3, unobserved_variance,
@@ -54,14 +58,30 @@ cdef inline void rate_quat(double wx, double wy, double wz, double dt, double* e
     e[3] = s * wz
 
 
+cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
+    """mag_update="heading": the gain's attitude rows (body-frame error) and bias rows (6x3)
+    projected onto the body-frame vertical w = Rᵀ e_z, so that the magnetometer only turns
+    the attitude about the vertical (as the ekf's heading_only_gain)."""
+    cdef double w[3]
+    cdef double a, c
+    cdef int j
+    up_in_body(q, w)
+    for j in range(3):
+        a = w[0] * K[j] + w[1] * K[3 + j] + w[2] * K[6 + j]
+        c = w[0] * K[9 + j] + w[1] * K[12 + j] + w[2] * K[15 + j]
+        K[j] = w[0] * a; K[3 + j] = w[1] * a; K[6 + j] = w[2] * a
+        K[9 + j] = w[0] * c; K[12 + j] = w[1] * c; K[15 + j] = w[2] * c
+
+
 cdef class UKF(Estimator):
     """Unscented Kalman filter: 13 sigma points on the 6-D error [attitude (4 x modified
     Rodrigues parameters, body frame), gyro bias]; gyro process and accelerometer /
     north-folded magnetometer measurements as the `ekf`."""
     name = "ukf"
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+    # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              **REST_PARAMS}
+              "mag_update": "heading", "acc_lowpass": 1.0, **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -75,6 +95,9 @@ cdef class UKF(Estimator):
         self.q_init_std = check_param("q_init_std", p["q_init_std"])
         self.bias_init_std = check_param("bias_init_std", p["bias_init_std"])
         self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
+        magd_set(&self.magd, check_magdist_params(p))
+        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
+        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
@@ -82,7 +105,10 @@ cdef class UKF(Estimator):
         return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
                                                 ("P", <double[:36]>self.P, COV),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
-                + self._rest_fields())
+                + [("acc_lp", <double[:3]>self.acc_lp, None),
+                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -98,6 +124,7 @@ cdef class UKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(&self.rest)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -226,6 +253,8 @@ cdef class UKF(Estimator):
         for i in range(6):
             for j in range(3):
                 K[i * 3 + j] = C[i * 3] * Si[j] + C[i * 3 + 1] * Si[3 + j] + C[i * 3 + 2] * Si[6 + j]
+        if self.heading_gain:
+            heading_only_rows(self.q, K)
         # innovation about the prediction at the mean, h(q̂) = Z_0 (docs/ukf.md)
         nu[0] = z[0] - Z[0]
         nu[1] = z[1] - Z[1]
@@ -242,6 +271,19 @@ cdef class UKF(Estimator):
         self.b[0] += dx[3]
         self.b[1] += dx[4]
         self.b[2] += dx[5]
+        if self.heading_gain:
+            # the projected gain is not the Kalman gain: P - K Pxzᵀ - Pxz Kᵀ + K Pzz Kᵀ
+            for i in range(6):
+                for j in range(3):
+                    D[i * 3 + j] = K[i * 3] * S[j] + K[i * 3 + 1] * S[3 + j] + K[i * 3 + 2] * S[6 + j]
+            for i in range(6):
+                for j in range(i, 6):
+                    s = P[i * 6 + j]
+                    for k in range(3):
+                        s += -K[i * 3 + k] * C[j * 3 + k] - C[i * 3 + k] * K[j * 3 + k] + D[i * 3 + k] * K[j * 3 + k]
+                    P[i * 6 + j] = s
+                    P[j * 6 + i] = s
+            return
         # P - K Pzz K^T = P - K Pxz^T, symmetrised
         for i in range(6):
             for j in range(i, 6):
@@ -338,6 +380,7 @@ cdef class UKF(Estimator):
         # variance, here directly in rad² (the error p is the angle to first order); a sample
         # out of range is not a measurement: held as a dropped one (ekf_step)
         cdef bint measured
+        cdef double af[3]
         cdef double v
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL
@@ -351,11 +394,24 @@ cdef class UKF(Estimator):
             self.P[14] += v
         if rest_detect(&self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
+        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        if acc != NULL and self.acc_lowpass > 0.0:
+            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+                             gyr, self.b, acc, dt, af)
+            acc = af
         if acc != NULL:
             self.acc_update(acc, dt)
-        if mag != NULL:
+        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
+            self.heading_gain = self.mag_heading
             self.mag_update(mag, dt)
+            self.heading_gain = False
         quat_normalise(self.q)
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector"."""
+        return "heading" if self.mag_heading else "vector"
 
     @property
     def bias(self):

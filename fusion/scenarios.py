@@ -36,7 +36,6 @@ linear acceleration).
 """
 from dataclasses import dataclass, field as dc_field
 import numbers
-from typing import Optional
 
 import numpy as np
 
@@ -86,8 +85,8 @@ class Scenario:
     gyro_bias: np.ndarray    # (3,) rad/s
     params: dict = dc_field(default_factory=dict)
     preset: str = ""                          # IMU model (seed scenarios; "" for make_scenario's)
-    acc_disturbed: Optional[np.ndarray] = None  # (N,) bool: |a_lin| > ACC_DISTURBED (seed scenarios)
-    mag_disturbed: Optional[np.ndarray] = None  # (N,) bool: field disturbance > MAG_DISTURBED |field|
+    acc_disturbed: np.ndarray | None = None  # (N,) bool: |a_lin| > ACC_DISTURBED (seed scenarios)
+    mag_disturbed: np.ndarray | None = None  # (N,) bool: field disturbance > MAG_DISTURBED |field|
 
     @property
     def n(self):
@@ -324,7 +323,8 @@ def _lever_arm_acc(path, tau, lever, h=1e-3):
     fixed pivot along ``path``: second central difference of its position (the path is
     analytic; truncation ~ h² ω⁴ r / 12 < 1e-4 m/s², rounding ~ 1e-9)."""
     r = np.array([lever, 0.0, 0.0])
-    pos = lambda tt: quat.rotate(quat.from_euler(path(tt)[0]), r)
+    def pos(tt):
+        return quat.rotate(quat.from_euler(path(tt)[0]), r)
     return (pos(tau + h) - 2.0 * pos(tau) + pos(tau - h)) / (h * h)
 
 
@@ -413,7 +413,8 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
     e0, sines = _draw_path(motion_rng, mot["turn"], mot["tilt"], mot["freq"])
     window = cfg.get("window")
     envelope = (lambda tt: _plateau(tt, window[0], window[1], 1.0)) if window else None
-    path = lambda tt: _euler_path(tt, e0, sines, envelope)
+    def path(tt):
+        return _euler_path(tt, e0, sines, envelope)
     e, de = path(tau)
     q_phys = quat.from_euler(e)
     a_lin = _lever_arm_acc(path, tau, cfg["lever"]) if cfg.get("lever") else np.zeros((tau.shape[0], 3))
@@ -445,3 +446,69 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
                     params=params, preset=spec.name,
                     acc_disturbed=np.linalg.norm(a_lin[idx], axis=1) > ACC_DISTURBED,
                     mag_disturbed=np.linalg.norm(b_dist[idx], axis=1) > MAG_DISTURBED * np.linalg.norm(field))
+
+
+# ---------------------------------------------------------------------------------------
+# Failure scenarios (issue 19): one per failure category seen on real recordings, built on
+# make_scenario's motion. The disturbances are added to the sensor readings; the truth is the
+# motion's (a magnet does not turn the body, a linear vibration or a tap does not rotate it).
+
+FAILURE_SCENARIOS = {
+    "fast-rotation": dict(base="mixed", fs=286.0, motion=dict(tilt=60.0, turn=270.0, freq=(0.1, 0.8),
+                                                              bursts_per_min=0.0, burst_acc=0.0),
+                          doc="fast hand-held rotation (peaks of about 10 rad/s) sampled at 286 Hz"),
+    "magnet-attached": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
+                            doc="a magnet fixed to the sensor from 20 to 50 s: a body-frame "
+                                "offset of 0.8 x the field's norm (a new hard-iron offset)"),
+    "magnet-passing": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
+                           doc="a magnet passed nearby: an earth-frame field of up to 0.7 x the "
+                               "field's norm, Hann-shaped from 25 to 35 s"),
+    "vibration": dict(base="slow", fs=286.0, motion=dict(turn=90.0),
+                      doc="phone-like vibration: 2 s bursts every 8 s of 6 m/s^2 at 47 Hz on "
+                          "the accelerometer"),
+    "tapping": dict(base="slow", fs=286.0, motion=dict(turn=90.0),
+                    doc="taps: 30 per minute, 20 ms spikes of 30 m/s^2 in random directions "
+                        "on the accelerometer and 2 rad/s on the gyro"),
+}
+
+
+def failure_scenario(name, duration=60.0, seed=0):
+    """The failure scenario ``name`` (one of ``FAILURE_SCENARIOS``): a ``Scenario`` at the
+    preset's rate whose readings carry the disturbance (``mag_disturbed`` / ``acc_disturbed``
+    mark the samples)."""
+    if name not in FAILURE_SCENARIOS:
+        raise ValueError(f"unknown failure scenario {name!r}; available: {', '.join(FAILURE_SCENARIOS)}")
+    spec = FAILURE_SCENARIOS[name]
+    sc = make_scenario(spec["base"], fs=spec["fs"], duration=duration, seed=seed, **spec["motion"])
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+    t, n = sc.t, sc.n
+    b = float(np.linalg.norm(sc.field))
+    acc_dist = np.zeros(n, bool)
+    mag_dist = np.zeros(n, bool)
+    if name == "magnet-attached":
+        on = (t >= 20.0) & (t < 50.0)
+        sc.mag[on] += 0.8 * b * np.array([0.6, -0.48, 0.64])
+        mag_dist = on
+    elif name == "magnet-passing":
+        w = np.where((t >= 25.0) & (t < 35.0), np.sin(np.pi * (t - 25.0) / 10.0) ** 2, 0.0)
+        d = 0.7 * b * np.array([0.6, -0.48, 0.64])
+        sc.mag += quat.rotate_inverse(sc.q_true, w[:, None] * d)
+        mag_dist = w > MAG_DISTURBED / 0.7
+    elif name == "vibration":
+        on = (t % 8.0) < 2.0
+        axis = np.array([0.3, 0.9, -0.3]) / np.linalg.norm([0.3, 0.9, -0.3])
+        sc.acc += (on * 6.0 * np.sin(2 * np.pi * 47.0 * t))[:, None] * axis
+        acc_dist = on
+    elif name == "tapping":
+        starts = rng.uniform(0.0, duration - 0.1, int(duration / 2.0))
+        for s in starts:
+            k = (t >= s) & (t < s + 0.02)
+            u = rng.standard_normal(3)
+            v = rng.standard_normal(3)
+            sc.acc[k] += 30.0 * u / np.linalg.norm(u)
+            sc.gyr[k] += 2.0 * v / np.linalg.norm(v)
+            acc_dist |= k
+    sc.name = name
+    sc.acc_disturbed, sc.mag_disturbed = acc_dist, mag_dist
+    sc.params = dict(sc.params, failure=name)
+    return sc

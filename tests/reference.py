@@ -334,12 +334,103 @@ def recovery_factor(t_left, sat, dt):
     return 1.0 + 19.0 * t_left / 3.0, t_left - dt
 
 
+MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_tol": 10.0,
+                  "magdist_new_time": 20.0}
+
+
+class RefMagDist:
+    """docs/estimators.md, "Magnetic disturbances": call with the attitude, the magnetometer
+    and gyro samples; True when the sample may be used (rejections counted in n)."""
+    CUR_TAU, REF_TAU, MIN_UNDIST, NEW_MIN_GYR, DECAY = 0.05, 20.0, 0.5, math.radians(20.0), 2.0
+
+    def __init__(self, time, norm_tol, dip_tol_deg, new_time):
+        self.time, self.norm_tol, self.dip_tol, self.new_time = time, norm_tol, math.radians(dip_tol_deg), new_time
+        self.cur = self.ref = self.cand = None
+        self.t_undist = self.t_cand = self.t_reject = 0.0
+        self.disturbed = False
+        self.n = 0
+
+    def _close(self, a, r):
+        return abs(a[0] - r[0]) < self.norm_tol * r[0] and abs(a[1] - r[1]) < self.dip_tol
+
+    def _relearn(self, x):
+        self.ref = x.copy()
+        self.disturbed = False
+        self.t_undist = self.MIN_UNDIST
+
+    def __call__(self, q, mag, gyr, dt):
+        if self.time <= 0:
+            return True
+        nrm = np.linalg.norm(mag)
+        x = np.array([nrm, -math.asin(np.clip((rotmat(q) @ mag)[2] / nrm, -1.0, 1.0))])
+        if self.cur is None:
+            self.cur, self.ref, self.cand = x.copy(), x.copy(), x.copy()
+            self.t_undist = self.MIN_UNDIST
+            return True
+        self.cur = self.cur + dt / (self.CUR_TAU + dt) * (x - self.cur)
+        k = dt / (self.REF_TAU + dt)
+        if self._close(self.cur, self.ref):
+            self.t_undist += dt
+            if self.t_undist >= self.MIN_UNDIST:
+                self.disturbed = False
+                self.ref = self.ref + k * (self.cur - self.ref)
+        else:
+            self.t_undist = 0.0
+            self.disturbed = True
+        if self._close(self.cur, self.cand):
+            if gyr is not None and np.linalg.norm(gyr) >= self.NEW_MIN_GYR:
+                self.t_cand += dt
+            self.cand = self.cand + k * (self.cur - self.cand)
+            if self.disturbed and self.t_cand >= self.new_time:
+                self._relearn(self.cand)
+        else:
+            self.t_cand = 0.0
+            self.cand = self.cur.copy()
+        if not self.disturbed:
+            self.t_reject = max(self.t_reject - self.DECAY * dt, 0.0)
+            return True
+        self.t_reject += dt
+        if self.t_reject > self.time:
+            self._relearn(self.cur)
+            self.t_reject = 0.0
+            return True
+        self.n += 1
+        return False
+
+
+def acc_lowpass_lost(est, gyr, sat, dt):
+    """The gyro did not measure the step (none, saturated, a gap > 2 periods): restart."""
+    if est.acc_lowpass > 0 and (gyr is None or sat or dt > 2.0 / est.fs):
+        est.acc_lp, est.acc_qg = None, IDENTITY.copy()
+
+
+def acc_lowpass_step(est, gyr, b, acc, dt):
+    """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
+    (never corrected), turned back into the body frame; est.acc_lp None before the first."""
+    if gyr is not None and est.acc_lp is not None:
+        est.acc_qg = normalise(phi(gyr - b, dt) @ est.acc_qg)
+    an = rotmat(est.acc_qg) @ acc
+    est.acc_lp = an if est.acc_lp is None else est.acc_lp + dt / (est.acc_lowpass + dt) * (an - est.acc_lp)
+    return rotmat(est.acc_qg).T @ est.acc_lp
+
+
+def make_magdist(est):
+    return RefMagDist(est.magdist_time, est.magdist_norm_tol, est.magdist_dip_tol, est.magdist_new_time)
+
+
 class RefMahony(RefEstimator):
-    PARAMS = {"kp": 0.5, "ki": 0.005, "gyro_range": None}
+    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+              **MAGDIST_PARAMS}
 
     def _reset_state(self):
         self.eps = np.zeros(3)
         self.t_recover = 0.0
+        self.magd = make_magdist(self)
+        self.acc_lp, self.acc_qg = None, IDENTITY.copy()
+
+    @property
+    def mag_rejected(self):
+        return self.magd.n
 
     @property
     def bias(self):
@@ -354,6 +445,11 @@ class RefMahony(RefEstimator):
         if recovering and f * self.kp * dt > 0.5:      # at most half the error per step
             f = max(1.0, 0.5 / (self.kp * dt))
         q = self.q
+        if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
+            mag = None
+        acc_lowpass_lost(self, gyr, sat, dt)
+        if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
+            acc = acc_lowpass_step(self, gyr, -self.ki * self.eps, acc, dt)
         if gyr is not None:                                              # 1.
             q = normalise(phi(gyr + self.ki * self.eps, dt) @ q)
         e = np.zeros(3)
@@ -366,7 +462,11 @@ class RefMahony(RefEstimator):
             h = rotmat(q) @ m
             b = np.array([0.0, np.sqrt(h[0] ** 2 + h[1] ** 2), h[2]])
             w = rotmat(q).T @ b
-            e += cross(m, w)
+            c = cross(m, w)
+            if self.mag_update == "heading":     # only the turn about the vertical
+                up = rotmat(q).T @ np.array([0.0, 0.0, 1.0])
+                c = (c @ up) * up
+            e += c
         if self.ki > 0 and not recovering:                               # 4.
             self.eps = self.eps + e * dt
         if self.kp > 0:
@@ -399,7 +499,8 @@ def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
     t = dt - 1.0 / fs if measured else dt
     if t <= 0:
         return 0.0, 0.0
-    total = lambda tr: min((motion_rate * tr) ** 2, math.pi ** 2)
+    def total(tr):
+        return min((motion_rate * tr) ** 2, math.pi ** 2)
     return t_run + t, total(t_run + t) - total(t_run)
 
 
@@ -435,15 +536,17 @@ class RefRest:
 
 
 class RefEKF(RefEstimator):
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 1.0, "mag_noise": 0.03,
+    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "vector", "acc_lowpass": 0.0, "rest_time": 1.5,
+              "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
-              "acc_update": "vector"}
+              "acc_update": "vector", **MAGDIST_PARAMS}
 
     def _reset_state(self):
-        self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, navigation frame
+        self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, in the frame acc_qg
+        self.acc_qg = IDENTITY.copy()   # the bias-corrected gyro integrated (never corrected)
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.magd = make_magdist(self)
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
@@ -499,6 +602,10 @@ class RefEKF(RefEstimator):
     def rest_samples(self):
         return self.rest.n
 
+    @property
+    def mag_rejected(self):
+        return self.magd.n
+
     def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)
         H = np.zeros((3, 7))
@@ -532,16 +639,14 @@ class RefEKF(RefEstimator):
     def _step(self, gyr, acc, mag, dt):
         gyr = measured_gyr(gyr, self.gyro_range)                         # out of range: dropped
         self._propagate(gyr, dt)                                         # 1.
+        acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
-            an = rotmat(self.q) @ acc
-            self.acc_lp = an if self.acc_lp is None else \
-                self.acc_lp + dt / (self.acc_lowpass + dt) * (an - self.acc_lp)
-            acc = rotmat(self.q).T @ self.acc_lp
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm, "tilt" if self.acc_update == "tilt" else "full")
-        if mag is not None:                                              # 3.
+        if mag is not None and self.magd(self.q, mag, gyr, dt):          # 3.
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:

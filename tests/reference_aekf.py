@@ -52,7 +52,8 @@ def wahba_svd(b, r, w):
 # --- the filter ---------------------------------------------------------------------------
 
 class RefAEKF(ref.RefEKF):
-    PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_update="tilt", acc_norm_tol=0.5, acc_pred_tol=1.0, acc_pred_timeout=2.0,
+    PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0,
+                  acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -83,6 +84,7 @@ class RefAEKF(ref.RefEKF):
     def _reset_state(self):
         super()._reset_state()
         self.t_dir = 0.0
+        self.g_ref = G          # the tests' g: 9.81 until the first rest
         self.norms, self.dips = [], []
         self.norm_ref = self.mag_norm
         self.dip_ref = None if self.mag_dip is None else self.mag_dip * DEG
@@ -120,17 +122,21 @@ class RefAEKF(ref.RefEKF):
         # 1. predict (the ekf's, with its recovery; out of range: dropped)
         gyr = ref.measured_gyr(gyr, self.gyro_range)
         self._propagate(gyr, dt)
+        n_rest = self.rest.n
         self._rest(gyr, acc, dt)
+        if self.rest.n > n_rest:        # at rest: this sensor's g, the low-passed norm
+            self.g_ref = float(np.linalg.norm(self.rest.lp[1]))
+        g = self.g_ref
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = mag_rej = mag_tested = False
         if acc is not None:
             na = math.sqrt(acc @ acc)
             self.tested["acc"] += 1
-            if abs(na - G) > self.acc_norm_tol:
+            if abs(na - g) > self.acc_norm_tol:
                 acc_rej = True
                 self.t_dir = 0.0
-            elif np.linalg.norm(acc - G * u) > self.acc_pred_tol:
+            elif np.linalg.norm(acc - g * u) > self.acc_pred_tol:
                 self.t_dir += dt
                 acc_rej = self.t_dir <= self.acc_pred_timeout
             else:
@@ -186,7 +192,7 @@ class RefAEKF(ref.RefEKF):
             f = self.reject_factor if acc_rej else 1.0
             self._correct(normalise(acc), ref.acc_model, (self.acc_noise / G) ** 2 / dt * f * I3,
                           "tilt" if self.acc_update == "tilt" else "full")
-        if mag is not None:
+        if mag is not None and self.magd(self.q, mag, gyr, dt):      # the shared detector
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:

@@ -20,9 +20,10 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, measured_gyr, RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid, unmeasured_variance,
-                       recovery_factor, is_saturated,
-                       left_matrix, normalise, phi, qconj, qmul, rotmat, vector_valid)
+from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost, measured_gyr,
+                       RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid,
+                       unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi, qconj, qmul,
+                       rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -155,7 +156,7 @@ def mag_model_rows(q, z):
 
 
 class RefUKF(RefEstimator):
-    PARAMS = {k: v for k, v in RefEKF.PARAMS.items() if k not in ("mag_update", "acc_update", "acc_lowpass")}
+    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=0.5, acc_lowpass=1.0)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
@@ -177,10 +178,16 @@ class RefUKF(RefEstimator):
         self.P = np.diag([(2 * self.q_init_std) ** 2] * 3 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.magd = make_magdist(self)
+        self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
 
     @property
     def rest_samples(self):
         return self.rest.n
+
+    @property
+    def mag_rejected(self):
+        return self.magd.n
 
     @property
     def bias(self):
@@ -212,7 +219,9 @@ class RefUKF(RefEstimator):
         else:                    # docs/ukf.md: the propagated centre, bias unchanged
             self.q = normalise(q0)
 
-    def _correct(self, z, hfun, Rm):
+    def _correct(self, z, hfun, Rm, heading=False):
+        """heading: the gain's attitude and bias rows projected onto the body-frame vertical
+        (the magnetometer turns the heading only), P by the general form."""
         X = self._sigma()
         Z = hfun(qmul_left(self.q, err_to_quat(X[:, :3])))
         zhat = self.Wm @ Z
@@ -220,10 +229,18 @@ class RefUKF(RefEstimator):
         Pzz = (DZ.T * self.Wc) @ DZ + Rm
         Pxz = (X.T * self.Wc) @ DZ
         K = Pxz @ np.linalg.inv(Pzz)
+        if heading:
+            w = rotmat(self.q).T @ np.array([0.0, 0.0, 1.0])
+            Pw = np.outer(w, w)
+            K[:3] = Pw @ K[:3]
+            K[3:] = Pw @ K[3:]
         dx = K @ (z - (zhat if self.sigma_mean else Z[0]))
         self.q = normalise(qmul(self.q, err_to_quat(dx[:3])[0]))
         self.b = self.b + dx[3:]
-        P = self.P - K @ Pzz @ K.T
+        if heading:
+            P = self.P - K @ Pxz.T - Pxz @ K.T + K @ Pzz @ K.T
+        else:
+            P = self.P - K @ Pzz @ K.T
         self.P = (P + P.T) / 2
 
     def _step(self, gyr, acc, mag, dt):
@@ -243,13 +260,17 @@ class RefUKF(RefEstimator):
             self.b = self.b + K[3:] @ (gyr - self.b)
             IKH = np.eye(6) - K @ H
             self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
+        acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
+        if acc is not None and self.acc_lowpass > 0:
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
         if acc is not None:
             self._correct(normalise(acc), acc_model_rows, (self.acc_noise / G) ** 2 / dt * I3)
-        if mag is not None:
+        if mag is not None and self.magd(self.q, mag, gyr, dt):
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:
-                self._correct(z, lambda q: mag_model_rows(q, z), self.mag_noise ** 2 / dt * I3)
+                self._correct(z, lambda q: mag_model_rows(q, z), self.mag_noise ** 2 / dt * I3,
+                              self.mag_update == "heading")
         self.q = normalise(self.q)
 
 
@@ -271,9 +292,9 @@ class RefSlidingMean:
 
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 0.5, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": True,
-              **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_")}}
+              "window": None, "kp": 1.0, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
+              **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_") or k.startswith("magdist_")}}
     LEARN_ACC_TOL, LEARN_ANGLE, LEARN_HOLD = 0.5, math.radians(2.0), 0.5     # bias_feedback
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -285,7 +306,9 @@ class RefCFEKF(RefEKF):
 
     def _reset_state(self):
         super()._reset_state()
-        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range)
+        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range,
+                            mag_update=self.mag_update, acc_lowpass=self.acc_lowpass,
+                            **{k: getattr(self, k) for k in MAGDIST_PARAMS})
         self.cf_started = False
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]
         self.sat_left = 0       # samples the window still holds a saturated raw gyro sample

@@ -217,7 +217,7 @@ def test_uneven_time_stamps(name):
 def test_unknown_estimator_and_parameter_are_named():
     with pytest.raises(ValueError, match="available: gyro"):
         fusion.make("kalman", 100.0)
-    with pytest.raises(ValueError, match="kq.*accepted: gyro_range, ki, kp"):
+    with pytest.raises(ValueError, match="kq.*accepted: acc_lowpass, gyro_range, ki, kp, mag_update"):
         fusion.make("mahony", 100.0, kq=1.0)
     with pytest.raises(ValueError, match="gyro_noise"):
         fusion.make("ekf", 100.0, gyro_noise=-1.0)

@@ -1,0 +1,57 @@
+# acc_lowpass (docs/estimators.md): the accelerometer low-passed in a frame that turns with the
+# bias-corrected gyro alone, as VQF's (Laidig & Seel, "VQF: Highly accurate IMU orientation
+# estimation with bias estimation and magnetic disturbance rejection", 2023); the ekf family,
+# mahony and the ukf share it, each with its own state (lp, qg, started).
+from libc.string cimport memcpy
+from fusion._qmath cimport phi_matrix, quat_normalise, rot_to_nav, rot_to_body
+
+
+cdef inline void acc_gyro_lowpass(double tau, double* lp, double* qg, bint* started,
+                                  const double* gyr, const double* b, const double* acc,
+                                  double dt, double* out) noexcept nogil:
+    """The sample turned into the frame qg (the gyro minus the bias b integrated from the
+    first sample, never corrected; gyr NULL: not turned), low-passed there (first order,
+    time constant tau; the first sample starts it), and turned back with qg into out: a
+    body-frame vertical the linear acceleration of a shaken body averages out of, and that
+    does not depend on the filter's corrections."""
+    cdef double an[3]
+    cdef double A[16]
+    cdef double qn[4]
+    cdef double k = dt / (tau + dt)
+    cdef int i
+    if gyr != NULL and started[0]:
+        phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
+        for i in range(4):
+            qn[i] = A[i * 4] * qg[0] + A[i * 4 + 1] * qg[1] + A[i * 4 + 2] * qg[2] + A[i * 4 + 3] * qg[3]
+        memcpy(qg, qn, 4 * sizeof(double))
+        quat_normalise(qg)
+    rot_to_nav(qg, acc, an)
+    if not started[0]:
+        lp[0] = an[0]
+        lp[1] = an[1]
+        lp[2] = an[2]
+        started[0] = True
+    else:
+        lp[0] += k * (an[0] - lp[0])
+        lp[1] += k * (an[1] - lp[1])
+        lp[2] += k * (an[2] - lp[2])
+    rot_to_body(qg, lp, out)
+
+
+cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:
+    """True when the gyro did not measure this step's motion (no sample, a saturated one, or a
+    gap of more than two nominal periods): the gyro frame is lost, and the low-pass restarts
+    from the next accelerometer sample (the filter's attitude variance has grown for the same
+    reason, so it takes that raw sample as it would without the low-pass)."""
+    return gyr == NULL or sat or dt > 2.0 * dt_nominal
+
+
+cdef inline void acc_lowpass_clear(double* lp, double* qg, bint* started) noexcept nogil:
+    lp[0] = 0.0
+    lp[1] = 0.0
+    lp[2] = 0.0
+    qg[0] = 1.0
+    qg[1] = 0.0
+    qg[2] = 0.0
+    qg[3] = 0.0
+    started[0] = False

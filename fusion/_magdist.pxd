@@ -1,0 +1,143 @@
+# Magnetic disturbance detection and rejection (docs/estimators.md, "Magnetic disturbances"),
+# after the design of Laidig & Seel, "VQF: Highly accurate IMU orientation estimation with bias
+# estimation and magnetic disturbance rejection" (Information Fusion, 2023): the field's norm
+# and dip angle against a reference learned while undisturbed. While disturbed the heading runs
+# on the gyro; after `time` s of rejection the current field becomes the reference (a magnet
+# fixed to the sensor is a new hard-iron offset), and a different field that stays steady for
+# `new_time` s while the sensor turns replaces the reference sooner. Each filter skips its
+# magnetometer update when mag_check says so.
+from libc.math cimport sqrt, asin, M_PI
+
+cdef struct MagDetector:
+    double time         # s of rejection at most, then the reference is re-learned (0: off)
+    double norm_tol     # relative: |norm - reference| < norm_tol * reference
+    double dip_tol      # rad
+    double dip_tol_deg  # the same as given, degrees (the parameter's value)
+    double new_time     # s: a steady new field (while turning) becomes the reference
+    double cur[2]       # the low-passed (norm, dip) of the current sample
+    double ref[2]       # the reference
+    double cand[2]      # the candidate for a new reference
+    double t_undist     # s undisturbed so far
+    double t_cand       # s the candidate has held while turning
+    double t_reject     # s of rejection (decays while undisturbed)
+    bint disturbed
+    bint started
+    long long n         # samples rejected since the reset
+
+
+# fixed time constants and limits, VQF's: the current field's low-pass (s), the reference's
+# (s), the undisturbed time before the reference follows again (s), the rate at which a
+# candidate counts (rad/s, 20 deg/s: a field that stays steady while the sensor turns is
+# homogeneous), how fast the rejection time decays while undisturbed (s per s)
+cdef extern from *:
+    """
+    #define FUSION_MAGD_CUR_TAU 0.05
+    #define FUSION_MAGD_REF_TAU 20.0
+    #define FUSION_MAGD_MIN_UNDIST 0.5
+    #define FUSION_MAGD_NEW_MIN_GYR 0.3490658503988659
+    #define FUSION_MAGD_DECAY 2.0
+    """
+    double MAGD_CUR_TAU "FUSION_MAGD_CUR_TAU"
+    double MAGD_REF_TAU "FUSION_MAGD_REF_TAU"
+    double MAGD_MIN_UNDIST "FUSION_MAGD_MIN_UNDIST"
+    double MAGD_NEW_MIN_GYR "FUSION_MAGD_NEW_MIN_GYR"
+    double MAGD_DECAY "FUSION_MAGD_DECAY"
+
+
+cdef inline void magd_set(MagDetector* d, tuple p):
+    """The parameters from fusion._core.check_magdist_params (the dip tolerance in degrees)."""
+    d.time, d.norm_tol, d.dip_tol_deg, d.new_time = p
+    d.dip_tol = d.dip_tol_deg * (M_PI / 180.0)
+
+
+cdef inline void magd_clear(MagDetector* d) noexcept nogil:
+    cdef int i
+    for i in range(2):
+        d.cur[i] = 0.0
+        d.ref[i] = 0.0
+        d.cand[i] = 0.0
+    d.t_undist = 0.0
+    d.t_cand = 0.0
+    d.t_reject = 0.0
+    d.disturbed = False
+    d.started = False
+    d.n = 0
+
+
+cdef inline bint magd_close(const double* a, const double* r, MagDetector* d) noexcept nogil:
+    """(norm, dip) a within the tolerances of r."""
+    cdef double dn = a[0] - r[0], dd = a[1] - r[1]
+    return (dn if dn > 0.0 else -dn) < d.norm_tol * r[0] and (dd if dd > 0.0 else -dd) < d.dip_tol
+
+
+cdef inline void magd_relearn(MagDetector* d, const double* x) noexcept nogil:
+    d.ref[0] = x[0]
+    d.ref[1] = x[1]
+    d.disturbed = False
+    d.t_undist = MAGD_MIN_UNDIST
+
+
+cdef inline bint magd_check(MagDetector* d, const double* q, const double* mag,
+                            const double* gyr, double dt) noexcept nogil:
+    """One magnetometer sample with the attitude q (ENU, body -> navigation) and the gyro
+    sample (NULL: none); True when the filter may use it, False to skip it (counted in d.n)."""
+    cdef double nrm, nz, s, k, g2
+    cdef double x[2]
+    cdef int i
+    if d.time <= 0.0:
+        return True
+    nrm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+    # the vertical component in the navigation frame: third row of R(q) times mag
+    nz = (2.0 * (q[1] * q[3] - q[0] * q[2]) * mag[0] + 2.0 * (q[2] * q[3] + q[0] * q[1]) * mag[1]
+          + (q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]) * mag[2])
+    s = nz / nrm
+    s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
+    x[0] = nrm
+    x[1] = -asin(s)             # the dip, positive down
+    if not d.started:           # the first sample is the reference
+        for i in range(2):
+            d.cur[i] = x[i]
+            d.ref[i] = x[i]
+            d.cand[i] = x[i]
+        d.started = True
+        d.t_undist = MAGD_MIN_UNDIST
+        return True
+    k = dt / (MAGD_CUR_TAU + dt)
+    for i in range(2):
+        d.cur[i] += k * (x[i] - d.cur[i])
+    k = dt / (MAGD_REF_TAU + dt)
+    if magd_close(d.cur, d.ref, d):
+        d.t_undist += dt
+        if d.t_undist >= MAGD_MIN_UNDIST:
+            d.disturbed = False
+            for i in range(2):
+                d.ref[i] += k * (d.cur[i] - d.ref[i])
+    else:
+        d.t_undist = 0.0
+        d.disturbed = True
+    # a new field: steady while the sensor turns for new_time s
+    if magd_close(d.cur, d.cand, d):
+        g2 = 0.0 if gyr == NULL else gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2]
+        if g2 >= MAGD_NEW_MIN_GYR * MAGD_NEW_MIN_GYR:
+            d.t_cand += dt
+        for i in range(2):
+            d.cand[i] += k * (d.cur[i] - d.cand[i])
+        if d.disturbed and d.t_cand >= d.new_time:
+            magd_relearn(d, d.cand)
+    else:
+        d.t_cand = 0.0
+        d.cand[0] = d.cur[0]
+        d.cand[1] = d.cur[1]
+    if not d.disturbed:
+        d.t_reject -= MAGD_DECAY * dt
+        if d.t_reject < 0.0:
+            d.t_reject = 0.0
+        return True
+    d.t_reject += dt
+    if d.t_reject > d.time:     # rejected for too long: this field is the reference now
+        magd_relearn(d, d.cur)
+        d.t_reject = 0.0
+        return True
+    d.n += 1
+    return False
+

@@ -1,0 +1,44 @@
+"""The failure scenarios of issue 19 (fusion.scenarios.FAILURE_SCENARIOS: fast rotation at
+286 Hz, a magnet attached to the sensor, a magnet passed nearby, phone-like vibration,
+tapping): every estimator that issue names stays bounded in each, with one bound for all.
+
+Bounds (deg, RMSE over the 60 s, default parameters, scenario seed 0): 9-axis total below 4
+and inclination below 2.5; 6-axis inclination below 2.5 (the 6-axis heading drifts with the
+scenario's unlearned gyro bias, 0.014 rad/s, and is not scored). 4 deg is below the 4.89 deg
+the held-out set asks of every seed estimator. `madgwick` is not held to them (no
+magnetic disturbance rejection: 6.7 / 8.0 deg total with the magnets)."""
+import pytest
+
+import fusion
+from fusion import compare, scenarios
+
+NAMES = ("ekf", "iir-ekf", "aekf", "ukf", "mahony", "cf-ekf")
+TOTAL_9, INCL = 4.0, 2.5
+
+
+@pytest.fixture(scope="module", params=sorted(scenarios.FAILURE_SCENARIOS))
+def scenario(request):
+    return scenarios.failure_scenario(request.param)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_error_stays_bounded(scenario, name):
+    sc = scenario
+    q9 = fusion.make(name, sc.fs).run(sc.gyr, sc.acc, sc.mag, dt=sc.dt)
+    q6 = fusion.make(name, sc.fs).run(sc.gyr, sc.acc, dt=sc.dt)
+    s9, _, _, _ = compare.score_mode(q9, sc.q_true, "9-axis")
+    s6, _, _, _ = compare.score_mode(q6, sc.q_true, "6-axis")
+    print(sc.name, name, round(s9["total"], 2), round(s9["inclination"], 2), round(s6["inclination"], 2))
+    assert s9["total"] < TOTAL_9 and s9["inclination"] < INCL and s6["inclination"] < INCL
+
+
+def test_scenarios_are_what_they_say():
+    fast = scenarios.failure_scenario("fast-rotation")
+    assert fast.fs == 286.0 and abs(fast.omega).max() > 5.0
+    att = scenarios.failure_scenario("magnet-attached")
+    assert att.mag_disturbed[int(25 * att.fs)] and not att.mag_disturbed[int(10 * att.fs)]
+    for name in ("vibration", "tapping"):
+        sc = scenarios.failure_scenario(name)
+        assert 0.01 < sc.acc_disturbed.mean() < 0.5
+    with pytest.raises(ValueError, match="unknown failure scenario"):
+        scenarios.failure_scenario("earthquake")
