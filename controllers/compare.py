@@ -101,7 +101,11 @@ def code_version():
 
 
 def _policy_files(stem):
-    return [Path(str(stem) + s) for s in (".zip", ".vecnormalize.pkl")]
+    """The files ``load_policy`` reads for ``stem``: the zip (required), then the
+    normalisation statistics and the metadata where present (all in the content hash)."""
+    from controllers.rl import NORM_SUFFIX
+    zip_path = Path(str(stem) + ".zip")
+    return [zip_path] + [f for f in (Path(str(stem) + NORM_SUFFIX), Path(str(stem) + ".json")) if f.is_file()]
 
 
 def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=None, log=print):
@@ -129,7 +133,7 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                     if ctrl != "pid":
                         stem = policy_stem("ppo", task, "truth" if ctrl == "ppo-truth" else est, pdir)
                         files = _policy_files(stem)
-                        if not all(f.is_file() for f in files):
+                        if not files[0].is_file():
                             missing.add(str(stem))
                             continue
                         name, sha = stem.name, _file_hash(files)[:16]
@@ -137,7 +141,7 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                                      seed=seed, policy=name, policy_dir=custom if name else None, policy_sha=sha,
                                      env_kwargs=dict(SCENARIOS[sc], task=task, estimator=est)))
     for m in sorted(missing):
-        log(f"no policy {m}.zip (+ .vecnormalize.pkl): its cells are skipped (train it with scripts/train.py)")
+        log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
     return jobs
 
 

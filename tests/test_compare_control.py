@@ -97,9 +97,9 @@ def test_ray_two_node_cluster_equals_local(tmp_path, monkeypatch):
     from ray.cluster_utils import Cluster
     jobs = _jobs()
     ppo = compare.plan(["track"], ["flat"], ["gyro"], ["ppo"], episodes=1, seed=5, log=lambda *a: None)
-    if ppo:                      # the shipped policy travels in the working_dir
-        ppo[0]["env_kwargs"].update(SHORT)
-        jobs += ppo
+    assert len(ppo) == 1         # the shipped policy travels in the working_dir
+    ppo[0]["env_kwargs"].update(SHORT)
+    jobs += ppo
     local = compare.run_grid(jobs, workers=1, progress=False)
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     try:
@@ -164,3 +164,23 @@ def test_summary_success_intervals_in_range():
     from controllers.evaluation import newcombe_paired
     assert newcombe_paired(np.r_[np.zeros(k), np.ones(30 - k)], np.ones(30))[2] < 0
     assert newcombe_paired(np.r_[np.zeros(k - 1), np.ones(31 - k)], np.ones(30))[2] >= 0
+
+
+def test_plan_finds_the_shipped_policies_and_hashes_their_statistics(tmp_path):
+    """Every shipped policy gives its PPO cells (the statistics are .vecnormalize.npz since
+    the safe-loading change; plan looked for the old .pkl and skipped every PPO cell), and
+    the content hash covers the statistics, so new statistics are a new cache key."""
+    import shutil
+    from controllers import rl
+    msgs = []
+    jobs = compare.plan(["track"], ["flat"], ["truth", "ekf"], ["ppo", "ppo-truth"], 1, 0, log=msgs.append)
+    assert not msgs, msgs
+    assert sorted(j["controller"] for j in jobs) == ["ppo", "ppo", "ppo-truth", "ppo-truth"]
+    stem = rl.POLICY_DIR / "ppo-track-ekf"
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        shutil.copy(str(stem) + s, tmp_path / ("ppo-track-ekf" + s))
+    sha = compare.plan(["track"], ["flat"], ["ekf"], ["ppo"], 1, 0, policy_dir=tmp_path)[0]["policy_sha"]
+    st = dict(np.load(tmp_path / ("ppo-track-ekf" + rl.NORM_SUFFIX)))
+    st["obs_mean"] = st["obs_mean"] + 1.0
+    np.savez(tmp_path / ("ppo-track-ekf" + rl.NORM_SUFFIX), **st)
+    assert compare.plan(["track"], ["flat"], ["ekf"], ["ppo"], 1, 0, policy_dir=tmp_path)[0]["policy_sha"] != sha
