@@ -501,11 +501,9 @@ def _plot_headline(summary, path):
             return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
                     "estimator's paired difference against it (add `truth` to --estimators).")
         return "No headline figure: the grid has no estimator besides `truth` to compare with it."
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from fusion.compare import subplots
     sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4),
+    fig, axes = subplots(len(panels), 1, figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4),
                              gridspec_kw={"height_ratios": [1.0 + 0.42 * s for s in sizes]}, squeeze=False)
     for ax, (task, sc) in zip(axes[:, 0], panels):
         main, higher = MAIN_METRIC[task]
@@ -553,21 +551,19 @@ def _plot_headline(summary, path):
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return None
 
 
 def _plot_paths(path_rows, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 7))
+    from matplotlib.patches import Circle
+    from fusion.compare import subplots
+    fig, ax = subplots(figsize=(7, 7))
     first = path_rows[0]
     if first.get("waypoints") is not None:
         wp = np.vstack([first["start"][None, :], first["waypoints"]])
         ax.plot(wp[:, 0], wp[:, 1], "k--", lw=1.5, label="target path")
         for x, y in wp[1:]:          # reached when the true position enters the circle
-            ax.add_patch(plt.Circle((x, y), first["waypoint_radius"], fill=False, color="k", lw=0.8))
+            ax.add_patch(Circle((x, y), first["waypoint_radius"], fill=False, color="k", lw=0.8))
     for r in path_rows:
         p = r["path"]
         ax.plot(p[:, 0], p[:, 1], lw=1.2, label=f"{r['estimator']} ({r['controller']})")
@@ -580,7 +576,6 @@ def _plot_paths(path_rows, path):
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 # ----------------------------------------------------------------------------------------

@@ -176,15 +176,21 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     return csv_path, md_path
 
 
+
+def subplots(*args, figsize=None, **kw):
+    """(figure, axes) like pyplot.subplots, on a Figure of its own (savefig renders it with
+    Agg): the library never selects or switches the user's backend, and keeps no figure
+    open in pyplot's registry."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*args, **kw)
+
+
 def plot_errors(panels, path, title, t=None, fs=None):
     """One PNG: a panel per entry of ``panels`` (``{panel title: {label: err or (t, err)}}``),
     total error in degrees over time on a log axis. ``t`` or ``fs`` gives the time axis of
     plain error arrays."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 3.4 * len(panels)), sharex=True,
+    fig, axes = subplots(len(panels), 1, figsize=(10, 3.4 * len(panels)), sharex=True,
                              squeeze=False)
     for ax, (ptitle, curves) in zip(axes[:, 0], panels.items()):
         for label, c in curves.items():
@@ -201,5 +207,4 @@ def plot_errors(panels, path, title, t=None, fs=None):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

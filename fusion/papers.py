@@ -117,17 +117,9 @@ def _euler_runs(cases, names, seeds, tick, preset):
     return runs, keep
 
 
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _save(fig, path):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    _plt().close(fig)
     return path
 
 
@@ -156,7 +148,7 @@ def _section_000(seeds, out, tick):
             d = np.array(get(case, "mahony", a, k)) - np.array(get(case, "ekf", a, k))
             verdicts.append(f"- {a} {k}: " + _verdict(d, "EKF below the complementary filter"))
     s, errs = keep[case]
-    fig, axes = _plt().subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig, axes = compare.subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for ax, a in zip(axes, ORDER):
         i = DEG_ANGLES.index(a)
         for n in names:
@@ -257,8 +249,7 @@ def _section_001(seeds, out, tick):
 
 
 def _plot_switching(s, qs, dec, path):
-    plt = _plt()
-    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    fig, axes = compare.subplots(4, 1, figsize=(10, 10), sharex=True)
     t = s.t
     shade = lambda ax, mask, color, label: ax.fill_between(t, 0, 1, where=mask, color=color, alpha=0.25,
                                                             transform=ax.get_xaxis_transform(), label=label)
@@ -361,8 +352,7 @@ def _section_003(seeds, out, tick):
 
 
 def _plot_spectra(s, qs, path):
-    plt = _plt()
-    fig, axes = plt.subplots(3, 1, figsize=(10, 9))
+    fig, axes = compare.subplots(3, 1, figsize=(10, 9))
     ax = axes[0]
     f, a_acc = metrics.spectrum(s.acc[:, 1], s.fs)
     ax.semilogy(f, np.maximum(a_acc, 1e-6), lw=0.7, color="gray")
@@ -435,8 +425,7 @@ def _section_004(seeds, out, tick):
 
 
 def _plot_004(keep, path):
-    plt = _plt()
-    fig, axes = plt.subplots(3, len(keep), figsize=(12, 8), sharex="col", squeeze=False)
+    fig, axes = compare.subplots(3, len(keep), figsize=(12, 8), sharex="col", squeeze=False)
     for j, (case, (s, errs)) in enumerate(keep.items()):
         for i, a in enumerate(ORDER):
             ax = axes[i, j]
