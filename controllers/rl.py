@@ -1,6 +1,6 @@
 """Training, saving and loading stable-baselines3 policies for the spherical robot.
 
-A trained policy is three files with one stem, e.g. ``logs/ppo/SphereBotWaypoints-v0_1/ppo-waypoints-ekf``:
+A trained policy is three files with one stem, e.g. ``logs/ppo/SphereBotWaypoints-v1_1/ppo-waypoints-ekf``:
 
 - ``<stem>.zip``: the SB3 model (the best one found by the evaluation callback);
 - ``<stem>.vecnormalize.npz``: the ``VecNormalize`` statistics it was trained with, as plain arrays;
@@ -36,7 +36,7 @@ __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_poli
            "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
 
 ALGOS = ("ppo", "sac")
-TASK_IDS = {"track": "SphereBotTrack-v0", "waypoints": "SphereBotWaypoints-v0"}
+TASK_IDS = {"track": "SphereBotTrack-v1", "waypoints": "SphereBotWaypoints-v1"}
 # package resources (not the current folder): found the same from a checkout or a wheel
 HYPERPARAMS_DIR = Path(str(resources.files("controllers") / "hyperparams"))
 POLICY_DIR = Path(str(resources.files("controllers") / "policies"))

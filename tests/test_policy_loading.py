@@ -173,13 +173,13 @@ def _tree_hash(folder):
 def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
     from controllers import train_cli
     before = _tree_hash(rl.POLICY_DIR)
-    args = ["--algo", "ppo", "--env", "SphereBotTrack-v0", "--estimator", "truth", "-n", "64", "-f", str(tmp_path),
+    args = ["--algo", "ppo", "--env", "SphereBotTrack-v1", "--estimator", "truth", "-n", "64", "-f", str(tmp_path),
             "--eval-episodes", "0", "--eval-freq", "1000000", "--no-progress", "--seed", "3",
             "--hyperparams", "n_steps:64", "batch_size=32", "--env-kwargs", "episode_s:1.0"]
     assert train_cli.main(args) == 0
     assert train_cli.main(args) == 0
     for n in (1, 2):
-        run = tmp_path / "ppo" / f"SphereBotTrack-v0_{n}"
+        run = tmp_path / "ppo" / f"SphereBotTrack-v1_{n}"
         assert (run / "ppo-track-truth.zip").is_file() and (run / f"ppo-track-truth{rl.NORM_SUFFIX}").is_file()
         meta = json.loads((run / "ppo-track-truth.json").read_text())
         assert meta["seed"] == 3 and meta["hyperparams"]["n_steps"] == 64 and meta["env_kwargs"] == {"episode_s": 1.0}
@@ -191,7 +191,7 @@ def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
     assert sorted(p.name for p in installed.iterdir()) == ["ppo-track-truth.json", "ppo-track-truth.vecnormalize.npz",
                                                            "ppo-track-truth.zip"]
     assert (installed / "ppo-track-truth.zip").read_bytes() == \
-        (tmp_path / "ppo" / "SphereBotTrack-v0_3" / "ppo-track-truth.zip").read_bytes()
+        (tmp_path / "ppo" / "SphereBotTrack-v1_3" / "ppo-track-truth.zip").read_bytes()
 
 
 def test_help_of_every_command():
@@ -209,3 +209,24 @@ def test_help_of_every_command():
                 has_text = len(s.split("  ")) > 1 and s.split("  ")[-1].strip()
                 nxt = lines[i + 1].strip() if i + 1 < len(lines) else ""
                 assert has_text or (nxt and not nxt.startswith("-")), (script, line)
+
+
+def test_training_environment_is_the_evaluated_robot():
+    """train() builds its environments from rl.TASK_IDS: they must be the robot the
+    comparison evaluates on (SphereRobotEnv's defaults, the v1 robot), not the -v0 ids,
+    which since v1 are the ideal robot (realism='ideal')."""
+    pytest.importorskip("pybullet")
+    import gymnasium as gym
+    import envs  # noqa: F401
+    from envs.sphere import SphereRobotEnv
+    default = SphereRobotEnv(task="track").realism
+    for task, env_id in rl.TASK_IDS.items():
+        env = gym.make(env_id, estimator="truth")
+        try:
+            assert env.unwrapped.task == task
+            assert env.unwrapped.realism == default, (env_id, env.unwrapped.realism)
+        finally:
+            env.close()
+        for algo in rl.ALGOS:
+            assert rl.hyperparams(algo, task)["n_timesteps"] > 0
+
