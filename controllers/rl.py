@@ -655,6 +655,8 @@ def install_policy(stem, name=None):
     for src, suffix in ((vn_path, NORM_SUFFIX), (json_path, ".json"), (zip_path, ".zip")):
         if src.is_file():
             _copy(src, str(dest) + suffix)
+        else:       # a file of the policy installed before would be read with the new one
+            Path(str(dest) + suffix).unlink(missing_ok=True)
     return dest
 
 

@@ -230,3 +230,31 @@ def test_training_environment_is_the_evaluated_robot():
         for algo in rl.ALGOS:
             assert rl.hyperparams(algo, task)["n_timesteps"] > 0
 
+
+def test_install_policy_replaces_every_file(tmp_path, monkeypatch):
+    """install_policy copies the stem's files into the package's policies; installing over
+    a policy that had statistics with one that has none removes the old statistics (they
+    were left behind, and load_policy then normalised the new policy's observations with
+    the old policy's statistics)."""
+    import shutil
+    src = rl.POLICY_DIR / "ppo-track-truth"
+    pkg = tmp_path / "policies"
+    pkg.mkdir()
+    monkeypatch.setattr(rl, "POLICY_DIR", pkg)
+    a = tmp_path / "a" / "ppo-track-truth"
+    a.parent.mkdir()
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        shutil.copy(str(src) + s, str(a) + s)
+    dest = rl.install_policy(a, "ppo-track-mine")
+    assert dest == pkg / "ppo-track-mine"
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        assert Path(str(dest) + s).read_bytes() == Path(str(a) + s).read_bytes()
+    b = tmp_path / "b" / "ppo-track-truth"             # trained without normalisation
+    b.parent.mkdir()
+    shutil.copy(str(src) + ".zip", str(b) + ".zip")
+    meta = json.loads(Path(str(src) + ".json").read_text())
+    meta["normalize"] = False
+    Path(str(b) + ".json").write_text(json.dumps(meta))
+    rl.install_policy(b, "ppo-track-mine")
+    assert not Path(str(dest) + rl.NORM_SUFFIX).exists()
+    assert rl.load_policy("ppo-track-mine").obs_rms is None
