@@ -91,8 +91,9 @@ def code_version():
     files = []
     for pkg in PACKAGES:
         d = PACKAGE_ROOT / pkg
-        for pat in ("*.py", "*.pyx", "*.pxd", "hyperparams/*.yml"):
-            files += sorted(d.glob(pat))
+        for pat in ("*.py", "*.pyx", "*.pxd", "*.yml"):      # subpackages too
+            files += sorted(f for f in d.rglob(pat)
+                            if not any(p == "__pycache__" or p.startswith(".") for p in f.relative_to(d).parts))
     h = hashlib.sha256()
     for f in files:
         h.update(str(f.relative_to(PACKAGE_ROOT)).encode())

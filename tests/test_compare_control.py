@@ -184,3 +184,20 @@ def test_plan_finds_the_shipped_policies_and_hashes_their_statistics(tmp_path):
     st["obs_mean"] = st["obs_mean"] + 1.0
     np.savez(tmp_path / ("ppo-track-ekf" + rl.NORM_SUFFIX), **st)
     assert compare.plan(["track"], ["flat"], ["ekf"], ["ppo"], 1, 0, policy_dir=tmp_path)[0]["policy_sha"] != sha
+
+
+def test_code_version_covers_subpackages(tmp_path, monkeypatch):
+    """A source file in a subfolder of a package (envs/tasks/track.py, say) is part of the
+    code version: changing it must not let the cache reuse cells of the old code."""
+    for pkg in compare.PACKAGES:
+        (tmp_path / pkg / "sub").mkdir(parents=True)
+        (tmp_path / pkg / "a.py").write_text("x = 1\n")
+        (tmp_path / pkg / "sub" / "b.py").write_text("y = 1\n")
+    monkeypatch.setattr(compare, "PACKAGE_ROOT", tmp_path)
+    v0 = compare.code_version()
+    (tmp_path / "envs" / "sub" / "b.py").write_text("y = 2\n")
+    v1 = compare.code_version()
+    assert v1 != v0
+    (tmp_path / "envs" / "sub" / "__pycache__").mkdir()
+    (tmp_path / "envs" / "sub" / "__pycache__" / "b.py").write_text("stale\n")
+    assert compare.code_version() == v1          # caches and build products do not count
