@@ -22,6 +22,16 @@ def test_wilson_hand_cases_and_scipy():
         assert 0.0 <= lo <= k / n <= hi <= 1.0
 
 
+
+def test_wilson_contains_its_estimate_exactly_at_the_ends():
+    """0 of n has lower bound 0 and n of n upper bound 1 exactly (rounding gave 5.6e-17 for
+    0 of 3 and 0.9999999999999999 for 30 of 30: intervals that excluded their estimate)."""
+    for n in range(1, 201):
+        assert ev.wilson(0, n)[1] == 0.0 and ev.wilson(n, n)[2] == 1.0, n
+        for k in range(n + 1):
+            p, lo, hi = ev.wilson(k, n)
+            assert 0.0 <= lo <= p <= hi <= 1.0, (k, n, lo, p, hi)
+
 def test_newcombe_paired_hand_case_and_range():
     # the Bentur et al. (2009) table of Fagerland et al.'s book: both 1: 1, x only: 1,
     # y only: 7, neither: 12 (n = 21). By hand: p1 = 2/21, p2 = 8/21; Wilson 95 %:
