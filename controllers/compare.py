@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, SETTLE_BAND_DEG, SETTLE_WINDOW_S,
-                                    interval, newcombe_paired, paired_difference)
+from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
+                                    SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
            "write_outputs", "code_version", "cell_key", "ray_session", "runtime_env", "min_detectable_success",
@@ -349,7 +349,8 @@ def summarise(rows, seed=0):
     (``<m>_iqm``, ``_iqm_lo``, ``_iqm_hi``); against the ``truth`` cell of the same task,
     scenario and controller, the paired difference over the shared episode seeds
     (``delta_<m>``, ``delta_<m>_lo``, ``delta_<m>_hi``; NaN without a truth cell) and
-    ``separated``: whether the main metric's difference interval excludes 0."""
+    ``separated``: whether the main metric's difference interval excludes 0 (for a
+    continuous main metric, only from ``MIN_PAIRS`` shared seeds on)."""
     groups = {}
     for r in rows:
         groups.setdefault(_cell_key(r), {})[r["episode_seed"]] = r
@@ -374,7 +375,9 @@ def summarise(rows, seed=0):
             row["delta_" + m], row["delta_" + m + "_lo"], row["delta_" + m + "_hi"] = d["delta"], d["lo"], d["hi"]
         main = MAIN_METRIC[task][0]
         lo, hi = row["delta_" + main + "_lo"], row["delta_" + main + "_hi"]
-        row["separated"] = bool(math.isfinite(lo) and (lo > 0 or hi < 0))
+        # a continuous difference from fewer than MIN_PAIRS seeds is never called separated
+        enough = main in BINARY_METRICS or len(seeds) >= MIN_PAIRS
+        row["separated"] = bool(enough and math.isfinite(lo) and (lo > 0 or hi < 0))
         out.append(row)
     out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], _rank_key(r)))
     return out
@@ -435,11 +438,12 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
         lines += [f"Command: `{command}`" + (f" ({seconds:.0f} s)" if seconds is not None else ""), ""]
     lines += [
         "Each cell: mean [95 % interval] over its episodes (the same seeds in every cell), scored on the "
-        "true state. Success: Wilson interval; the other metrics: percentile bootstrap (2,000 resamples, "
-        "seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
+        "true state. Success: Wilson interval; the other metrics: expanded percentile bootstrap (2,000 "
+        "resamples, seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
         "controller and floor over the same seeds (success: Newcombe's paired interval, in percentage "
-        "points; others: paired bootstrap); `*`: its interval excludes 0. Rows ranked by Δ of the main "
-        "metric, from the least harm. Track metrics: steady state = samples at least "
+        "points; others: paired bootstrap); `*`: its interval excludes 0 (continuous metrics: from "
+        f"{MIN_PAIRS} seeds on). Rows ranked by Δ of the main metric, from the least harm. Track "
+        "metrics: steady state = samples at least "
         f"{SETTLE_WINDOW_S:g} s after each command change; settle = time until the heading error stays "
         f"within {SETTLE_BAND_DEG:g} deg.", ""]
     for n in ns:

@@ -24,7 +24,7 @@ sphere_bot_waypoints.md, "Metrics"):
 
 Statistics (``interval``, ``paired_difference``): success rates with Wilson score intervals
 and paired differences by Newcombe's method 10 for paired proportions; continuous metrics
-with percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
+with expanded percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
 and of the interquartile mean (the robust aggregate of "Deep reinforcement learning at the
 edge of the statistical precipice"), paired differences by bootstrap over the shared seeds.
 """
@@ -36,7 +36,7 @@ import numbers
 import numpy as np
 
 __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
-           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MAIN_METRIC", "BINARY_METRICS",
+           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MIN_PAIRS", "MAIN_METRIC", "BINARY_METRICS",
            "SETTLE_WINDOW_S", "SETTLE_BAND_DEG"]
 
 EPISODE_METRICS = {
@@ -56,6 +56,10 @@ SETTLE_WINDOW_S = 3.0
 SETTLE_BAND_DEG = 10.0
 Z95 = 1.959963984540054
 N_BOOT = 2000
+#: the fewest pairs from which a continuous paired difference can be called separated from
+#: 0: with n pairs an interval inside the data's range excludes 0 whenever all n differences
+#: share a sign, probability 2^(1-n) under no difference; 6 is the first n where it is <= 5 %
+MIN_PAIRS = 6
 
 
 def _wrap(a):
@@ -248,15 +252,29 @@ def iqm(x, axis=-1):
     return trim_mean(x, 0.25, axis=axis)
 
 
+def _expanded_level(n, level):
+    """The percentile level of the expanded percentile bootstrap (Hesterberg, "What teachers
+    should know about the bootstrap", 2015): the plain percentile interval is too narrow by
+    about sqrt((n - 1) / n) and by t against z; widened so that z_a = sqrt(n / (n - 1)) t_{n-1}.
+    Measured: a paired difference of no effect excluded 0 in 11.5 % of runs at n = 8 with the
+    plain interval, 6.5 % with the expanded one."""
+    if n < 2:
+        return level
+    from scipy.stats import norm, t
+    return 1.0 - 2.0 * norm.sf(math.sqrt(n / (n - 1)) * t.ppf((1 + level) / 2, n - 1))
+
+
 def bootstrap_ci(values, stat=np.mean, strata=None, n_boot=N_BOOT, seed=0, level=0.95):
-    """Percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D), resampling
-    with replacement within each stratum (``strata``: a label per value; None: one
-    stratum), seeded. ``stat`` takes an (n_boot, n) array and ``axis=1``. The percentile
-    interval of a mean or an IQM stays within the values' range."""
+    """Expanded percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D) at
+    ``level`` (``_expanded_level``), resampling with replacement within each stratum
+    (``strata``: a label per value; None: one stratum), seeded. ``stat`` takes an
+    (n_boot, n) array and ``axis=1``. A percentile interval of a mean or an IQM stays within
+    the values' range."""
     v = np.asarray(values, dtype=float)
     n = len(v)
     if n == 0:
         return float("nan"), float("nan")
+    level = _expanded_level(n, level)
     rng = np.random.default_rng(seed)
     if strata is None:
         idx = rng.integers(0, n, size=(n_boot, n))
