@@ -689,6 +689,8 @@ def main(argv=None):
             raise ValueError(f"--workers must be >= 1, got {a.workers}")
         jobs = plan(_list(a.tasks), _list(a.scenarios), _list(estimators), _list(controllers),
                     episodes, a.seed, policy_dir=a.policy_dir)
+        if not jobs:
+            raise ValueError("no cell to run: every cell of the grid lacks its policy (see above)")
         _check_writable(a.out)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -201,3 +201,14 @@ def test_code_version_covers_subpackages(tmp_path, monkeypatch):
     (tmp_path / "envs" / "sub" / "__pycache__").mkdir()
     (tmp_path / "envs" / "sub" / "__pycache__" / "b.py").write_text("stale\n")
     assert compare.code_version() == v1          # caches and build products do not count
+
+
+def test_cli_no_cell_to_run_is_an_error(tmp_path, capsys, monkeypatch):
+    """A grid whose every cell is skipped (no policy in --policy-dir) is refused before any
+    work, not run as an empty grid that writes empty tables and exits 0."""
+    monkeypatch.setattr(compare, "run_grid", lambda *a, **k: pytest.fail("work started"))
+    out = tmp_path / "out"
+    assert compare.main(["--controllers", "ppo", "--estimators", "truth,ekf", "--policy-dir", str(tmp_path),
+                         "--out", str(out), "--no-progress"]) == 2
+    assert "no cell" in capsys.readouterr().err
+    assert not (out / "summary.md").exists()
