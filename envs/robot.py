@@ -148,6 +148,11 @@ class RobotParams:
             raise ValueError("robot.contact_stiffness and robot.contact_damping must both be > 0 (compliant "
                              f"contact) or both 0 (PyBullet's rigid contact), got {self.contact_stiffness!r} "
                              f"and {self.contact_damping!r}")
+        if self.contact_stiffness > 0 and self.total_mass * 9.81 / self.contact_stiffness > 0.1 * self.shell_radius:
+            # softer, and the robot sinks through the floor (it starts at its static compression)
+            raise ValueError(f"robot.contact_stiffness must carry the robot's weight with a static sink of at most "
+                             f"0.1 * shell_radius: >= {self.total_mass * 9.81 / (0.1 * self.shell_radius):g} N/m, "
+                             f"got {self.contact_stiffness!r}")
         if math.degrees(self.steer_max + self.steer_stop) > 85.0:
             raise ValueError(f"robot.steer_max + robot.steer_stop must be <= 85 deg, got "
                              f"{math.degrees(self.steer_max + self.steer_stop):g} deg")
