@@ -463,31 +463,40 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
             # "the angle to steer to" in both tasks, so a track policy is a head start
             log(f"init_from: {init_zip} was trained for task {init_meta.get('task')!r}; fine-tuning it for {task!r}")
         init = (init_zip, init_vn)
+    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
+    # the start policy, or the checkpoint to resume, is read (a crafted or corrupt one
+    # refused) before anything is written or any environment started
+    if init is not None:
+        load_model(init[0], algo=algo, extra=extra)
+        if normalize:
+            load_normalization(init[1])
+    if resume:
+        # the newest checkpoint that loads: a truncated or corrupt one (the machine died
+        # while it was written by an older version) falls back to the one before, with a warning
+        for ckpt in _checkpoints(ckpt_dir):
+            try:
+                if normalize:
+                    load_normalization(_checkpoint_stats(ckpt))
+                load_model(ckpt, algo=algo, extra=extra)
+                start_ckpt = ckpt
+                break
+            except PolicyError as e:
+                warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
+                              RuntimeWarning, stacklevel=2)
+                log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
+        if start_ckpt is None:
+            raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
     run_dir.mkdir(parents=True, exist_ok=True)
 
     venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
                         append=resume)
     eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
     cls = _algo_class(algo)
-    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
     try:
         if resume:
-            # the newest checkpoint that loads: a truncated or corrupt one (the machine died
-            # while it was written by an older version) falls back to the one before, with a warning
-            raw_venv = venv
-            for ckpt in _checkpoints(ckpt_dir):
-                try:
-                    venv = vec_normalize(load_normalization(_checkpoint_stats(ckpt)), raw_venv, True) \
-                        if normalize else raw_venv
-                    model = load_model(ckpt, env=venv, algo=algo, extra=extra)
-                    start_ckpt = ckpt
-                    break
-                except PolicyError as e:
-                    warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
-                                  RuntimeWarning, stacklevel=2)
-                    log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
-            if start_ckpt is None:
-                raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
+            if normalize:
+                venv = vec_normalize(load_normalization(_checkpoint_stats(start_ckpt)), venv, True)
+            model = load_model(start_ckpt, env=venv, algo=algo, extra=extra)
             log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
         elif init is not None:
             if normalize:

@@ -258,3 +258,37 @@ def test_install_policy_replaces_every_file(tmp_path, monkeypatch):
     rl.install_policy(b, "ppo-track-mine")
     assert not Path(str(dest) + rl.NORM_SUFFIX).exists()
     assert rl.load_policy("ppo-track-mine").obs_rms is None
+
+
+def test_refused_start_policy_writes_nothing(tmp_path):
+    """A crafted --init-from policy or statistics is refused before the run writes anything
+    (the run folder and its Monitor logs were created, and training environments started,
+    before the policy was read); a --resume whose checkpoints are all unreadable leaves the
+    run folder as it was (its Monitor logs were opened for appending and cut first)."""
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
+    kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None,
+              trusted=True)
+    with pytest.raises(rl.PolicyError, match="refused"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft" / "p", init_from=stem, **kw)
+    assert not (tmp_path / "ft").exists()
+    _copy_policy(stem)
+    Path(str(stem) + rl.NORM_SUFFIX).write_bytes(b"not an npz")
+    with pytest.raises(rl.PolicyError, match="corrupt"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft" / "p", init_from=stem, **kw)
+    assert not (tmp_path / "ft").exists()
+    run = tmp_path / "r.run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "monitor").mkdir()
+    log = run / "monitor" / "0.monitor.csv"
+    log.write_bytes(b'#{"t_start": 1}\nr,l,t\n1.0,10,0.5\n2.0,1')          # cut mid-row by a kill
+    _copy_policy(run / "checkpoints" / "ckpt_64_steps",
+                 data_edit=lambda d: d.__setitem__("evil", _serialized(Evil(marker))))
+    os.replace(run / "checkpoints" / f"ckpt_64_steps{rl.NORM_SUFFIX}",
+               run / "checkpoints" / "ckpt_vecnormalize_64_steps.npz")
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    with pytest.warns(RuntimeWarning, match="ckpt_64_steps"), pytest.raises(FileNotFoundError, match="no readable"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "r", resume=True, **kw)
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+    assert not marker.exists()
