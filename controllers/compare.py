@@ -22,6 +22,7 @@ import argparse
 import contextlib
 import csv
 import hashlib
+import io
 import json
 import math
 import os
@@ -235,18 +236,10 @@ def ray_session(address=None, workers=None, policy_dir=None):
 
 
 def _write_atomic(path, text):
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    """``text`` to ``path`` whole or not at all (``policy_io.atomic_write``), UTF-8."""
+    from controllers.policy_io import atomic_write
+    data = text.encode()
+    atomic_write(path, lambda f: f.write(data))
 
 
 def _load_cached(path, key):
@@ -415,23 +408,26 @@ def _fmt(v, lo=None, hi=None, pct=False, unit=" %"):
     return s
 
 
+def _csv_text(rows, keys):
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
 def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
     """Per-episode CSV, summary Markdown + CSV, the headline figure, the path map (PNG)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = ("task", "scenario", "estimator", "controller", "episode_seed")
     keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
-    with open(out / "episodes.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    # each file is written whole or not at all (an interrupted write keeps the previous one)
+    _write_atomic(out / "episodes.csv", _csv_text(rows, keys))
     sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
     skeys = sorted({k for r in summary for k in r},
                    key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
-    with open(out / "summary.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=skeys)
-        w.writeheader()
-        w.writerows(summary)
+    _write_atomic(out / "summary.csv", _csv_text(summary, skeys))
     ns = sorted({r["episodes"] for r in summary})
     lines = ["# Control under each attitude estimator", ""]
     if command:
@@ -480,7 +476,7 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     if why:
         lines += ["## Headline figure", "", why, ""]
         log(why)
-    (out / "summary.md").write_text("\n".join(lines))
+    _write_atomic(out / "summary.md", "\n".join(lines))
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
     log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + ("" if why else ", headline.png")

@@ -212,3 +212,24 @@ def test_cli_no_cell_to_run_is_an_error(tmp_path, capsys, monkeypatch):
                          "--out", str(out), "--no-progress"]) == 2
     assert "no cell" in capsys.readouterr().err
     assert not (out / "summary.md").exists()
+
+
+def test_outputs_are_replaced_whole(tmp_path):
+    """A write that fails part way (here a value that cannot be printed, in the last row)
+    leaves the previous episodes.csv, summary.csv and summary.md, not a truncated file."""
+    rows = [dict(task="track", scenario="flat", estimator=e, controller="pid", episode_seed=s, heading_ss=1.0 + s,
+                 speed_ss=0.1, settle_time=1.0, attitude_error=1.0, heading_est_error=1.0, steps=10)
+            for e in ("truth", "ekf") for s in range(3)]
+    out = compare.write_outputs(rows, compare.summarise(rows), tmp_path, log=lambda *a: None)
+    before = {f: (out / f).read_bytes() for f in ("episodes.csv", "summary.csv", "summary.md")}
+
+    class Unprintable(float):
+        def __str__(self):
+            raise RuntimeError("disk full")
+        __repr__ = __str__
+    bad = [dict(r) for r in rows]
+    bad[-1]["steps"] = Unprintable(1.0)
+    with pytest.raises(RuntimeError, match="disk full"):
+        compare.write_outputs(bad, compare.summarise(rows), tmp_path, log=lambda *a: None)
+    assert {f: (out / f).read_bytes() for f in before} == before
+    assert not [p.name for p in out.iterdir() if "tmp" in p.name]       # no temporary left
