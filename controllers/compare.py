@@ -668,9 +668,18 @@ def main(argv=None):
     """The command line (``spherebot-compare``); returns the exit status."""
     ap = _parser()
     a = ap.parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned
-        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    if threading.current_thread() is not threading.main_thread():
+        return _main(ap, a, argv)
+    # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned;
+    # the caller's handler is put back at the end (main may run inside another program)
+    old = signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    try:
+        return _main(ap, a, argv)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _main(ap, a, argv):
     import fusion
     t0 = time.perf_counter()
     if a.quick and a.full:

@@ -233,3 +233,18 @@ def test_outputs_are_replaced_whole(tmp_path):
         compare.write_outputs(bad, compare.summarise(rows), tmp_path, log=lambda *a: None)
     assert {f: (out / f).read_bytes() for f in before} == before
     assert not [p.name for p in out.iterdir() if "tmp" in p.name]       # no temporary left
+
+
+def test_cli_restores_the_callers_sigterm_handler():
+    """main() turns SIGTERM into an orderly exit while it runs; called from a program (a
+    notebook, a test, a service with its own handler) it puts the caller's handler back."""
+    import signal
+
+    def mine(*_):
+        pass
+    old = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert compare.main(["--estimators", "truth,kalman"]) == 2
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, old)
