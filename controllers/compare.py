@@ -528,7 +528,7 @@ def _plot_headline(summary, path):
                             label=c)
                 # the cell's own value beside its interval (success as an absolute rate)
                 ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
-                            (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
+                            (hi if math.isfinite(hi) else d, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
                             color=_COLOR[c])
         ax.axvline(0, color="k", lw=0.8)
         ax.set_yticks(y, ests)

@@ -269,10 +269,10 @@ def bootstrap_ci(values, stat=np.mean, strata=None, n_boot=N_BOOT, seed=0, level
     ``level`` (``_expanded_level``), resampling with replacement within each stratum
     (``strata``: a label per value; None: one stratum), seeded. ``stat`` takes an
     (n_boot, n) array and ``axis=1``. A percentile interval of a mean or an IQM stays within
-    the values' range."""
+    the values' range. Fewer than 2 values: (NaN, NaN)."""
     v = np.asarray(values, dtype=float)
     n = len(v)
-    if n == 0:
+    if n < 2:           # one value has no sampling distribution: no interval, not [v, v]
         return float("nan"), float("nan")
     level = _expanded_level(n, level)
     rng = np.random.default_rng(seed)

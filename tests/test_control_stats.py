@@ -164,3 +164,14 @@ def test_no_continuous_separation_below_the_smallest_meaningful_n():
                              attitude_error=1.0, heading_est_error=1.0))
     row = next(r for r in compare.summarise(rows) if r["estimator"] == "ekf")
     assert row["delta_heading_ss"] == pytest.approx(1.0) and not row["separated"]
+
+
+def test_one_value_has_no_bootstrap_interval():
+    """One episode (or one pair) has no sampling distribution: the interval is NaN (shown as
+    no interval), not the zero-width [v, v] that read as a certain value."""
+    s = ev.interval(np.array([3.0]), "heading_ss")
+    assert s["mean"] == 3.0 and math.isnan(s["lo"]) and math.isnan(s["hi"]) and math.isnan(s["iqm_lo"])
+    d = ev.paired_difference([2.0], [1.0], "heading_ss")
+    assert d["delta"] == 1.0 and math.isnan(d["lo"]) and math.isnan(d["hi"])
+    lo, hi = ev.bootstrap_ci([1.0, 2.0])
+    assert 1.0 <= lo < hi <= 2.0
