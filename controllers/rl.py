@@ -660,6 +660,9 @@ def install_policy(stem, name=None):
     stem, zip_path, json_path, vn_path = _resolve(stem)
     if not zip_path.is_file():
         raise PolicyError(f"policy file {zip_path} does not exist")
+    if name is not None and (not isinstance(name, str) or not name or name.startswith(".")
+                             or any(c in name for c in "/\\") or Path(name).name != name):
+        raise ValueError(f"name must be a plain file name (no folder, not hidden), got {name!r}")
     dest = POLICY_DIR / (name or stem.name)
     for src, suffix in ((vn_path, NORM_SUFFIX), (json_path, ".json"), (zip_path, ".zip")):
         if src.is_file():

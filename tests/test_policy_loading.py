@@ -292,3 +292,16 @@ def test_refused_start_policy_writes_nothing(tmp_path):
         rl.train("ppo", "waypoints", "truth", out=tmp_path / "r", resume=True, **kw)
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
     assert not marker.exists()
+
+
+@pytest.mark.parametrize("name", ["../escaped", "sub/x", "", ".hidden", "a\\b"])
+def test_install_policy_name_is_a_plain_name(tmp_path, monkeypatch, name):
+    """install_policy's name is a file name in the package's policies, not a path that
+    writes elsewhere ('../escaped' wrote beside the package)."""
+    pkg = tmp_path / "pkg" / "policies"
+    pkg.mkdir(parents=True)
+    monkeypatch.setattr(rl, "POLICY_DIR", pkg)
+    shipped = Path(__file__).resolve().parents[1] / "controllers" / "policies" / SHIPPED
+    with pytest.raises(ValueError, match="name"):
+        rl.install_policy(shipped, name)
+    assert sorted(p.name for p in (tmp_path / "pkg").rglob("*")) == ["policies"]
