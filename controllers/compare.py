@@ -179,7 +179,8 @@ def run_job(job):
             ctrl = PID.for_env(env)
         else:
             # None: the policies shipped inside this (possibly Ray-uploaded) package
-            pdir = Path(job["policy_dir"]) if job.get("policy_dir") else POLICY_DIR
+            # absolute: a bare name would resolve to a shipped policy of the same name first
+            pdir = Path(job["policy_dir"]).resolve() if job.get("policy_dir") else POLICY_DIR
             ctrl = load_policy(pdir / job["policy"], env=env)
         from controllers.evaluation import evaluate
         res = evaluate(ctrl, episodes=job["episodes"], seed=job["seed"], record_path=record_path, env=env)

@@ -2,6 +2,7 @@
 (a two-node Ray cluster included), the cell cache and --resume, the outputs."""
 import csv
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -248,3 +249,24 @@ def test_cli_restores_the_callers_sigterm_handler():
         assert signal.getsignal(signal.SIGTERM) is mine
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def test_job_policy_in_working_dir_is_not_shadowed_by_a_shipped_one(tmp_path, monkeypatch):
+    """A Ray task reads its policy from the working_dir (policy_dir "."): a policy there with
+    the name of a shipped one is the one loaded, even where the package's own policies are
+    present (a bare name resolved to the shipped policy first)."""
+    from controllers import rl
+    seen = []
+    real = rl.load_policy
+    monkeypatch.setattr(rl, "load_policy", lambda path, **kw: seen.append(Path(path)) or real(path, **kw))
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        (tmp_path / ("ppo-track-gyro" + s)).write_bytes((rl.POLICY_DIR / ("ppo-track-gyro" + s)).read_bytes())
+    monkeypatch.chdir(tmp_path)
+    job = compare.plan(["track"], ["flat"], ["gyro"], ["ppo"], episodes=1, seed=0, log=lambda *a: None)[0]
+    job = dict(job, policy_dir=".")
+    job["env_kwargs"].update(SHORT)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        compare.run_job(job)
+    assert rl._resolve(seen[0])[1].resolve() == (tmp_path / "ppo-track-gyro.zip").resolve()
