@@ -22,6 +22,7 @@ import argparse
 import contextlib
 import csv
 import hashlib
+import io
 import json
 import math
 import os
@@ -36,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, SETTLE_BAND_DEG, SETTLE_WINDOW_S,
-                                    interval, newcombe_paired, paired_difference)
+from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
+                                    SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
            "write_outputs", "code_version", "cell_key", "ray_session", "runtime_env", "min_detectable_success",
@@ -91,8 +92,9 @@ def code_version():
     files = []
     for pkg in PACKAGES:
         d = PACKAGE_ROOT / pkg
-        for pat in ("*.py", "*.pyx", "*.pxd", "hyperparams/*.yml"):
-            files += sorted(d.glob(pat))
+        for pat in ("*.py", "*.pyx", "*.pxd", "*.yml"):      # subpackages too
+            files += sorted(f for f in d.rglob(pat)
+                            if not any(p == "__pycache__" or p.startswith(".") for p in f.relative_to(d).parts))
     h = hashlib.sha256()
     for f in files:
         h.update(str(f.relative_to(PACKAGE_ROOT)).encode())
@@ -101,7 +103,11 @@ def code_version():
 
 
 def _policy_files(stem):
-    return [Path(str(stem) + s) for s in (".zip", ".vecnormalize.pkl")]
+    """The files ``load_policy`` reads for ``stem``: the zip (required), then the
+    normalisation statistics and the metadata where present (all in the content hash)."""
+    from controllers.rl import NORM_SUFFIX
+    zip_path = Path(str(stem) + ".zip")
+    return [zip_path] + [f for f in (Path(str(stem) + NORM_SUFFIX), Path(str(stem) + ".json")) if f.is_file()]
 
 
 def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=None, log=print):
@@ -129,7 +135,7 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                     if ctrl != "pid":
                         stem = policy_stem("ppo", task, "truth" if ctrl == "ppo-truth" else est, pdir)
                         files = _policy_files(stem)
-                        if not all(f.is_file() for f in files):
+                        if not files[0].is_file():
                             missing.add(str(stem))
                             continue
                         name, sha = stem.name, _file_hash(files)[:16]
@@ -137,7 +143,7 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                                      seed=seed, policy=name, policy_dir=custom if name else None, policy_sha=sha,
                                      env_kwargs=dict(SCENARIOS[sc], task=task, estimator=est)))
     for m in sorted(missing):
-        log(f"no policy {m}.zip (+ .vecnormalize.pkl): its cells are skipped (train it with scripts/train.py)")
+        log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
     return jobs
 
 
@@ -174,7 +180,8 @@ def run_job(job):
             ctrl = PID.for_env(env)
         else:
             # None: the policies shipped inside this (possibly Ray-uploaded) package
-            pdir = Path(job["policy_dir"]) if job.get("policy_dir") else POLICY_DIR
+            # absolute: a bare name would resolve to a shipped policy of the same name first
+            pdir = Path(job["policy_dir"]).resolve() if job.get("policy_dir") else POLICY_DIR
             ctrl = load_policy(pdir / job["policy"], env=env)
         from controllers.evaluation import evaluate
         res = evaluate(ctrl, episodes=job["episodes"], seed=job["seed"], record_path=record_path, env=env)
@@ -231,18 +238,10 @@ def ray_session(address=None, workers=None, policy_dir=None):
 
 
 def _write_atomic(path, text):
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    """``text`` to ``path`` whole or not at all (``policy_io.atomic_write``), UTF-8."""
+    from controllers.policy_io import atomic_write
+    data = text.encode()
+    atomic_write(path, lambda f: f.write(data))
 
 
 def _load_cached(path, key):
@@ -363,7 +362,8 @@ def summarise(rows, seed=0):
     (``<m>_iqm``, ``_iqm_lo``, ``_iqm_hi``); against the ``truth`` cell of the same task,
     scenario and controller, the paired difference over the shared episode seeds
     (``delta_<m>``, ``delta_<m>_lo``, ``delta_<m>_hi``; NaN without a truth cell) and
-    ``separated``: whether the main metric's difference interval excludes 0."""
+    ``separated``: whether the main metric's difference interval excludes 0 (for a
+    continuous main metric, only from ``MIN_PAIRS`` shared seeds on)."""
     groups = {}
     for r in rows:
         groups.setdefault(_cell_key(r), {})[r["episode_seed"]] = r
@@ -388,7 +388,9 @@ def summarise(rows, seed=0):
             row["delta_" + m], row["delta_" + m + "_lo"], row["delta_" + m + "_hi"] = d["delta"], d["lo"], d["hi"]
         main = MAIN_METRIC[task][0]
         lo, hi = row["delta_" + main + "_lo"], row["delta_" + main + "_hi"]
-        row["separated"] = bool(math.isfinite(lo) and (lo > 0 or hi < 0))
+        # a continuous difference from fewer than MIN_PAIRS seeds is never called separated
+        enough = main in BINARY_METRICS or len(seeds) >= MIN_PAIRS
+        row["separated"] = bool(enough and math.isfinite(lo) and (lo > 0 or hi < 0))
         out.append(row)
     out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], _rank_key(r)))
     return out
@@ -453,34 +455,38 @@ def _summary_table(task, scenario, rs):
     return lines
 
 
+def _csv_text(rows, keys):
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
 def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
     """Per-episode CSV, summary Markdown + CSV, the headline figure, the path map (PNG)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = ("task", "scenario", "estimator", "controller", "episode_seed")
     keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
-    with open(out / "episodes.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
+    # each file is written whole or not at all (an interrupted write keeps the previous one)
+    _write_atomic(out / "episodes.csv", _csv_text(rows, keys))
     sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
     skeys = sorted({k for r in summary for k in r},
                    key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
-    with open(out / "summary.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=skeys)
-        w.writeheader()
-        w.writerows(summary)
+    _write_atomic(out / "summary.csv", _csv_text(summary, skeys))
     ns = sorted({r["episodes"] for r in summary})
     lines = ["# Control under each attitude estimator", ""]
     if command:
         lines += [f"Command: `{command}`" + (f" ({seconds:.0f} s)" if seconds is not None else ""), ""]
     lines += [
         "Each cell: mean [95 % interval] over its episodes (the same seeds in every cell), scored on the "
-        "true state. Success: Wilson interval; the other metrics: percentile bootstrap (2,000 resamples, "
-        "seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
+        "true state. Success: Wilson interval; the other metrics: expanded percentile bootstrap (2,000 "
+        "resamples, seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
         "controller and floor over the same seeds (success: Newcombe's paired interval, in percentage "
-        "points; others: paired bootstrap); `*`: its interval excludes 0. Rows ranked by Δ of the main "
-        "metric, from the least harm. Track metrics: steady state = samples at least "
+        "points; others: paired bootstrap); `*`: its interval excludes 0 (continuous metrics: from "
+        f"{MIN_PAIRS} seeds on). Rows ranked by Δ of the main metric, from the least harm. Track "
+        "metrics: steady state = samples at least "
         f"{SETTLE_WINDOW_S:g} s after each command change; settle = time until the heading error stays "
         f"within {SETTLE_BAND_DEG:g} deg.", ""]
     for n in ns:
@@ -496,7 +502,7 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     if why:
         lines += ["## Headline figure", "", why, ""]
         log(why)
-    (out / "summary.md").write_text("\n".join(lines))
+    _write_atomic(out / "summary.md", "\n".join(lines))
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
     log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + ("" if why else ", headline.png")
@@ -532,8 +538,8 @@ def _headline_panel(ax, summary, task, sc):
                         label=c)
             # the cell's own value beside its interval (success as an absolute rate)
             ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
-                        (hi, yk), xytext=(4, 0), textcoords="offset points", va="center", fontsize=7,
-                        color=_COLOR[c])
+                        (hi if math.isfinite(hi) else d, yk), xytext=(4, 0), textcoords="offset points",
+                        va="center", fontsize=7, color=_COLOR[c])
     ax.axvline(0, color="k", lw=0.8)
     ax.set_yticks(y, ests)
     ax.set_ylim(-0.6, len(ests) - 0.4)
@@ -700,9 +706,18 @@ def main(argv=None):
     """The command line (``spherebot-compare``); returns the exit status."""
     ap = _parser()
     a = ap.parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned
-        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    if threading.current_thread() is not threading.main_thread():
+        return _main(ap, a, argv)
+    # a kill (SIGTERM) unwinds like Ctrl-C: the pool's workers are stopped, not orphaned;
+    # the caller's handler is put back at the end (main may run inside another program)
+    old = signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    try:
+        return _main(ap, a, argv)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _main(ap, a, argv):
     import fusion
     t0 = time.perf_counter()
     if a.quick and a.full:
@@ -717,6 +732,8 @@ def main(argv=None):
             raise ValueError(f"--workers must be >= 1, got {a.workers}")
         jobs = plan(_list(a.tasks), _list(a.scenarios), _list(estimators), _list(controllers),
                     episodes, a.seed, policy_dir=a.policy_dir)
+        if not jobs:
+            raise ValueError("no cell to run: every cell of the grid lacks its policy (see above)")
         _check_writable(a.out)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -24,7 +24,7 @@ sphere_bot_waypoints.md, "Metrics"):
 
 Statistics (``interval``, ``paired_difference``): success rates with Wilson score intervals
 and paired differences by Newcombe's method 10 for paired proportions; continuous metrics
-with percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
+with expanded percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
 and of the interquartile mean (the robust aggregate of "Deep reinforcement learning at the
 edge of the statistical precipice"), paired differences by bootstrap over the shared seeds.
 """
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from controllers.base import Controller
 
 __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
-           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MAIN_METRIC", "BINARY_METRICS",
+           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MIN_PAIRS", "MAIN_METRIC", "BINARY_METRICS",
            "SETTLE_WINDOW_S", "SETTLE_BAND_DEG"]
 
 EPISODE_METRICS = {
@@ -62,6 +62,10 @@ SETTLE_WINDOW_S = 3.0
 SETTLE_BAND_DEG = 10.0
 Z95 = 1.959963984540054
 N_BOOT = 2000
+#: the fewest pairs from which a continuous paired difference can be called separated from
+#: 0: with n pairs an interval inside the data's range excludes 0 whenever all n differences
+#: share a sign, probability 2^(1-n) under no difference; 6 is the first n where it is <= 5 %
+MIN_PAIRS = 6
 
 
 def _wrap(a):
@@ -216,7 +220,10 @@ def wilson(k: float, n: int, z: float = Z95) -> tuple[float, float, float]:
     den = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return p, max(0.0, centre - half), min(1.0, centre + half)
+    # the bounds are exactly 0 at k = 0 and 1 at k = n; rounding must not move them past p
+    lo = 0.0 if k <= 0 else max(0.0, min(p, centre - half))
+    hi = 1.0 if k >= n else min(1.0, max(p, centre + half))
+    return p, lo, hi
 
 
 def newcombe_paired(x: ArrayLike, y: ArrayLike, z: float = Z95) -> tuple[float, float, float]:
@@ -253,16 +260,30 @@ def iqm(x: Any, axis: int = -1) -> Any:
     return trim_mean(x, 0.25, axis=axis)
 
 
+def _expanded_level(n, level):
+    """The percentile level of the expanded percentile bootstrap (Hesterberg, "What teachers
+    should know about the bootstrap", 2015): the plain percentile interval is too narrow by
+    about sqrt((n - 1) / n) and by t against z; widened so that z_a = sqrt(n / (n - 1)) t_{n-1}.
+    Measured: a paired difference of no effect excluded 0 in 11.5 % of runs at n = 8 with the
+    plain interval, 6.5 % with the expanded one."""
+    if n < 2:
+        return level
+    from scipy.stats import norm, t
+    return 1.0 - 2.0 * norm.sf(math.sqrt(n / (n - 1)) * t.ppf((1 + level) / 2, n - 1))
+
+
 def bootstrap_ci(values: Any, stat: Callable[..., Any] = np.mean, strata: Sequence[Any] | None = None,
                  n_boot: int = N_BOOT, seed: int = 0, level: float = 0.95) -> tuple[float, float]:
-    """Percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D), resampling
-    with replacement within each stratum (``strata``: a label per value; None: one
-    stratum), seeded. ``stat`` takes an (n_boot, n) array and ``axis=1``. The percentile
-    interval of a mean or an IQM stays within the values' range."""
+    """Expanded percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D) at
+    ``level`` (``_expanded_level``), resampling with replacement within each stratum
+    (``strata``: a label per value; None: one stratum), seeded. ``stat`` takes an
+    (n_boot, n) array and ``axis=1``. A percentile interval of a mean or an IQM stays within
+    the values' range. Fewer than 2 values: (NaN, NaN)."""
     v = np.asarray(values, dtype=float)
     n = len(v)
-    if n == 0:
+    if n < 2:           # one value has no sampling distribution: no interval, not [v, v]
         return float("nan"), float("nan")
+    level = _expanded_level(n, level)
     rng = np.random.default_rng(seed)
     if strata is None:
         idx = rng.integers(0, n, size=(n_boot, n))

@@ -1,6 +1,6 @@
 """Training, saving and loading stable-baselines3 policies for the spherical robot.
 
-A trained policy is three files with one stem, e.g. ``logs/ppo/SphereBotWaypoints-v0_1/ppo-waypoints-ekf``:
+A trained policy is three files with one stem, e.g. ``logs/ppo/SphereBotWaypoints-v1_1/ppo-waypoints-ekf``:
 
 - ``<stem>.zip``: the SB3 model (the best one found by the evaluation callback);
 - ``<stem>.vecnormalize.npz``: the ``VecNormalize`` statistics it was trained with, as plain arrays;
@@ -37,7 +37,7 @@ __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_poli
            "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
 
 ALGOS = ("ppo", "sac")
-TASK_IDS = {"track": "SphereBotTrack-v0", "waypoints": "SphereBotWaypoints-v0"}
+TASK_IDS = {"track": "SphereBotTrack-v1", "waypoints": "SphereBotWaypoints-v1"}
 # package resources (not the current folder): found the same from a checkout or a wheel
 HYPERPARAMS_DIR = Path(str(resources.files("controllers") / "hyperparams"))
 POLICY_DIR = Path(str(resources.files("controllers") / "policies"))
@@ -614,22 +614,29 @@ def _init_source(init_from, algo, task, trusted, log):
     return init_zip, init_vn
 
 
-def _resume_newest(raw_venv, ckpt_dir, normalize, algo, extra, log):
-    """(venv, model, checkpoint) of the newest checkpoint that loads: a truncated or corrupt
-    one (the machine died while it was written by an older version) falls back to the one
-    before, with a warning."""
+def _readable_start(init, resume, ckpt_dir, normalize, algo, extra, log):
+    """Read the start policy ``init`` or, with ``resume``, find the newest checkpoint that
+    loads (returned; None without resume), before anything is written or any environment is
+    started: a crafted or corrupt file is refused first. A truncated or corrupt checkpoint
+    (the machine died while it was written by an older version) falls back to the one before,
+    with a warning."""
+    if init is not None:
+        load_model(init[0], algo=algo, extra=extra)
+        if normalize:
+            load_normalization(init[1])
+    if not resume:
+        return None
     for ckpt in _checkpoints(ckpt_dir):
         try:
-            venv = vec_normalize(load_normalization(_checkpoint_stats(ckpt)), raw_venv, True) \
-                if normalize else raw_venv
-            model = load_model(ckpt, env=venv, algo=algo, extra=extra)
+            if normalize:
+                load_normalization(_checkpoint_stats(ckpt))
+            load_model(ckpt, algo=algo, extra=extra)
         except PolicyError as e:
             warnings.warn(f"checkpoint {ckpt.name} cannot be read ({e}); trying the one before",
                           RuntimeWarning, stacklevel=3)
             log(f"checkpoint {ckpt.name} cannot be read; trying the one before")
             continue
-        log(f"resuming from {ckpt} at {model.num_timesteps} steps")
-        return venv, model, ckpt
+        return ckpt
     raise FileNotFoundError(f"--resume: no readable checkpoint in {ckpt_dir}")
 
 
@@ -692,7 +699,6 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
     checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
 
-    start_ckpt = None
     _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log)
     init = None
     clone = init_from == TEACHER and not resume
@@ -700,6 +706,8 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
         raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
     if init_from is not None and init_from != TEACHER and not resume:
         init = _init_source(init_from, algo, task, trusted, log)
+    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
+    start_ckpt = _readable_start(init, resume, ckpt_dir, normalize, algo, extra, log)
     run_dir.mkdir(parents=True, exist_ok=True)
 
     if vec_env not in VEC_ENVS:
@@ -707,10 +715,12 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
                         append=resume, subprocess=vec_env == "subproc", batched=vec_env == "batched")
     eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
-    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
     try:
         if resume:
-            venv, model, start_ckpt = _resume_newest(venv, ckpt_dir, normalize, algo, extra, log)
+            if normalize:
+                venv = vec_normalize(load_normalization(_checkpoint_stats(start_ckpt)), venv, True)
+            model = load_model(start_ckpt, env=venv, algo=algo, extra=extra)
+            log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
         else:
             venv, model = _new_model(venv, init, algo, policy, hp, normalize, extra, seed, log)
         if normalize:
@@ -781,10 +791,15 @@ def install_policy(stem: str | os.PathLike, name: str | None = None) -> Path:
     stem, zip_path, json_path, vn_path = _resolve(stem)
     if not zip_path.is_file():
         raise PolicyError(f"policy file {zip_path} does not exist")
+    if name is not None and (not isinstance(name, str) or not name or name.startswith(".")
+                             or any(c in name for c in "/\\") or Path(name).name != name):
+        raise ValueError(f"name must be a plain file name (no folder, not hidden), got {name!r}")
     dest = POLICY_DIR / (name or stem.name)
     for src, suffix in ((vn_path, NORM_SUFFIX), (json_path, ".json"), (zip_path, ".zip")):
         if src.is_file():
             _copy(src, str(dest) + suffix)
+        else:       # a file of the policy installed before would be read with the new one
+            Path(str(dest) + suffix).unlink(missing_ok=True)
     return dest
 
 

@@ -1,7 +1,7 @@
 """``spherebot-train`` (``scripts/train.py``): train a stable-baselines3 policy for the spherical
 robot with an estimator in the loop, with rl-zoo3's flag names.
 
-    spherebot-train --algo ppo --env SphereBotWaypoints-v0 --estimator ekf
+    spherebot-train --algo ppo --env SphereBotWaypoints-v1 --estimator ekf
     spherebot-train --algo ppo --env track --estimator truth -n 300000 --seed 0
     spherebot-train --algo ppo --env track --estimator truth --resume   # after Ctrl-C or a crash
 

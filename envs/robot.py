@@ -142,16 +142,7 @@ class RobotParams:
                 hi = 0.9 * self.shell_radius
             if v < lo or v > hi:
                 raise ValueError(f"robot.{name} must be in [{lo:g}, {hi:g}], got {v!r}")
-        if self.drive_stiction and self.drive_stiction < self.drive_coulomb:
-            raise ValueError(f"robot.drive_stiction must be 0 or >= robot.drive_coulomb = {self.drive_coulomb:g} N m, "
-                             f"got {self.drive_stiction!r}")
-        if (self.contact_stiffness > 0) != (self.contact_damping > 0):
-            raise ValueError("robot.contact_stiffness and robot.contact_damping must both be > 0 (compliant "
-                             f"contact) or both 0 (PyBullet's rigid contact), got {self.contact_stiffness!r} "
-                             f"and {self.contact_damping!r}")
-        if math.degrees(self.steer_max + self.steer_stop) > 85.0:
-            raise ValueError(f"robot.steer_max + robot.steer_stop must be <= 85 deg, got "
-                             f"{math.degrees(self.steer_max + self.steer_stop):g} deg")
+        self._check_relations()
         c = self.encoder_cpr
         if isinstance(c, bool) or not isinstance(c, numbers.Integral) or not 1 <= c <= 10 ** 7:
             raise ValueError(f"robot.encoder_cpr must be an integer in [1, 10000000], got {c!r}")
@@ -175,6 +166,25 @@ class RobotParams:
         if math.sqrt((px / 2) ** 2 + (py / 2) ** 2 + (self.pendulum_length + pz / 2) ** 2) > inner:
             raise ValueError(f"robot.pendulum_length + pendulum_size put the pendulum outside the shell "
                              f"(farthest corner must be <= {inner:g} m from the centre)")
+
+
+    def _check_relations(self):
+        """The checks that tie fields together (after each is in its own range)."""
+        if self.drive_stiction and self.drive_stiction < self.drive_coulomb:
+            raise ValueError(f"robot.drive_stiction must be 0 or >= robot.drive_coulomb = {self.drive_coulomb:g} N m, "
+                             f"got {self.drive_stiction!r}")
+        if (self.contact_stiffness > 0) != (self.contact_damping > 0):
+            raise ValueError("robot.contact_stiffness and robot.contact_damping must both be > 0 (compliant "
+                             f"contact) or both 0 (PyBullet's rigid contact), got {self.contact_stiffness!r} "
+                             f"and {self.contact_damping!r}")
+        if self.contact_stiffness > 0 and self.total_mass * GRAVITY / self.contact_stiffness > 0.1 * self.shell_radius:
+            # softer, and the robot sinks through the floor (it starts at its static compression)
+            raise ValueError(f"robot.contact_stiffness must carry the robot's weight with a static sink of at most "
+                             f"0.1 * shell_radius: >= {self.total_mass * GRAVITY / (0.1 * self.shell_radius):g} N/m, "
+                             f"got {self.contact_stiffness!r}")
+        if math.degrees(self.steer_max + self.steer_stop) > 85.0:
+            raise ValueError(f"robot.steer_max + robot.steer_stop must be <= 85 deg, got "
+                             f"{math.degrees(self.steer_max + self.steer_stop):g} deg")
 
     def replace(self, **changes):
         return replace(self, **changes)

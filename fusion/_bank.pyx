@@ -27,8 +27,10 @@ _RULE = {"gyr": "finite", "acc": "finite and non-zero", "mag": "finite and non-z
 def as_samples(x, str name, tuple shape, str what, Py_ssize_t count):
     """x as a C-contiguous float64 array of `shape` ((count, 3) or (T, count, 3)), or a
     ValueError naming the argument: a wrong count of filters is said as such."""
+    # native byte order and aligned too (ISBEHAVED_RO): the type number of '>f8' is NPY_DOUBLE
     if (type(x) is np.ndarray and cnp.PyArray_TYPE(<cnp.ndarray>x) == cnp.NPY_DOUBLE
-            and cnp.PyArray_IS_C_CONTIGUOUS(<cnp.ndarray>x) and x.shape == shape):
+            and cnp.PyArray_IS_C_CONTIGUOUS(<cnp.ndarray>x) and cnp.PyArray_ISBEHAVED_RO(<cnp.ndarray>x)
+            and x.shape == shape):
         return x                                       # the per-sample path: no copy, no more checks
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
@@ -39,7 +41,7 @@ def as_samples(x, str name, tuple shape, str what, Py_ssize_t count):
             raise ValueError(f"{name} has {a.shape[dim]} filters (shape {a.shape}) but the bank has "
                              f"count {count}; {name} must have shape {what}")
         raise ValueError(f"{name} must have shape {what}, got {a.shape}")
-    return np.ascontiguousarray(a, dtype=np.float64)
+    return np.require(a, np.float64, ("C", "A"))      # aligned, native order
 
 
 cdef Py_ssize_t _first_invalid(const double* g, const double* a, const double* m, Py_ssize_t n,
@@ -93,7 +95,7 @@ def time_steps(dt, tuple shape):
     D = np.asarray(dt)
     if D.dtype.kind not in "fiu" or D.shape != shape:
         return None
-    D = np.ascontiguousarray(D, dtype=np.float64)
+    D = np.require(D, np.float64, ("C", "A"))
     bad = np.flatnonzero(~((D >= DT_MIN) & (D <= DT_MAX)))     # NaN fails too
     if bad.size:
         idx = np.unravel_index(bad[0], shape)
@@ -109,7 +111,7 @@ cdef inline bint _rows_ok(object x, Py_ssize_t n) noexcept:
         return False
     arr = <cnp.ndarray>x
     return (cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_IS_C_CONTIGUOUS(arr)
-            and cnp.PyArray_NDIM(arr) == 2 and cnp.PyArray_DIM(arr, 0) == n
+            and cnp.PyArray_ISBEHAVED_RO(arr) and cnp.PyArray_NDIM(arr) == 2 and cnp.PyArray_DIM(arr, 0) == n
             and cnp.PyArray_DIM(arr, 1) == 3)
 
 

@@ -2,6 +2,7 @@
 (a two-node Ray cluster included), the cell cache and --resume, the outputs."""
 import csv
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,9 +98,9 @@ def test_ray_two_node_cluster_equals_local(tmp_path, monkeypatch):
     from ray.cluster_utils import Cluster
     jobs = _jobs()
     ppo = compare.plan(["track"], ["flat"], ["gyro"], ["ppo"], episodes=1, seed=5, log=lambda *a: None)
-    if ppo:                      # the shipped policy travels in the working_dir
-        ppo[0]["env_kwargs"].update(SHORT)
-        jobs += ppo
+    assert len(ppo) == 1         # the shipped policy travels in the working_dir
+    ppo[0]["env_kwargs"].update(SHORT)
+    jobs += ppo
     local = compare.run_grid(jobs, workers=1, progress=False)
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
     try:
@@ -164,3 +165,108 @@ def test_summary_success_intervals_in_range():
     from controllers.evaluation import newcombe_paired
     assert newcombe_paired(np.r_[np.zeros(k), np.ones(30 - k)], np.ones(30))[2] < 0
     assert newcombe_paired(np.r_[np.zeros(k - 1), np.ones(31 - k)], np.ones(30))[2] >= 0
+
+
+def test_plan_finds_the_shipped_policies_and_hashes_their_statistics(tmp_path):
+    """Every shipped policy gives its PPO cells (the statistics are .vecnormalize.npz since
+    the safe-loading change; plan looked for the old .pkl and skipped every PPO cell), and
+    the content hash covers the statistics, so new statistics are a new cache key."""
+    import shutil
+    from controllers import rl
+    msgs = []
+    jobs = compare.plan(["track"], ["flat"], ["truth", "ekf"], ["ppo", "ppo-truth"], 1, 0, log=msgs.append)
+    assert not msgs, msgs
+    assert sorted(j["controller"] for j in jobs) == ["ppo", "ppo", "ppo-truth", "ppo-truth"]
+    stem = rl.POLICY_DIR / "ppo-track-ekf"
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        shutil.copy(str(stem) + s, tmp_path / ("ppo-track-ekf" + s))
+    sha = compare.plan(["track"], ["flat"], ["ekf"], ["ppo"], 1, 0, policy_dir=tmp_path)[0]["policy_sha"]
+    st = dict(np.load(tmp_path / ("ppo-track-ekf" + rl.NORM_SUFFIX)))
+    st["obs_mean"] = st["obs_mean"] + 1.0
+    np.savez(tmp_path / ("ppo-track-ekf" + rl.NORM_SUFFIX), **st)
+    assert compare.plan(["track"], ["flat"], ["ekf"], ["ppo"], 1, 0, policy_dir=tmp_path)[0]["policy_sha"] != sha
+
+
+def test_code_version_covers_subpackages(tmp_path, monkeypatch):
+    """A source file in a subfolder of a package (envs/tasks/track.py, say) is part of the
+    code version: changing it must not let the cache reuse cells of the old code."""
+    for pkg in compare.PACKAGES:
+        (tmp_path / pkg / "sub").mkdir(parents=True)
+        (tmp_path / pkg / "a.py").write_text("x = 1\n")
+        (tmp_path / pkg / "sub" / "b.py").write_text("y = 1\n")
+    monkeypatch.setattr(compare, "PACKAGE_ROOT", tmp_path)
+    v0 = compare.code_version()
+    (tmp_path / "envs" / "sub" / "b.py").write_text("y = 2\n")
+    v1 = compare.code_version()
+    assert v1 != v0
+    (tmp_path / "envs" / "sub" / "__pycache__").mkdir()
+    (tmp_path / "envs" / "sub" / "__pycache__" / "b.py").write_text("stale\n")
+    assert compare.code_version() == v1          # caches and build products do not count
+
+
+def test_cli_no_cell_to_run_is_an_error(tmp_path, capsys, monkeypatch):
+    """A grid whose every cell is skipped (no policy in --policy-dir) is refused before any
+    work, not run as an empty grid that writes empty tables and exits 0."""
+    monkeypatch.setattr(compare, "run_grid", lambda *a, **k: pytest.fail("work started"))
+    out = tmp_path / "out"
+    assert compare.main(["--controllers", "ppo", "--estimators", "truth,ekf", "--policy-dir", str(tmp_path),
+                         "--out", str(out), "--no-progress"]) == 2
+    assert "no cell" in capsys.readouterr().err
+    assert not (out / "summary.md").exists()
+
+
+def test_outputs_are_replaced_whole(tmp_path):
+    """A write that fails part way (here a value that cannot be printed, in the last row)
+    leaves the previous episodes.csv, summary.csv and summary.md, not a truncated file."""
+    rows = [dict(task="track", scenario="flat", estimator=e, controller="pid", episode_seed=s, heading_ss=1.0 + s,
+                 speed_ss=0.1, settle_time=1.0, attitude_error=1.0, heading_est_error=1.0, steps=10)
+            for e in ("truth", "ekf") for s in range(3)]
+    out = compare.write_outputs(rows, compare.summarise(rows), tmp_path, log=lambda *a: None)
+    before = {f: (out / f).read_bytes() for f in ("episodes.csv", "summary.csv", "summary.md")}
+
+    class Unprintable(float):
+        def __str__(self):
+            raise RuntimeError("disk full")
+        __repr__ = __str__
+    bad = [dict(r) for r in rows]
+    bad[-1]["steps"] = Unprintable(1.0)
+    with pytest.raises(RuntimeError, match="disk full"):
+        compare.write_outputs(bad, compare.summarise(rows), tmp_path, log=lambda *a: None)
+    assert {f: (out / f).read_bytes() for f in before} == before
+    assert not [p.name for p in out.iterdir() if "tmp" in p.name]       # no temporary left
+
+
+def test_cli_restores_the_callers_sigterm_handler():
+    """main() turns SIGTERM into an orderly exit while it runs; called from a program (a
+    notebook, a test, a service with its own handler) it puts the caller's handler back."""
+    import signal
+
+    def mine(*_):
+        pass
+    old = signal.signal(signal.SIGTERM, mine)
+    try:
+        assert compare.main(["--estimators", "truth,kalman"]) == 2
+        assert signal.getsignal(signal.SIGTERM) is mine
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def test_job_policy_in_working_dir_is_not_shadowed_by_a_shipped_one(tmp_path, monkeypatch):
+    """A Ray task reads its policy from the working_dir (policy_dir "."): a policy there with
+    the name of a shipped one is the one loaded, even where the package's own policies are
+    present (a bare name resolved to the shipped policy first)."""
+    from controllers import rl
+    seen = []
+    real = rl.load_policy
+    monkeypatch.setattr(rl, "load_policy", lambda path, **kw: seen.append(Path(path)) or real(path, **kw))
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        (tmp_path / ("ppo-track-gyro" + s)).write_bytes((rl.POLICY_DIR / ("ppo-track-gyro" + s)).read_bytes())
+    monkeypatch.chdir(tmp_path)
+    job = compare.plan(["track"], ["flat"], ["gyro"], ["ppo"], episodes=1, seed=0, log=lambda *a: None)[0]
+    job = dict(job, policy_dir=".")
+    job["env_kwargs"].update(SHORT)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        compare.run_job(job)
+    assert rl._resolve(seen[0])[1].resolve() == (tmp_path / "ppo-track-gyro.zip").resolve()

@@ -22,6 +22,16 @@ def test_wilson_hand_cases_and_scipy():
         assert 0.0 <= lo <= k / n <= hi <= 1.0
 
 
+
+def test_wilson_contains_its_estimate_exactly_at_the_ends():
+    """0 of n has lower bound 0 and n of n upper bound 1 exactly (rounding gave 5.6e-17 for
+    0 of 3 and 0.9999999999999999 for 30 of 30: intervals that excluded their estimate)."""
+    for n in range(1, 201):
+        assert ev.wilson(0, n)[1] == 0.0 and ev.wilson(n, n)[2] == 1.0, n
+        for k in range(n + 1):
+            p, lo, hi = ev.wilson(k, n)
+            assert 0.0 <= lo <= p <= hi <= 1.0, (k, n, lo, p, hi)
+
 def test_newcombe_paired_hand_case_and_range():
     # the Bentur et al. (2009) table of Fagerland et al.'s book: both 1: 1, x only: 1,
     # y only: 7, neither: 12 (n = 21). By hand: p1 = 2/21, p2 = 8/21; Wilson 95 %:
@@ -120,3 +130,48 @@ def test_track_metrics_hand_case():
     # a command that never enters the band counts its whole duration
     m = ev._track_metrics([(0, 20.0, 0.0)] * 200, dt)
     assert m["settle_time"] == pytest.approx(4.0)
+
+
+def test_paired_bootstrap_false_positive_rate():
+    """Under no difference (paired normal outcomes), the paired difference interval of a
+    continuous metric excludes 0 about 5 % of the time. The plain percentile bootstrap is
+    too narrow at small n: 11.5 % at n = 8 (23 % at n = 3, 6.8 % at n = 30), so cells were
+    marked as separated from truth by noise; the expanded percentile interval holds it."""
+    rng = np.random.default_rng(7)
+    reps, n = 600, 8
+    fp = 0
+    for r in range(reps):
+        d = ev.paired_difference(rng.normal(0, 1, n), rng.normal(0, 1, n), "heading_ss", seed=r)
+        fp += d["lo"] > 0 or d["hi"] < 0
+    assert fp / reps < 0.085, fp / reps
+    # the interval still stays inside the differences' range
+    d = ev.paired_difference(rng.normal(0, 1, n), rng.normal(0, 1, n), "heading_ss")
+    assert d["lo"] <= d["delta"] <= d["hi"]
+
+
+def test_no_continuous_separation_below_the_smallest_meaningful_n():
+    """With n pairs every interval inside the data's range excludes 0 whenever all n
+    differences share a sign: probability 2^(1-n) under no difference (25 % at the demo's 3
+    episodes). Below ev.MIN_PAIRS (the first n where that is at most 5 %) a continuous
+    difference is never called separated."""
+    from controllers import compare
+    assert 2.0 ** (1 - ev.MIN_PAIRS) <= 0.05 < 2.0 ** (2 - ev.MIN_PAIRS)
+    rows = []
+    for est, add in (("truth", 0.0), ("ekf", 1.0)):
+        for s in range(3):
+            rows.append(dict(task="track", scenario="flat", estimator=est, controller="pid", episode_seed=s,
+                             heading_ss=5.0 + s * 0.1 + add, speed_ss=0.1, settle_time=1.0,
+                             attitude_error=1.0, heading_est_error=1.0))
+    row = next(r for r in compare.summarise(rows) if r["estimator"] == "ekf")
+    assert row["delta_heading_ss"] == pytest.approx(1.0) and not row["separated"]
+
+
+def test_one_value_has_no_bootstrap_interval():
+    """One episode (or one pair) has no sampling distribution: the interval is NaN (shown as
+    no interval), not the zero-width [v, v] that read as a certain value."""
+    s = ev.interval(np.array([3.0]), "heading_ss")
+    assert s["mean"] == 3.0 and math.isnan(s["lo"]) and math.isnan(s["hi"]) and math.isnan(s["iqm_lo"])
+    d = ev.paired_difference([2.0], [1.0], "heading_ss")
+    assert d["delta"] == 1.0 and math.isnan(d["lo"]) and math.isnan(d["hi"])
+    lo, hi = ev.bootstrap_ci([1.0, 2.0])
+    assert 1.0 <= lo < hi <= 2.0

@@ -139,3 +139,13 @@ def test_top_speed_matches_the_hand_calculation():
         v_env = float(np.hypot(*env.true_state()["velocity"][:2]))
         env.close()
         assert v_env == pytest.approx(w * rp.shell_radius, rel=0.01), (realism, v_env, w * rp.shell_radius)
+
+
+def test_contact_too_soft_to_carry_the_robot_is_refused():
+    """A compliant contact must carry the robot's weight: contact_stiffness 1e-6 N/m was
+    accepted and the robot started 1.1e7 m below the floor and fell through it (a finite,
+    silently wrong episode). The static sink m g / k is bounded by a tenth of the radius."""
+    with pytest.raises(ValueError, match="robot.contact_stiffness"):
+        SphereRobotEnv(robot={"contact_stiffness": 1e-6, "contact_damping": 1e-6})
+    p = RobotParams(contact_stiffness=1000.0)          # 11 mm sink under 1.15 kg: accepted
+    assert p.total_mass * 9.81 / p.contact_stiffness <= 0.1 * p.shell_radius

@@ -172,13 +172,13 @@ def _tree_hash(folder):
 def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
     from controllers import train_cli
     before = _tree_hash(rl.POLICY_DIR)
-    args = ["--algo", "ppo", "--env", "SphereBotTrack-v0", "--estimator", "truth", "-n", "64", "-f", str(tmp_path),
+    args = ["--algo", "ppo", "--env", "SphereBotTrack-v1", "--estimator", "truth", "-n", "64", "-f", str(tmp_path),
             "--eval-episodes", "0", "--eval-freq", "1000000", "--no-progress", "--seed", "3",
             "--hyperparams", "n_steps:64", "batch_size=32", "--env-kwargs", "episode_s:1.0"]
     assert train_cli.main(args) == 0
     assert train_cli.main(args) == 0
     for n in (1, 2):
-        run = tmp_path / "ppo" / f"SphereBotTrack-v0_{n}"
+        run = tmp_path / "ppo" / f"SphereBotTrack-v1_{n}"
         assert (run / "ppo-track-truth.zip").is_file() and (run / f"ppo-track-truth{rl.NORM_SUFFIX}").is_file()
         meta = json.loads((run / "ppo-track-truth.json").read_text())
         assert meta["seed"] == 3 and meta["hyperparams"]["n_steps"] == 64 and meta["env_kwargs"] == {"episode_s": 1.0}
@@ -190,7 +190,7 @@ def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
     assert sorted(p.name for p in installed.iterdir()) == ["ppo-track-truth.json", "ppo-track-truth.vecnormalize.npz",
                                                            "ppo-track-truth.zip"]
     assert (installed / "ppo-track-truth.zip").read_bytes() == \
-        (tmp_path / "ppo" / "SphereBotTrack-v0_3" / "ppo-track-truth.zip").read_bytes()
+        (tmp_path / "ppo" / "SphereBotTrack-v1_3" / "ppo-track-truth.zip").read_bytes()
 
 
 def test_help_of_every_command():
@@ -208,3 +208,99 @@ def test_help_of_every_command():
                 has_text = len(s.split("  ")) > 1 and s.split("  ")[-1].strip()
                 nxt = lines[i + 1].strip() if i + 1 < len(lines) else ""
                 assert has_text or (nxt and not nxt.startswith("-")), (script, line)
+
+
+def test_training_environment_is_the_evaluated_robot():
+    """train() builds its environments from rl.TASK_IDS: they must be the robot the
+    comparison evaluates on (SphereRobotEnv's defaults, the v1 robot), not the -v0 ids,
+    which since v1 are the ideal robot (realism='ideal')."""
+    pytest.importorskip("pybullet")
+    import gymnasium as gym
+    import envs  # noqa: F401
+    from envs.sphere import SphereRobotEnv
+    default = SphereRobotEnv(task="track").realism
+    for task, env_id in rl.TASK_IDS.items():
+        env = gym.make(env_id, estimator="truth")
+        try:
+            assert env.unwrapped.task == task
+            assert env.unwrapped.realism == default, (env_id, env.unwrapped.realism)
+        finally:
+            env.close()
+        for algo in rl.ALGOS:
+            assert rl.hyperparams(algo, task)["n_timesteps"] > 0
+
+
+def test_install_policy_replaces_every_file(tmp_path, monkeypatch):
+    """install_policy copies the stem's files into the package's policies; installing over
+    a policy that had statistics with one that has none removes the old statistics (they
+    were left behind, and load_policy then normalised the new policy's observations with
+    the old policy's statistics)."""
+    import shutil
+    src = rl.POLICY_DIR / "ppo-track-truth"
+    pkg = tmp_path / "policies"
+    pkg.mkdir()
+    monkeypatch.setattr(rl, "POLICY_DIR", pkg)
+    a = tmp_path / "a" / "ppo-track-truth"
+    a.parent.mkdir()
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        shutil.copy(str(src) + s, str(a) + s)
+    dest = rl.install_policy(a, "ppo-track-mine")
+    assert dest == pkg / "ppo-track-mine"
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        assert Path(str(dest) + s).read_bytes() == Path(str(a) + s).read_bytes()
+    b = tmp_path / "b" / "ppo-track-truth"             # trained without normalisation
+    b.parent.mkdir()
+    shutil.copy(str(src) + ".zip", str(b) + ".zip")
+    meta = json.loads(Path(str(src) + ".json").read_text())
+    meta["normalize"] = False
+    Path(str(b) + ".json").write_text(json.dumps(meta))
+    rl.install_policy(b, "ppo-track-mine")
+    assert not Path(str(dest) + rl.NORM_SUFFIX).exists()
+    assert rl.load_policy("ppo-track-mine").obs_rms is None
+
+
+def test_refused_start_policy_writes_nothing(tmp_path):
+    """A crafted --init-from policy or statistics is refused before the run writes anything
+    (the run folder and its Monitor logs were created, and training environments started,
+    before the policy was read); a --resume whose checkpoints are all unreadable leaves the
+    run folder as it was (its Monitor logs were opened for appending and cut first)."""
+    marker = tmp_path / "marker"
+    stem = tmp_path / "crafted"
+    _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
+    kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None,
+              trusted=True)
+    with pytest.raises(rl.PolicyError, match="refused"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft" / "p", init_from=stem, **kw)
+    assert not (tmp_path / "ft").exists()
+    _copy_policy(stem)
+    Path(str(stem) + rl.NORM_SUFFIX).write_bytes(b"not an npz")
+    with pytest.raises(rl.PolicyError, match="corrupt"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft" / "p", init_from=stem, **kw)
+    assert not (tmp_path / "ft").exists()
+    run = tmp_path / "r.run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "monitor").mkdir()
+    log = run / "monitor" / "0.monitor.csv"
+    log.write_bytes(b'#{"t_start": 1}\nr,l,t\n1.0,10,0.5\n2.0,1')          # cut mid-row by a kill
+    _copy_policy(run / "checkpoints" / "ckpt_64_steps",
+                 data_edit=lambda d: d.__setitem__("evil", _serialized(Evil(marker))))
+    os.replace(run / "checkpoints" / f"ckpt_64_steps{rl.NORM_SUFFIX}",
+               run / "checkpoints" / "ckpt_vecnormalize_64_steps.npz")
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    with pytest.warns(RuntimeWarning, match="ckpt_64_steps"), pytest.raises(FileNotFoundError, match="no readable"):
+        rl.train("ppo", "waypoints", "truth", out=tmp_path / "r", resume=True, **kw)
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("name", ["../escaped", "sub/x", "", ".hidden", "a\\b"])
+def test_install_policy_name_is_a_plain_name(tmp_path, monkeypatch, name):
+    """install_policy's name is a file name in the package's policies, not a path that
+    writes elsewhere ('../escaped' wrote beside the package)."""
+    pkg = tmp_path / "pkg" / "policies"
+    pkg.mkdir(parents=True)
+    monkeypatch.setattr(rl, "POLICY_DIR", pkg)
+    shipped = Path(__file__).resolve().parents[1] / "controllers" / "policies" / SHIPPED
+    with pytest.raises(ValueError, match="name"):
+        rl.install_policy(shipped, name)
+    assert sorted(p.name for p in (tmp_path / "pkg").rglob("*")) == ["policies"]
