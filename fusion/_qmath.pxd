@@ -3,10 +3,11 @@
 from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite, M_PI
 
 cdef inline bint vec3_valid(const double* v) noexcept nogil:
-    """A usable accelerometer / magnetometer sample: finite, with a finite non-zero norm
-    (components so large or so small that |v|^2 overflows or underflows are rejected too)."""
+    """A usable accelerometer / magnetometer sample: finite, with a finite norm above 1e-100
+    (components so large that |v|^2 overflows are rejected, and so small that |v|^2 is
+    denormal or zero: no unit makes them a reading, and 1 / |v|^2 would overflow)."""
     cdef double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    return isfinite(n2) and n2 > 0.0
+    return isfinite(n2) and n2 > 1e-200
 
 cdef inline bint vec3_finite(const double* v) noexcept nogil:
     """A usable gyro sample: finite with a finite norm (zero rate is fine)."""

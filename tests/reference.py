@@ -164,9 +164,10 @@ def gyro_valid(g):
 
 
 def vector_valid(v):
-    """Finite components, not all zero."""
+    """Finite components with a finite norm above 1e-100 (the kernels' vec3_valid)."""
     c = v.tolist()
-    return all(math.isfinite(x) for x in c) and any(x != 0.0 for x in c)
+    n2 = sum(x * x for x in c)
+    return all(math.isfinite(x) for x in c) and math.isfinite(n2) and n2 > 1e-200
 
 
 def initial_attitude(acc, mag=None):

@@ -1,4 +1,4 @@
-"""Property tests of the input classes that found the defects of tests/test_crash_reproducers.py
+"""Property tests of the input classes that found the defects of tests/test_adversarial.py
 (docs/robustness.md, "Adversarial inputs"): threads sharing one estimator, subclasses that skip
 or botch __init__, samples in any byte order and alignment, tampered states, and single gyro
 samples beyond the range. Any of them gives the right answer, or a ValueError / RuntimeError

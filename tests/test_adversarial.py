@@ -371,3 +371,22 @@ def test_reset_q0_of_any_finite_scale_is_normalised(scale):
             assert np.all(np.isfinite(q)), (name, q)
             assert abs(np.linalg.norm(est.quaternion) - 1.0) < 1e-12, name
     """)
+
+
+def test_denormal_acc_or_mag_is_invalid_not_nan():
+    """A magnetometer sample of 1e-160 per axis (its squared norm denormal) gave cf-ekf a NaN
+    quaternion (Hypothesis found it): such a sample is invalid, refused with its name, or
+    skipped and counted with on_invalid='skip'."""
+    run_script("""
+        import pytest
+        tiny = np.array([1e-160, 1e-160, 1e-160])
+        for name in fusion.available():
+            est = fusion.make(name, 100.0)
+            with pytest.raises(ValueError, match="mag must be finite"):
+                est.update(np.zeros(3), np.array([0.1, -0.2, 9.8]), tiny)
+            with pytest.raises(ValueError, match="acc must be finite"):
+                est.update(np.zeros(3), tiny)
+            est = fusion.make(name, 100.0, on_invalid="skip")
+            q = est.update(np.zeros(3), np.array([0.1, -0.2, 9.8]), tiny)
+            assert np.isfinite(q).all() and np.isfinite(est.update(np.zeros(3), [0.1, -0.2, 9.8])).all(), name
+    """)
