@@ -57,9 +57,9 @@ CONTROLLERS = ("pid", "ppo", "ppo-truth")
 #: sag, compliant servo; the environment's default), ideal the v0 robot (none of them)
 ROBOTS = {"realistic": "real", "ideal": "ideal"}
 #: metrics of the summary per task (the first is the main one, MAIN_METRIC)
-SHOWN = {"track": ("heading_ss", "speed_ss", "settle_time", "attitude_error", "heading_est_error"),
-         "waypoints": ("success", "time_to_goal", "cross_track", "attitude_error", "heading_est_error")}
-UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_error": "deg",
+SHOWN = {"track": ("heading_ss", "speed_ss", "settle_time", "attitude_error", "tilt_error", "heading_est_error"),
+         "waypoints": ("success", "time_to_goal", "cross_track", "attitude_error", "tilt_error", "heading_est_error")}
+UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_error": "deg", "tilt_error": "deg",
          "heading_est_error": "deg", "success": "", "time_to_goal": "s", "cross_track": "m"}
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("fusion", "envs", "controllers")

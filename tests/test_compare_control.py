@@ -153,7 +153,7 @@ def test_summary_success_intervals_in_range():
         for i, s in enumerate(outcomes):
             rows.append(dict(task="waypoints", scenario="flat", estimator=est, controller="pid", episode_seed=i,
                              success=float(s), time_to_goal=20.0 + i if s else float("nan"), cross_track=0.2,
-                             attitude_error=1.0, heading_est_error=1.0))
+                             attitude_error=1.0, tilt_error=0.5, heading_est_error=1.0))
     s = {r["estimator"]: r for r in compare.summarise(rows)}
     g = s["gyro"]
     assert g["success"] == 0.25 and 0.0 <= g["success_lo"] < 0.25 < g["success_hi"] <= 1.0
@@ -210,12 +210,14 @@ def test_paired_between(tmp_path):
         for s in range(6):
             rows.append({"task": "waypoints", "scenario": "flat", "estimator": est, "controller": "pid",
                          "episode_seed": s, "success": 0.0 if s in fail else 1.0, "time_to_goal": 10.0 + s + shift,
-                         "cross_track": 0.1 * s, "attitude_error": 1.0 + shift, "heading_est_error": 2.0})
+                         "cross_track": 0.1 * s, "attitude_error": 1.0 + shift, "tilt_error": 0.5 - 0.1 * shift,
+                         "heading_est_error": 2.0})
     rows.append(dict(rows[0], estimator="ekf", episode_seed=99))     # no partner: left out
     (d,) = compare.paired_between(rows, "iir-ekf", "ekf")
     assert (d["task"], d["scenario"], d["controller"], d["n"]) == ("waypoints", "flat", "pid", 6)
     assert d["delta_time_to_goal"] == pytest.approx(1.5) and d["delta_time_to_goal_lo"] == pytest.approx(1.5)
     assert d["delta_cross_track"] == 0.0 and d["delta_heading_est_error"] == 0.0
+    assert d["delta_tilt_error"] == pytest.approx(-0.15)
     assert d["delta_success"] == pytest.approx(-1 / 6) and d["delta_success_lo"] < -1 / 6 < d["delta_success_hi"]
     # the same from episodes.csv (numbers as text)
     path = tmp_path / "episodes.csv"
