@@ -1,6 +1,6 @@
 """How strong is the drive vibration the estimators see, and where is it in frequency?
 
-    .venv/bin/python benchmarks/vibration_at_imu.py [--seconds 12] [--drives 0.3,0.6,1.0]
+    .venv/bin/python benchmarks/vibration_at_imu.py [--seconds 12] [--drives 0.3,0.6,1.0] [--loop 10]
 
 Drives the environment's robot straight at a constant voltage (action (drive, 0)) for
 ``--seconds``, discards the first 5 s (the start), and prints, for the realistic (v1) and the
@@ -12,7 +12,10 @@ spectral lines. Then, in the same straight run at ``--drive-est`` (default 0.6),
 inclination (tilt) and heading error of ``ekf``, ``iir-ekf`` (its default 40 Hz and a 10 Hz
 cut-off, below the motor's tone: a diagnosis, not a proposed default) and ``ukf`` in the
 loop (``info`` q_est against q_true at every control step, ``fusion.metrics.attitude_errors``),
-on both robots, mean over ``--seeds`` seeds.
+on the realistic robot, on it without the drive vibration (its ``vib_*`` fields 0: every other
+realism kept) and on the ideal robot, mean over ``--seeds`` seeds. With ``--loop N``: the
+same estimators under the PID in both tasks (flat floor, seeds 0..N-1), the mean
+``tilt_error`` and its paired difference against ``ekf``, with and without the vibration.
 """
 import argparse
 import os
@@ -41,14 +44,18 @@ def measure(drive, seconds, realism, seed=0):
     return speed, acc[keep], 1.0 / float(np.median(np.diff(t)))
 
 
+#: the robots of the estimator table: (label, realism, robot overrides)
+ROBOTS = (("realistic", "real", None),
+          ("no vibration", "real", {"vib_motor": 0.0, "vib_commutation": 0.0, "vib_gear": 0.0, "vib_seam": 0.0}),
+          ("ideal", "ideal", None))
 ESTIMATORS = (("ekf", {}), ("iir-ekf", {}), ("iir-ekf", {"cutoff_hz": 10.0}), ("ukf", {}))
 
 
-def attitude_errors_straight(name, params, drive, seconds, realism, seed=0):
+def attitude_errors_straight(name, params, drive, seconds, realism, robot=None, seed=0):
     """rms inclination and heading error (deg) of ``name`` after the first 5 s."""
     from envs.sphere import SphereRobotEnv
     from fusion.metrics import attitude_errors
-    env = SphereRobotEnv(task="track", estimator=name, estimator_params=params, realism=realism,
+    env = SphereRobotEnv(task="track", estimator=name, estimator_params=params, realism=realism, robot=robot,
                          episode_s=seconds + 1.0, arena_size=4.0 * seconds)
     env.reset(seed=seed)
     qe, qt = [], []
@@ -62,6 +69,24 @@ def attitude_errors_straight(name, params, drive, seconds, realism, seed=0):
     return float(np.sqrt(np.mean(e["inclination"] ** 2))), float(np.sqrt(np.mean(e["heading"] ** 2)))
 
 
+def loop_tilt(episodes):
+    from controllers import PID
+    from controllers.evaluation import evaluate
+    print(f"\nin the loop: PID, flat floor, seeds 0-{episodes - 1}, tilt_error mean (paired difference vs ekf "
+          "+- its std), deg")
+    for task in ("track", "waypoints"):
+        for label, realism, robot in ROBOTS[:2]:
+            res = {}
+            for name, params in ESTIMATORS[:3]:
+                kw = dict(task=task, estimator=name, estimator_params=params, realism=realism, robot=robot)
+                eps = evaluate(PID(), kw, episodes=episodes, seed=0)["episodes"]
+                res[name + "".join(f" {k}={v:g}" for k, v in params.items())] = np.array([e["tilt_error"] for e in eps])
+            base = res["ekf"]
+            print(f"{task:9s} {label:12s} " + "  ".join(
+                f"{k} {v.mean():.3f} ({np.mean(v - base):+.3f} +- {np.std(v - base, ddof=1):.3f})"
+                for k, v in res.items()), flush=True)
+
+
 def main(argv=None):
     import fusion
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -69,6 +94,7 @@ def main(argv=None):
     ap.add_argument("--drives", default="0.3,0.6,1.0")
     ap.add_argument("--drive-est", type=float, default=0.6)
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--loop", type=int, default=0, metavar="N", help="also the in-loop check, N episodes per cell")
     a = ap.parse_args(argv)
     print(f"{'robot':9s} {'drive':>5s} {'speed':>6s} {'std|acc|':>8s} {'std x/y/z (m/s^2)':>20s} "
           f"{'<fc':>5s} {'>fc':>5s}  strongest lines (Hz: amplitude m/s^2)")
@@ -92,15 +118,17 @@ def main(argv=None):
           "<fc / >fc: shares of the fluctuation power below / above the cut-off")
     print(f"\nstraight at drive {a.drive_est}, {a.seconds:.0f} s, errors after 5 s, mean of {a.seeds} seeds "
           "(rms inclination / heading, deg)")
-    print(f"{'estimator':24s} {'realistic':>15s} {'ideal':>15s}")
+    print(f"{'estimator':24s}" + "".join(f" {label:>15s}" for label, *_ in ROBOTS))
     for name, params in ESTIMATORS:
         cols = []
-        for realism in ("real", "ideal"):
-            r = np.mean([attitude_errors_straight(name, params, a.drive_est, a.seconds, realism, seed)
+        for _, realism, robot in ROBOTS:
+            r = np.mean([attitude_errors_straight(name, params, a.drive_est, a.seconds, realism, robot, seed)
                          for seed in range(a.seeds)], axis=0)
             cols.append(f"{r[0]:6.3f} / {r[1]:6.3f}")
         label = name + "".join(f" {k}={v:g}" for k, v in params.items())
-        print(f"{label:24s} {cols[0]:>15s} {cols[1]:>15s}")
+        print(f"{label:24s}" + "".join(f" {c:>15s}" for c in cols))
+    if a.loop:
+        loop_tilt(a.loop)
 
 
 if __name__ == "__main__":
