@@ -40,8 +40,8 @@ from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC
                                     interval, newcombe_paired, paired_difference)
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "ROBOTS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
-           "write_outputs", "paired_between", "code_version", "cell_key", "ray_session", "runtime_env", "min_detectable_success",
-           "main"]
+           "write_outputs", "paired_between", "code_version", "cell_key", "ray_session", "runtime_env",
+           "min_detectable_success", "main"]
 
 TASKS = ("track", "waypoints")
 #: environment arguments of each scenario (on top of the task's defaults)
