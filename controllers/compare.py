@@ -40,9 +40,9 @@ import numpy as np
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
-__all__ = ["SCENARIOS", "CONTROLLERS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
-           "write_outputs", "code_version", "cell_key", "ray_session", "runtime_env", "min_detectable_success",
-           "main"]
+__all__ = ["SCENARIOS", "CONTROLLERS", "ROBOTS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
+           "write_outputs", "paired_between", "code_version", "cell_key", "ray_session", "runtime_env",
+           "min_detectable_success", "main"]
 
 TASKS = ("track", "waypoints")
 #: environment arguments of each scenario (on top of the task's defaults)
@@ -53,10 +53,14 @@ SCENARIOS = {
     "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16},
 }
 CONTROLLERS = ("pid", "ppo", "ppo-truth")
+#: the robot of the grid (``--robot``) and the environment's ``realism=`` it sets: realistic is
+#: the v1 robot (drive vibration, own magnetic field, latency, deadband, stiction, battery
+#: sag, compliant servo; the environment's default), ideal the v0 robot (none of them)
+ROBOTS = {"realistic": "real", "ideal": "ideal"}
 #: metrics of the summary per task (the first is the main one, MAIN_METRIC)
-SHOWN = {"track": ("heading_ss", "speed_ss", "settle_time", "attitude_error", "heading_est_error"),
-         "waypoints": ("success", "time_to_goal", "cross_track", "attitude_error", "heading_est_error")}
-UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_error": "deg",
+SHOWN = {"track": ("heading_ss", "speed_ss", "settle_time", "attitude_error", "tilt_error", "heading_est_error"),
+         "waypoints": ("success", "time_to_goal", "cross_track", "attitude_error", "tilt_error", "heading_est_error")}
+UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_error": "deg", "tilt_error": "deg",
          "heading_est_error": "deg", "success": "", "time_to_goal": "s", "cross_track": "m"}
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("fusion", "envs", "controllers")
@@ -110,8 +114,10 @@ def _policy_files(stem):
     return [zip_path] + [f for f in (Path(str(stem) + NORM_SUFFIX), Path(str(stem) + ".json")) if f.is_file()]
 
 
-def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=None, log=print):
-    """The list of jobs (dicts); unknown names raise ValueError listing the accepted ones;
+def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=None, robot="realistic", log=print):
+    """The list of jobs (dicts) on ``robot`` (a key of ``ROBOTS``: the environment's
+    ``realism=``, part of every cell's env kwargs and so of its cache key); unknown names
+    raise ValueError listing the accepted ones;
     cells whose policy file is missing are left out with a message. A job names its policy
     by file name (``policy``), directory (``policy_dir``: None for the package's shipped
     policies) and content hash (``policy_sha``)."""
@@ -121,6 +127,8 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
     scenarios = _check_names("scenario", scenarios, tuple(SCENARIOS))
     estimators = _check_names("estimator", estimators, tuple(ESTIMATORS()))
     controllers = _check_names("controller", controllers, CONTROLLERS)
+    if robot not in ROBOTS:
+        raise ValueError(f"unknown robot {robot!r}; accepted: {', '.join(ROBOTS)}")
     for name, v in (("episodes", episodes), ("seed", seed)):
         if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "episodes" else 0):
             raise ValueError(f"{name} must be an integer >= {1 if name == 'episodes' else 0}, got {v!r}")
@@ -141,7 +149,8 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                         name, sha = stem.name, _file_hash(files)[:16]
                     jobs.append(dict(task=task, scenario=sc, estimator=est, controller=ctrl, episodes=episodes,
                                      seed=seed, policy=name, policy_dir=custom if name else None, policy_sha=sha,
-                                     env_kwargs=dict(SCENARIOS[sc], task=task, estimator=est)))
+                                     env_kwargs=dict(SCENARIOS[sc], task=task, estimator=est,
+                                                     realism=ROBOTS[robot])))
     for m in sorted(missing):
         log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
     return jobs
@@ -393,6 +402,36 @@ def summarise(rows, seed=0):
         row["separated"] = bool(enough and math.isfinite(lo) and (lo > 0 or hi < 0))
         out.append(row)
     out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], _rank_key(r)))
+    return out
+
+
+def paired_between(rows, a, b, seed=0):
+    """Estimator ``a`` minus estimator ``b`` paired over their shared episode seeds, per
+    (task, scenario, controller) where both ran: one dict per group with ``n`` (the shared
+    seeds) and, for each metric of ``SHOWN[task]``, ``delta_<m>``, ``delta_<m>_lo``,
+    ``delta_<m>_hi`` (``paired_difference``: Newcombe for 0/1 metrics, bootstrap
+    otherwise). ``rows``: ``run_grid``'s rows or those of ``episodes.csv`` (read with
+    ``csv.DictReader``: numbers as text are converted)."""
+    def num(v):
+        return float("nan") if v in ("", None) else float(v)
+    cells = {}
+    for r in rows:
+        cells.setdefault((r["task"], r["scenario"], r["estimator"], r["controller"]), {})[int(r["episode_seed"])] = r
+    names = {k[2] for k in cells}
+    for e in (a, b):
+        if e not in names:
+            raise ValueError(f"estimator {e!r} is not in the rows; they hold: {', '.join(sorted(names))}")
+    out = []
+    for (task, sc, est, ctrl), xa in sorted(cells.items()):
+        xb = cells.get((task, sc, b, ctrl))
+        if est != a or xb is None:
+            continue
+        seeds = sorted(set(xa) & set(xb))
+        row = {"task": task, "scenario": sc, "controller": ctrl, "a": a, "b": b, "n": len(seeds)}
+        for m in SHOWN[task]:
+            d = paired_difference([num(xa[s][m]) for s in seeds], [num(xb[s][m]) for s in seeds], m, seed=seed)
+            row["delta_" + m], row["delta_" + m + "_lo"], row["delta_" + m + "_hi"] = d["delta"], d["lo"], d["hi"]
+        out.append(row)
     return out
 
 
@@ -674,6 +713,11 @@ def _parser():
                     help=f"episodes per cell, seeds SEED .. SEED+N-1 (default 10; --quick {QUICK['episodes']}; "
                          f"--full {FULL_EPISODES})")
     ap.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
+    ap.add_argument("--robot", choices=tuple(ROBOTS), default="realistic",
+                    help="realistic: the v1 robot (SphereBot*-v1: drive vibration, its own magnetic field, "
+                         "latency, deadband, stiction, battery sag, compliant servo); ideal: the v0 robot "
+                         "(SphereBot*-v0, none of them; what the shipped PPO policies were trained on) "
+                         "(default realistic, the environment's default)")
     ap.add_argument("--quick", action="store_true",
                     help=f"the demo: {QUICK['episodes']} episodes per cell, estimators {QUICK['estimators']}, "
                          f"controllers {QUICK['controllers']} (under 5 minutes on 2 cores)")
@@ -731,7 +775,7 @@ def _main(ap, a, argv):
         if a.workers is not None and a.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {a.workers}")
         jobs = plan(_list(a.tasks), _list(a.scenarios), _list(estimators), _list(controllers),
-                    episodes, a.seed, policy_dir=a.policy_dir)
+                    episodes, a.seed, policy_dir=a.policy_dir, robot=a.robot)
         if not jobs:
             raise ValueError("no cell to run: every cell of the grid lacks its policy (see above)")
         _check_writable(a.out)

@@ -20,6 +20,9 @@ sphere_bot_waypoints.md, "Metrics"):
   previous waypoint, or the start, to the current one);
 - ``effort``: mean of drive^2 + steer^2 (action units);
 - ``attitude_error`` (deg): rms of the estimator's total attitude error during the run;
+- ``tilt_error`` (deg): rms of its inclination error (the tilt of the estimated vertical,
+  heading left out; ``fusion.metrics.attitude_errors``' inclination): what an accelerometer
+  disturbance such as drive vibration moves, hidden in ``attitude_error`` by the heading;
 - ``heading_est_error`` (deg): rms of the estimated heading's error during the run.
 
 Statistics (``interval``, ``paired_difference``): success rates with Wilson score intervals
@@ -47,9 +50,9 @@ __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_differenc
 
 EPISODE_METRICS = {
     "track": ("return", "heading_ss", "speed_ss", "settle_time", "heading_rmse", "speed_rmse", "effort",
-              "attitude_error", "heading_est_error"),
+              "attitude_error", "tilt_error", "heading_est_error"),
     "waypoints": ("return", "success", "time_to_goal", "waypoints_reached", "cross_track", "effort",
-                  "attitude_error", "heading_est_error"),
+                  "attitude_error", "tilt_error", "heading_est_error"),
 }
 #: the metric each task is judged on, and whether larger is better
 MAIN_METRIC = {"track": ("heading_ss", False), "waypoints": ("success", True)}
@@ -110,6 +113,19 @@ def _track_metrics(log, dt):
             "settle_time": float(np.mean(settle)) if settle else float("nan")}
 
 
+def _inclination_deg(qe, qt):
+    """The inclination error (deg) of estimate ``qe`` against truth ``qt`` ([w, x, y, z]):
+    ``2 atan2(hypot(e_x, e_y), hypot(e_w, e_z))`` of ``e = qe conj(qt)``, as
+    ``fusion.metrics.attitude_errors`` (one sample, without arrays)."""
+    aw, ax, ay, az = qe
+    bw, bx, by, bz = qt[0], -qt[1], -qt[2], -qt[3]
+    ew = aw * bw - ax * bx - ay * by - az * bz
+    ex = aw * bx + ax * bw + ay * bz - az * by
+    ey = aw * by - ax * bz + ay * bw + az * bx
+    ez = aw * bz + ax * by - ay * bx + az * bw
+    return math.degrees(2.0 * math.atan2(math.hypot(ex, ey), math.hypot(ew, ez)))
+
+
 def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2.0,
                 record_path: bool = False) -> dict[str, Any]:
     """One episode of ``controller`` in ``env`` (reset with ``seed``); returns a dict of the
@@ -121,7 +137,7 @@ def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2
     controller.reset()
     start = np.array(info["position"][:2])
     ret = 0.0
-    sp, hd, eff, att, hest, xt, path, tlog = [], [], [], [], [], [], [], []
+    sp, hd, eff, att, tilt, hest, xt, path, tlog = [], [], [], [], [], [], [], [], []
     settle = int(round(settle_s * base.control_hz))
     k = 0
     cmd_i, last_cmd = -1, None
@@ -133,6 +149,7 @@ def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2
         a = np.clip(a, -1.0, 1.0)
         eff.append(float(a @ a))
         att.append(info["attitude_error_deg"])
+        tilt.append(_inclination_deg(info["q_est"], info["q_true"]))
         hest.append(math.degrees(_wrap(info["heading_est"] - info["heading_true"])))
         pos = np.asarray(info["position"][:2])
         if record_path:
@@ -157,7 +174,7 @@ def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2
         if terminated or truncated:
             break
     out = {"return": float(ret), "effort": float(np.mean(eff)), "attitude_error": _rms(att),
-           "heading_est_error": _rms(hest), "steps": k}
+           "tilt_error": _rms(tilt), "heading_est_error": _rms(hest), "steps": k}
     if task == "track":
         out.update(speed_rmse=_rms(sp), heading_rmse=_rms(hd), **_track_metrics(tlog, 1.0 / base.control_hz))
     else:

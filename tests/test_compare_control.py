@@ -154,7 +154,7 @@ def test_summary_success_intervals_in_range():
         for i, s in enumerate(outcomes):
             rows.append(dict(task="waypoints", scenario="flat", estimator=est, controller="pid", episode_seed=i,
                              success=float(s), time_to_goal=20.0 + i if s else float("nan"), cross_track=0.2,
-                             attitude_error=1.0, heading_est_error=1.0))
+                             attitude_error=1.0, tilt_error=0.5, heading_est_error=1.0))
     s = {r["estimator"]: r for r in compare.summarise(rows)}
     g = s["gyro"]
     assert g["success"] == 0.25 and 0.0 <= g["success_lo"] < 0.25 < g["success_hi"] <= 1.0
@@ -270,3 +270,70 @@ def test_job_policy_in_working_dir_is_not_shadowed_by_a_shipped_one(tmp_path, mo
         warnings.simplefilter("ignore")
         compare.run_job(job)
     assert rl._resolve(seen[0])[1].resolve() == (tmp_path / "ppo-track-gyro.zip").resolve()
+
+
+def test_robot_option_reaches_the_environment(tmp_path, monkeypatch):
+    from envs.sphere import SphereRobotEnv
+    with pytest.raises(ValueError, match="unknown robot 'moon'.*accepted: realistic, ideal"):
+        compare.plan(["track"], ["flat"], ["truth"], ["pid"], 1, 0, robot="moon")
+    default = compare.plan(["track"], ["flat"], ["truth"], ["pid"], 1, 0)
+    ideal = compare.plan(["track"], ["flat"], ["truth"], ["pid"], 1, 0, robot="ideal")
+    assert default[0]["env_kwargs"]["realism"] == "real"       # the environment's default, as before
+    assert ideal[0]["env_kwargs"]["realism"] == "ideal"
+    assert compare.cell_key(default[0], "v") != compare.cell_key(ideal[0], "v")
+    for jobs, vib in ((default, 0.5), (ideal, 0.0)):
+        env = SphereRobotEnv(**jobs[0]["env_kwargs"])
+        assert env.realism == jobs[0]["env_kwargs"]["realism"] and env.robot.vib_motor == vib
+        env.close()
+    # a 1-episode cell on each robot: the vibration and the losses change the run
+    rows = {}
+    for jobs in (default, ideal):
+        jobs[0]["env_kwargs"].update(SHORT)
+        rows[jobs[0]["env_kwargs"]["realism"]] = compare.run_job(jobs[0])[0]
+    assert rows["real"]["speed_ss"] != rows["ideal"]["speed_ss"]
+    # the command line passes it through
+    class Stop(Exception):
+        pass
+
+    def fake_grid(jobs, **kw):
+        seen["jobs"] = jobs
+        raise Stop
+
+    seen = {}
+    monkeypatch.setattr(compare, "run_grid", fake_grid)
+    with pytest.raises(Stop):
+        compare.main(["--robot", "ideal", "--estimators", "truth", "--controllers", "pid", "--out", str(tmp_path)])
+    assert {j["env_kwargs"]["realism"] for j in seen["jobs"]} == {"ideal"}
+    with pytest.raises(SystemExit) as e:              # argparse's choices
+        compare.main(["--robot", "v2", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert "--robot {realistic,ideal}" in compare._parser().format_help()
+
+
+def test_paired_between(tmp_path):
+    rows = []
+    for est, shift, fail in (("ekf", 0.0, ()), ("iir-ekf", 1.5, (2,))):
+        for s in range(6):
+            rows.append({"task": "waypoints", "scenario": "flat", "estimator": est, "controller": "pid",
+                         "episode_seed": s, "success": 0.0 if s in fail else 1.0, "time_to_goal": 10.0 + s + shift,
+                         "cross_track": 0.1 * s, "attitude_error": 1.0 + shift, "tilt_error": 0.5 - 0.1 * shift,
+                         "heading_est_error": 2.0})
+    rows.append(dict(rows[0], estimator="ekf", episode_seed=99))     # no partner: left out
+    (d,) = compare.paired_between(rows, "iir-ekf", "ekf")
+    assert (d["task"], d["scenario"], d["controller"], d["n"]) == ("waypoints", "flat", "pid", 6)
+    assert d["delta_time_to_goal"] == pytest.approx(1.5) and d["delta_time_to_goal_lo"] == pytest.approx(1.5)
+    assert d["delta_cross_track"] == 0.0 and d["delta_heading_est_error"] == 0.0
+    assert d["delta_tilt_error"] == pytest.approx(-0.15)
+    assert d["delta_success"] == pytest.approx(-1 / 6) and d["delta_success_lo"] < -1 / 6 < d["delta_success_hi"]
+    # the same from episodes.csv (numbers as text)
+    path = tmp_path / "episodes.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    with open(path) as f:
+        (e,) = compare.paired_between(list(csv.DictReader(f)), "iir-ekf", "ekf")
+    assert e.keys() == d.keys()
+    assert all(e[k] == (v if isinstance(v, str) else pytest.approx(v)) for k, v in d.items())
+    with pytest.raises(ValueError, match="estimator 'ukf' is not in the rows; they hold: ekf, iir-ekf"):
+        compare.paired_between(rows, "ukf", "ekf")

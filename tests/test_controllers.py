@@ -10,7 +10,7 @@ pytest.importorskip("stable_baselines3")
 
 from controllers import PID, PIDGains
 from controllers import rl
-from controllers.evaluation import evaluate, aggregate
+from controllers.evaluation import EPISODE_METRICS, _inclination_deg, aggregate, evaluate
 from envs.sphere import SphereRobotEnv
 
 
@@ -74,8 +74,7 @@ def test_pid_reaches_waypoints_under_truth():
 
 
 def test_aggregate_intervals():
-    eps = [{m: v for m in ("return", "heading_ss", "speed_ss", "settle_time", "speed_rmse", "heading_rmse", "effort",
-                           "attitude_error", "heading_est_error")} for v in (1.0, 2.0, 3.0, float("nan"))]
+    eps = [{m: v for m in EPISODE_METRICS["track"]} for v in (1.0, 2.0, 3.0, float("nan"))]
     s = aggregate(eps, "track")["return"]
     assert s["mean"] == pytest.approx(2.0) and s["n"] == 3 and s["std"] == pytest.approx(1.0)
     assert 1.0 <= s["lo"] < 2.0 < s["hi"] <= 3.0 and s["iqm"] == pytest.approx(2.0)
@@ -208,3 +207,27 @@ def test_hyperparams_override(tmp_path):
     with pytest.raises(ValueError, match="unknown hyperparameter.*learning_rat"):
         rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "x", progress=False,
                  hyperparams_override={"learning_rat": 1e-4})
+
+
+def test_tilt_error_is_the_inclination_error():
+    from fusion.metrics import attitude_errors
+    rng = np.random.default_rng(3)
+    qe, qt = rng.normal(size=(2, 200, 4))
+    qe /= np.linalg.norm(qe, axis=1, keepdims=True)
+    qt /= np.linalg.norm(qt, axis=1, keepdims=True)
+    ref = attitude_errors(qe, qt)["inclination"]
+    got = np.array([_inclination_deg(a, b) for a, b in zip(qe, qt)])
+    assert np.allclose(got, ref, atol=1e-9)
+    # a pure heading error has no tilt, a 5 deg roll error is 5 deg of tilt
+    h = np.radians(30.0) / 2
+    assert _inclination_deg((math.cos(h), 0, 0, math.sin(h)), (1, 0, 0, 0)) == pytest.approx(0.0, abs=1e-12)
+    r = np.radians(5.0) / 2
+    assert _inclination_deg((math.cos(r), math.sin(r), 0, 0), (1, 0, 0, 0)) == pytest.approx(5.0)
+
+
+def test_tilt_error_in_the_loop():
+    kw = {"task": "track", "episode_s": 4.0}
+    truth = evaluate(PID(), dict(kw, estimator="truth"), episodes=1)["episodes"][0]
+    gyro = evaluate(PID(), dict(kw, estimator="gyro"), episodes=1)["episodes"][0]
+    assert truth["tilt_error"] < 1e-3 and gyro["tilt_error"] > 10 * truth["tilt_error"]
+    assert gyro["tilt_error"] <= gyro["attitude_error"] + 1e-9
