@@ -126,6 +126,14 @@ def _inclination_deg(qe, qt):
     return math.degrees(2.0 * math.atan2(math.hypot(ex, ey), math.hypot(ew, ez)))
 
 
+def _track_errors(info):
+    """(heading error (deg), forward speed error (m/s)) of the true state against the command."""
+    vc, hc = info["command"]
+    psi = info["heading_true"]
+    v = info["velocity"]
+    return math.degrees(_wrap(psi - hc)), v[0] * math.cos(psi) + v[1] * math.sin(psi) - vc
+
+
 def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2.0,
                 record_path: bool = False) -> dict[str, Any]:
     """One episode of ``controller`` in ``env`` (reset with ``seed``); returns a dict of the
@@ -155,13 +163,9 @@ def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2
         if record_path:
             path.append(pos.copy())
         if task == "track":
-            vc, hc = info["command"]
             if info["command"] != last_cmd:
                 cmd_i, last_cmd = cmd_i + 1, info["command"]
-            psi = info["heading_true"]
-            v = info["velocity"]
-            e_v = v[0] * math.cos(psi) + v[1] * math.sin(psi) - vc
-            e_h = math.degrees(_wrap(psi - hc))
+            e_h, e_v = _track_errors(info)
             tlog.append((cmd_i, e_h, e_v))
             if k > settle:
                 sp.append(e_v)

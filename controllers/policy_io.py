@@ -61,6 +61,29 @@ def save_model(model, path):
     atomic_write(path, model.save)
 
 
+def drop_optimizer_state(path):
+    """Rewrite the SB3 zip ``path`` with each optimizer's moments emptied (its ``state``; the
+    hyperparameters in ``param_groups`` kept) and every other entry as it was: acting never
+    reads them, fine-tuning restarts the optimizer, and the file is a third of the size. The
+    weights are untouched (the same actions)."""
+    import torch
+    path = Path(path)
+    with zipfile.ZipFile(path) as z:
+        entries = [(info, z.read(info.filename)) for info in z.infolist()]
+
+    def write(f):
+        with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED) as z:
+            for info, raw in entries:
+                if info.filename.endswith("optimizer.pth"):
+                    sd = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+                    sd["state"] = {}
+                    buf = io.BytesIO()
+                    torch.save(sd, buf)
+                    raw = buf.getvalue()
+                z.writestr(info, raw, compress_type=zipfile.ZIP_DEFLATED)
+    atomic_write(path, write)
+
+
 _NORM_FLOATS = ("clip_obs", "clip_reward", "gamma", "epsilon")
 _NORM_FLAGS = ("norm_obs", "norm_reward")
 

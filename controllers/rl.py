@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from controllers.base import Controller, obs_batch
-from controllers.policy_io import (PolicyError, atomic_write, load_model, load_normalization, save_model,
-                                   save_normalization, vec_normalize)
+from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
+                                   save_model, save_normalization, vec_normalize)
 
 __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_policy", "PolicyController",
            "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
@@ -798,6 +798,8 @@ def install_policy(stem: str | os.PathLike, name: str | None = None) -> Path:
     for src, suffix in ((vn_path, NORM_SUFFIX), (json_path, ".json"), (zip_path, ".zip")):
         if src.is_file():
             _copy(src, str(dest) + suffix)
+            if suffix == ".zip":        # shipped policies carry no optimizer moments
+                drop_optimizer_state(str(dest) + suffix)
         else:       # a file of the policy installed before would be read with the new one
             Path(str(dest) + suffix).unlink(missing_ok=True)
     return dest

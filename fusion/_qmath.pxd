@@ -1,13 +1,14 @@
 # Quaternion and small-matrix helpers shared by every kernel (inlined; no Python objects).
 # Conventions: docs/estimators.md. q = [w, x, y, z], R(q) rotates body -> navigation (ENU).
 from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite, M_PI
+from libc.float cimport DBL_MIN
 
 cdef inline bint vec3_valid(const double* v) noexcept nogil:
-    """A usable accelerometer / magnetometer sample: finite, with a finite norm above 1e-100
-    (components so large that |v|^2 overflows are rejected, and so small that |v|^2 is
-    denormal or zero: no unit makes them a reading, and 1 / |v|^2 would overflow)."""
+    """A usable accelerometer / magnetometer sample: finite, with |v|^2 finite and a normal
+    double (>= DBL_MIN, about 2.2e-308): components so large that |v|^2 overflows, or so small
+    that it is denormal or zero, are rejected (1 / |v|^2 would overflow)."""
     cdef double n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    return isfinite(n2) and n2 > 1e-200
+    return isfinite(n2) and n2 >= DBL_MIN
 
 cdef inline bint vec3_finite(const double* v) noexcept nogil:
     """A usable gyro sample: finite with a finite norm (zero rate is fine)."""

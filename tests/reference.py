@@ -27,6 +27,7 @@ Where docs/estimators.md is silent, this reference reads it as follows (the kern
 - `bias` is None for the gyro integrator, `covariance` None except for the EKF.
 """
 import math
+import sys
 
 import numpy as np
 
@@ -164,10 +165,10 @@ def gyro_valid(g):
 
 
 def vector_valid(v):
-    """Finite components with a finite norm above 1e-100 (the kernels' vec3_valid)."""
+    """Finite components with |v|^2 finite and a normal double (the kernels' vec3_valid)."""
     c = v.tolist()
     n2 = sum(x * x for x in c)
-    return all(math.isfinite(x) for x in c) and math.isfinite(n2) and n2 > 1e-200
+    return all(math.isfinite(x) for x in c) and math.isfinite(n2) and n2 >= sys.float_info.min
 
 
 def initial_attitude(acc, mag=None):

@@ -219,7 +219,7 @@ def test_outputs_are_replaced_whole(tmp_path):
     """A write that fails part way (here a value that cannot be printed, in the last row)
     leaves the previous episodes.csv, summary.csv and summary.md, not a truncated file."""
     rows = [dict(task="track", scenario="flat", estimator=e, controller="pid", episode_seed=s, heading_ss=1.0 + s,
-                 speed_ss=0.1, settle_time=1.0, attitude_error=1.0, heading_est_error=1.0, steps=10)
+                 speed_ss=0.1, settle_time=1.0, attitude_error=1.0, tilt_error=0.5, heading_est_error=1.0, steps=10)
             for e in ("truth", "ekf") for s in range(3)]
     out = compare.write_outputs(rows, compare.summarise(rows), tmp_path, log=lambda *a: None)
     before = {f: (out / f).read_bytes() for f in ("episodes.csv", "summary.csv", "summary.md")}

@@ -161,7 +161,7 @@ def test_no_continuous_separation_below_the_smallest_meaningful_n():
         for s in range(3):
             rows.append(dict(task="track", scenario="flat", estimator=est, controller="pid", episode_seed=s,
                              heading_ss=5.0 + s * 0.1 + add, speed_ss=0.1, settle_time=1.0,
-                             attitude_error=1.0, heading_est_error=1.0))
+                             attitude_error=1.0, tilt_error=0.5, heading_est_error=1.0))
     row = next(r for r in compare.summarise(rows) if r["estimator"] == "ekf")
     assert row["delta_heading_ss"] == pytest.approx(1.0) and not row["separated"]
 

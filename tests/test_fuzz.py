@@ -92,9 +92,11 @@ def as_f64(x):
 
 
 def row_ok(a, allow_zero):
+    """The kernels' rule (docs/estimators.md, "Invalid samples"): |v|^2 finite, and for acc
+    and mag a normal double (denormal or zero is invalid)."""
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         n2 = (a * a).sum(axis=1)
-    return np.isfinite(n2) & (allow_zero | (n2 > 0))
+    return np.isfinite(n2) & (allow_zero | (n2 >= np.finfo(np.float64).tiny))
 
 
 @st.composite

@@ -304,3 +304,22 @@ def test_install_policy_name_is_a_plain_name(tmp_path, monkeypatch, name):
     with pytest.raises(ValueError, match="name"):
         rl.install_policy(shipped, name)
     assert sorted(p.name for p in (tmp_path / "pkg").rglob("*")) == ["policies"]
+
+
+def test_dropping_the_optimizer_state_keeps_the_actions(tmp_path):
+    """install_policy ships a policy without Adam's moments (a third of the zip): the weights
+    and so the actions are unchanged, and the file still loads (for acting and fine-tuning)."""
+    import shutil
+
+    import numpy as np
+    from controllers import policy_io, rl
+    src = rl.POLICY_DIR / "ppo-track-ekf"
+    for s in (".zip", rl.NORM_SUFFIX, ".json"):
+        shutil.copy(str(src) + s, tmp_path / ("p" + s))
+    before = rl.load_policy(tmp_path / "p", trusted=True)
+    policy_io.drop_optimizer_state(tmp_path / "p.zip")
+    after = rl.load_policy(tmp_path / "p", trusted=True)
+    obs = np.random.default_rng(0).uniform(-1, 1, (20, 14)).astype(np.float32)
+    assert all(np.array_equal(before.act(o), after.act(o)) for o in obs)
+    model = policy_io.load_model(tmp_path / "p.zip")
+    assert model.policy.optimizer.state_dict()["state"] == {}
