@@ -189,8 +189,11 @@ def test_train_cli_rl_zoo_layout_and_install(tmp_path, monkeypatch):
     assert train_cli.main(args + ["--install-policy"]) == 0
     assert sorted(p.name for p in installed.iterdir()) == ["ppo-track-truth.json", "ppo-track-truth.vecnormalize.npz",
                                                            "ppo-track-truth.zip"]
-    assert (installed / "ppo-track-truth.zip").read_bytes() == \
-        (tmp_path / "ppo" / "SphereBotTrack-v1_3" / "ppo-track-truth.zip").read_bytes()
+    # the weights as trained (the optimizer's moments are dropped on install)
+    import zipfile
+    with zipfile.ZipFile(installed / "ppo-track-truth.zip") as a, \
+            zipfile.ZipFile(tmp_path / "ppo" / "SphereBotTrack-v1_3" / "ppo-track-truth.zip") as b:
+        assert a.read("policy.pth") == b.read("policy.pth")
 
 
 def test_help_of_every_command():
