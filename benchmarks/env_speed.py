@@ -75,8 +75,9 @@ class RawWorld:
             p.stepSimulation(c)
         return steps / (time.perf_counter() - t)
 
-    def with_motor(self, steps):
-        """(wall-clock, CPU-time) physics steps/s."""
+    def with_motor(self, steps, reads=False):
+        """(wall-clock, CPU-time) physics steps/s; ``reads``: also the two base-state reads
+        (pose, velocity) the true IMU signals need."""
         b, c, motor, servo = self.b, self.c, self.motor, self.servo
         joints = (0, 1)
         cpu = time.thread_time()
@@ -88,6 +89,9 @@ class RawWorld:
             p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
             p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
             p.stepSimulation(c)
+            if reads:
+                p.getBasePositionAndOrientation(b, c)
+                p.getBaseVelocity(b, c)
         return steps / (time.perf_counter() - t), steps / (time.thread_time() - cpu)
 
     def close(self):
@@ -189,21 +193,6 @@ def breakdown(rounds=12, steps=250):
     ``ekf`` and ``truth``, and the Python reference of the loop (``compiled=False``). Medians of
     ``rounds`` interleaved rounds of ``steps`` env steps each."""
     raw = RawWorld()
-    b, c, motor, servo = raw.b, raw.c, raw.motor, raw.servo
-    joints = (0, 1)
-
-    def raw_reads(n):
-        t = time.thread_time()
-        for _ in range(n):
-            js = p.getJointStates(b, joints, c)
-            tau = motor.torque(3.0, js[0][1])
-            ts = servo.torque(0.2, js[1][0], js[1][1])
-            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
-            p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
-            p.stepSimulation(c)
-            p.getBasePositionAndOrientation(b, c)
-            p.getBaseVelocity(b, c)
-        return (time.thread_time() - t) / n * 8
 
     envs_ = {"step, ekf": SphereRobotEnv(task="track", estimator="ekf"),
              "step, truth": SphereRobotEnv(task="track", estimator="truth"),
@@ -217,7 +206,7 @@ def breakdown(rounds=12, steps=250):
         env.reset(seed=0)
     for _ in range(rounds):
         res["PyBullet's limit"].append(8.0 / raw.with_motor(8 * steps)[1])
-        res["+ base pose and velocity reads"].append(raw_reads(8 * steps))
+        res["+ base pose and velocity reads"].append(8.0 / raw.with_motor(8 * steps, reads=True)[1])
         for k, env in envs_.items():
             t = time.thread_time()
             for a in actions:
