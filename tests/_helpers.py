@@ -18,6 +18,20 @@ SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandom
 
 # --- synthetic data -----------------------------------------------------------------------
 
+def integrate_rates(w, fs, q0=(0.9, 0.1, -0.3, 0.2)):
+    """The attitude of body rates ``w`` ((n, 3), rad/s) at ``fs``: exact per-sample rotation
+    increments chained from ``q0`` (normalised)."""
+    th = np.linalg.norm(w, axis=1) / fs
+    axis = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+    dq = np.column_stack([np.cos(th / 2), np.sin(th / 2)[:, None] * axis])
+    q = np.empty((len(w), 4))
+    qk = ref.normalise(np.array(q0, dtype=float))
+    for i in range(len(w)):
+        qk = ref.qmul(qk, dq[i])
+        q[i] = qk
+    return q
+
+
 def synthetic(n=N, fs=FS, seed=11, mag_scale=50.0):
     """Noisy readings of a body turning with a smooth rate (peaks of a few rad/s).
 
@@ -34,15 +48,7 @@ def synthetic(n=N, fs=FS, seed=11, mag_scale=50.0):
                                                       + rng.uniform(0, 2 * np.pi))
     for c in rng.uniform(0.05, 0.95, 8) * t[-1]:       # bursts of fast turning
         w += np.exp(-0.5 * ((t - c) / 0.3) ** 2)[:, None] * rng.uniform(-3, 3, 3)
-    # exact per-sample increments, chained
-    th = np.linalg.norm(w, axis=1) / fs
-    axis = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
-    dq = np.column_stack([np.cos(th / 2), np.sin(th / 2)[:, None] * axis])
-    q = np.empty((n, 4))
-    qk = ref.normalise(np.array([0.9, 0.1, -0.3, 0.2]))
-    for i in range(n):
-        qk = ref.qmul(qk, dq[i])
-        q[i] = qk
+    q = integrate_rates(w, fs)
     # R(q)^T v for all rows at once
     Rt = np.stack([ref.rotmat(qi).T for qi in q])
     lin = np.zeros((n, 3))

@@ -11,7 +11,7 @@ import fusion
 import reference as ref
 import reference_aekf as ra
 from fusion._aekf import quest
-from _helpers import compare_state, count_invalid, inject_invalid, qdiff
+from _helpers import compare_state, count_invalid, inject_invalid, integrate_rates, qdiff
 
 FS = 100.0
 N = 10_000
@@ -55,14 +55,7 @@ def scenario(n=N, fs=FS, seed=21, turn=1.0, burst_amp=6.0, n_bursts=14, disturb=
         for _ in range(3):
             w[:, k] += turn * rng.uniform(0.1, 0.5) * np.sin(2 * np.pi * rng.uniform(0.02, 0.3) * t
                                                             + rng.uniform(0, 2 * np.pi))
-    th = np.linalg.norm(w, axis=1) / fs
-    axis = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
-    dq = np.column_stack([np.cos(th / 2), np.sin(th / 2)[:, None] * axis])
-    q = np.empty((n, 4))
-    qk = ref.normalise(np.array([0.9, 0.1, -0.3, 0.2]))
-    for i in range(n):
-        qk = ref.qmul(qk, dq[i])
-        q[i] = qk
+    q = integrate_rates(w, fs)
     Rt = np.stack([ref.rotmat(qi).T for qi in q])
     centres = np.sort(rng.uniform(0.03, 0.97, n_bursts)) * t[-1]
     lin, burst = hann_bursts(rng, t, centres, (0.5, 2.5), burst_amp)
