@@ -48,9 +48,11 @@ TASKS = ("track", "waypoints")
 #: environment arguments of each scenario (on top of the task's defaults)
 SCENARIOS = {
     "flat": {},
-    # magnetic dipoles in the floor (a steel plate, a motor) and bumps that shake the IMU,
-    # in a smaller arena so that the robot meets them
-    "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16},
+    # magnetic dipoles in the floor (a steel plate, a motor), bumps that shake the IMU and
+    # slippery patches where the drive slips (dead reckoning drifts), in a smaller arena so
+    # that the robot meets them
+    "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16,
+                  "slippery_patches": 8},
 }
 CONTROLLERS = ("pid", "ppo", "ppo-truth")
 #: the robot of the grid (``--robot``) and the environment's ``realism=`` it sets: realistic is

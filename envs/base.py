@@ -39,6 +39,7 @@ BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
 RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
 START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
+PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
 
 
@@ -145,6 +146,11 @@ class SphereRobotBase(gym.Env):
     arena_size: side of the square arena (m) centred on the origin; leaving it ends the episode.
     bumps: number of low cylindrical bumps (height ``bump_height``) laid on the floor.
     ramps: number of ramps (slope ``ramp_deg``, height ``ramp_height``) on the floor.
+    slippery_patches: number of low-friction discs on the floor (polished or wet tiles, dust:
+        radius U(0.5, 1.5) m, placed by the seed); while the shell's centre is over one, the
+        shell-floor friction coefficient is ``patch_friction`` (default 0.05) instead of
+        ``robot.lateral_friction``, and the spinning friction scales with it. The drive can
+        then slip, which the encoder's dead reckoning does not see. docs/envs/robot.md.
     mag_zones: None, "random" (``n_mag_zones`` dipoles placed by the seed) or a list of
         (x, y, field_uT): a magnetic dipole in the floor at (x, y) whose field at the
         IMU's height above it is field_uT (a steel plate, a motor).
@@ -171,7 +177,8 @@ class SphereRobotBase(gym.Env):
                  imu_calibrated=True, imu_hz=200.0, physics_hz=400.0, control_hz=50.0,
                  imu_offset=(0.02, 0.0, 0.03), episode_s=None, robot=None, arena_size=20.0,
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
-                 mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, realism="real",
+                 slippery_patches=0, patch_friction=0.05, mag_zones=None, n_mag_zones=3,
+                 earth_field=EARTH_FIELD, realism="real",
                  render_mode=None, render_size=(320, 240), compiled=True):
         super().__init__()
         if estimator not in ESTIMATORS():
@@ -195,6 +202,8 @@ class SphereRobotBase(gym.Env):
         self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
         self.max_steps = max(1, int(round(self.episode_s * self.control_hz)))
         self._check_world(imu_offset, bumps, bump_height, ramps, ramp_deg, ramp_height, n_mag_zones, earth_field)
+        self.slippery_patches = _count("slippery_patches", slippery_patches)
+        self.patch_friction = _number("patch_friction", patch_friction, 0.0, 1.0)
         self._mag_zone_spec = _mag_zone_spec(mag_zones)
         try:
             rw, rh = (int(v) for v in render_size)
@@ -292,6 +301,9 @@ class SphereRobotBase(gym.Env):
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
         self._spin = spin_torque(rp)
+        # the spinning friction is a friction (mu times a contact-patch radius): it scales with
+        # the friction coefficient on a slippery patch
+        self._spin_patch = self._spin * (self.patch_friction / rp.lateral_friction if rp.lateral_friction > 0 else 1.0)
         self._i_servo = SERVO_STALL_CURRENT / rp.steer_torque if self._servo is not None else 0.0
 
     def _make_spaces(self):
@@ -408,6 +420,10 @@ class SphereRobotBase(gym.Env):
 
     def _mag_markers(self):
         p, c = self._p, self._client
+        for (cx, cy, r2) in self._patches:
+            vis = p.createVisualShape(p.GEOM_CYLINDER, radius=math.sqrt(r2), length=0.002,
+                                      rgbaColor=[0.85, 0.95, 1.0, 1], physicsClientId=c)
+            p.createMultiBody(0, -1, vis, [cx, cy, 0.001], physicsClientId=c)
         for (cx, cy, _cz, _mx, _my, _mz, _r2) in self._zones:
             vis = p.createVisualShape(p.GEOM_CYLINDER, radius=0.15, length=0.004, rgbaColor=[0.8, 0.1, 0.1, 1],
                                       physicsClientId=c)
@@ -444,6 +460,17 @@ class SphereRobotBase(gym.Env):
         ramps = away(self.ramps, math.hypot(0.5 * RAMP_TOP + self._ramp_run(), 0.5 * RAMP_WIDTH))
         self._zones = self._draw_zones()
         return start_xy, start_yaw, bumps, ramps
+
+    def _draw_patches(self):
+        """The slippery patches: (x, y, squared radius), anywhere in the arena."""
+        rng = self.np_random
+        half = 0.5 * self.arena_size
+        out = []
+        for _ in range(self.slippery_patches):
+            xy = rng.uniform(-half + 1.0, half - 1.0, size=2)
+            r = float(rng.uniform(*PATCH_RADIUS))
+            out.append((float(xy[0]), float(xy[1]), r * r))
+        return out
 
     def _draw_zones(self):
         """The magnetic zones: (x, y, z, moment (A m^2, 3), squared radius of influence)."""
@@ -669,6 +696,21 @@ class SphereRobotBase(gym.Env):
             set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
         p.setJointMotorControlArray(b, _JOINTS, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
         spin, roll_c = self._spin, rp.rolling_damping
+        if self._patches:
+            # the contact lies under the shell's centre: over a patch, its friction
+            pos = self._true[0]
+            on = False
+            for (cx, cy, r2) in self._patches:
+                dx, dy = pos[0] - cx, pos[1] - cy
+                if dx * dx + dy * dy < r2:
+                    on = True
+                    break
+            if on != self._patch_on:
+                self._patch_on = on
+                p.changeDynamics(b, DRIVE_JOINT, lateralFriction=self.patch_friction if on else rp.lateral_friction,
+                                 physicsClientId=c)
+            if on:
+                spin = self._spin_patch
         if spin or roll_c:
             # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
             # rolling damping about x and y, spinning friction about z
@@ -709,6 +751,10 @@ class SphereRobotBase(gym.Env):
                                  compiled=self._compiled)
         else:
             self._imu.reset(rng=self.np_random)
+        # drawn after everything else of the reset, so that with patches the episode's other
+        # draws (layout, task, IMU) are those of the flat floor
+        self._patches = self._draw_patches()
+        self._patch_on = False
         self._build_world(self._xy0, self._yaw0, bumps, ramps)
         if self._est is not None:
             self._est.reset()
