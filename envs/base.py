@@ -530,7 +530,7 @@ class SphereRobotBase(gym.Env):
         x, y, z, w = self._true[1]
         self._q_true_s = (w, x, y, z)
         if self._est is not None:
-            self._q_est = q
+            self._q_est = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))    # as the compiled loop's
             g = s.gyr
         else:
             g = self._true[3]
@@ -783,7 +783,8 @@ class SphereRobotBase(gym.Env):
         self._gyr_sum_y, self._gyr_n = 0.0, 0
         self._reset_task()
         self._needs_reset = False
-        return self._observation(), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0))
+        psi = self._heading_est()
+        return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
 
     def _apply_options(self, options):
         bad = sorted(set(options) - {"start_xy", "start_yaw"})
@@ -819,7 +820,9 @@ class SphereRobotBase(gym.Env):
         """(obs, reward, terminated, truncated, info) of a step, after its physics."""
         self._steps += 1
         self._t = self._steps / self.control_hz
-        self._odometry()
+        # the estimated heading and bias, read once: the estimator does not move until the next step
+        psi, bias = self._heading_est(), self._est_bias()
+        self._odometry(psi, bias)
         # reward, termination (the referee uses the true state)
         terms, done = self._get_rew(a0, a1)
         reward = float(sum(terms.values()))
@@ -827,8 +830,8 @@ class SphereRobotBase(gym.Env):
         truncated = (not terminated) and self._steps >= self.max_steps
         if terminated or truncated:
             self._needs_reset = True
-        obs = self._observation()
-        info = self._info(terms)
+        obs = self._observation(psi, bias)
+        info = self._info(terms, psi)
         info["out_of_arena"] = out
         info["stuck"] = stuck
         self._task_step_info(info, terminated and not out and not stuck)
@@ -858,17 +861,17 @@ class SphereRobotBase(gym.Env):
         cpr = self.robot.encoder_cpr
         return math.floor(self._p.getJointState(self._body, DRIVE_JOINT, self._client)[0] * cpr / (2 * math.pi))
 
-    def _odometry(self):
+    def _odometry(self, psi, bias):
         """The robot's own estimates after a control period: the Hall encoder's speed over it,
-        and the dead-reckoned position (with the optional position fix)."""
+        and the dead-reckoned position (with the optional position fix) along the estimated
+        heading ``psi``, with the gyro's ``bias`` (3 floats or None) removed from its rate."""
         rp = self.robot
         counts = self._encoder_counts()
         self._enc_speed = (counts - self._enc_counts) * (2 * math.pi / rp.encoder_cpr) * self.control_hz
         self._enc_counts = counts
-        psi = self._heading_est()
         rate_y = self._gyr_sum_y / self._gyr_n if self._gyr_n else 0.0
-        if self._est is not None and self._est.bias is not None:
-            rate_y -= float(self._est.bias[1])
+        if bias is not None:
+            rate_y -= bias[1]
         v_est = rp.shell_radius * (self._enc_speed + rate_y)
         step_len = v_est / self.control_hz
         self._pos_est[0] += step_len * math.cos(psi)
@@ -965,10 +968,15 @@ class SphereRobotBase(gym.Env):
                 "rotation": R}
 
     def _q_est_wxyz(self):
+        """The estimated attitude (4 floats, the true one for "truth" or before a sample)."""
         if self._est is None or self._q_est is None:
             return self._q_true_s
-        q = self._q_est
-        return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        return self._q_est
+
+    def _est_bias(self):
+        """The estimator's gyro bias (3 floats), or None."""
+        b = self._est.bias if self._est is not None else None
+        return None if b is None else tuple(b.tolist())
 
     # Heading: the rolling direction, perpendicular to the axle (body y) in the horizontal
     # plane: atan2(-R01, R11). Unlike the yaw of the body x axis it does not flip when the
@@ -981,23 +989,22 @@ class SphereRobotBase(gym.Env):
         x, y, z, w = self._true[1]
         return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
 
-    def _observation(self):
+    def _observation(self, psi, bias):
+        """The observation, given the estimated heading ``psi`` and gyro ``bias`` (or None)."""
         w, x, y, z = self._q_est_wxyz()
         if w < 0:
             w, x, y, z = -w, -x, -y, -z
         g = self._gyr_last
-        if self._est is not None:
-            b = self._est.bias
-            if b is not None:
-                g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
-        task = self._task_obs(self._heading_est())
+        if bias is not None:
+            g = (g[0] - bias[0], g[1] - bias[1], g[2] - bias[2])
+        task = self._task_obs(psi)
         obs = np.array((w, x, y, z, g[0], g[1], g[2], self._enc_speed, self._action[0], self._action[1]) + task,
                        dtype=np.float32)
         np.maximum(obs, self._obs_low, out=obs)       # np.clip's numbers, without its Python wrapper
         np.minimum(obs, self._obs_high, out=obs)
         return obs
 
-    def _info(self, terms):
+    def _info(self, terms, psi):
         pos, orn, lin = self._true[0], self._true[1], self._true[2]
         qt = self._q_true_s
         qe = self._q_est_wxyz()
@@ -1006,7 +1013,7 @@ class SphereRobotBase(gym.Env):
         info = {
             "q_true": np.array(qt), "q_est": np.array(qe), "attitude_error_deg": err,
             "position": np.array(pos), "velocity": np.array(lin),
-            "heading_true": self._heading_true(), "heading_est": self._heading_est(),
+            "heading_true": self._heading_true(), "heading_est": psi,
             "encoder_speed": self._enc_speed, "motor_torque": self._tau,
             "reward_terms": terms, "action_clipped": self._clipped,
             "estimator_skipped": dict(self._est.skipped) if self._est is not None else {"gyr": 0, "acc": 0, "mag": 0},
