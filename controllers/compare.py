@@ -702,7 +702,8 @@ def _parser():
                     help=f"comma-separated tasks (default: all). Accepted: {', '.join(TASKS)}")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), metavar="LIST",
                     help=f"comma-separated floors (default: all). Accepted: {', '.join(SCENARIOS)}: flat = the "
-                         "environment's defaults; disturbed = 16 magnetic dipoles and 16 bumps in a 16 m arena")
+                         "environment's defaults; disturbed = 16 magnetic dipoles, 16 bumps and 8 slippery "
+                         "patches in a 16 m arena")
     ap.add_argument("--estimators", default=None, metavar="LIST",
                     help=f"comma-separated estimators; include truth for the differences and the figure "
                          f"(default: all; --quick: {QUICK['estimators']}). Accepted: {', '.join(all_est)}")
