@@ -20,7 +20,7 @@ construction, so it gets the mean step of the stamps, and where that is more tha
 ``1/fs`` (ese650) also ``1/fs`` as a second row, "vqf.VQF (Ts=1/fs)", the feeding of ../shared/data/README.md's
 reference figures.
 
-Scoring (fusion.compare.score_mode): RMSE in degrees of the total, heading and inclination
+Scoring (benchmarks.compare.score_mode): RMSE in degrees of the total, heading and inclination
 errors; in 6-axis mode after removing one constant heading offset per run. Per set and mode
 the mean RMSE over its trials (or scenarios).
 
@@ -34,19 +34,16 @@ thresholds is fed wrongly (units or frame) and is not scored.
 """
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import fusion
+from fusion import datasets, scenarios
+from benchmarks import compare, loso, peers
 
-import fusion                                    # noqa: E402
-from fusion import compare, datasets, scenarios  # noqa: E402
-from benchmarks import loso, peers               # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 ERRORS = ("total", "heading", "inclination")
 FS = 100.0
@@ -118,7 +115,7 @@ def synthetic_items(duration, seed, only=None, seconds=None):
 # running and scoring
 
 def score_run(method, d, mode, q_ref=None, tail=None):
-    """Run ``method`` over ``d`` in ``mode`` and score it with fusion.compare.score_mode:
+    """Run ``method`` over ``d`` in ``mode`` and score it with benchmarks.compare.score_mode:
     ``(RMSE dict, heading offset removed in deg or None)``. ``tail``: score only the last
     ``tail`` samples (the ideal check, after convergence). ValueError on non-finite output
     (which RMSE over the finite rows would hide)."""

@@ -19,19 +19,15 @@ parameters on every trial.
 import argparse
 import ast
 import itertools
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import fusion
+from fusion import datasets
+from benchmarks import compare, peers
 
-import fusion                                    # noqa: E402
-from fusion import compare, datasets             # noqa: E402
-from benchmarks import peers                     # noqa: E402
 
 ERRORS = ("total", "heading", "inclination")
 # cells whose reference heading is not magnetic north (../shared/data/README.md: diodem's

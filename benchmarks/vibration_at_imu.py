@@ -18,12 +18,8 @@ same estimators under the PID in both tasks (flat floor, seeds 0..N-1), the mean
 ``tilt_error`` and its paired difference against ``ekf``, with and without the vibration.
 """
 import argparse
-import os
-import sys
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 
 def measure(drive, seconds, realism, seed=0):

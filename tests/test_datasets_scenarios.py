@@ -1,11 +1,12 @@
 """fusion.datasets (skipped without the recorded data), fusion.scenarios and the comparison
-loops of fusion.compare."""
+loops of benchmarks.compare."""
 
 import numpy as np
 import pytest
 
 import fusion
-from fusion import compare, datasets, metrics, quat, scenarios
+from fusion import datasets, metrics, quat, scenarios
+from benchmarks import compare
 
 DATA = datasets.default_data_dir()
 needs_data = pytest.mark.skipif(DATA is None, reason="recorded data folder (../shared/data or "

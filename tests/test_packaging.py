@@ -76,7 +76,7 @@ def test_one_version_source():
 def test_plotting_keeps_the_users_backend(tmp_path):
     pytest.importorskip("matplotlib")
     code = ("import sys, matplotlib, numpy as np; matplotlib.use('svg'); "
-            "from fusion import compare; "
+            "from benchmarks import compare; "
             f"p = compare.plot_errors({{'a': {{'x': np.ones(50)}}}}, {str(tmp_path / 'e.png')!r}, 't', fs=10.0); "
             "assert p.stat().st_size > 1000; "
             "assert matplotlib.get_backend() == 'svg', matplotlib.get_backend(); "

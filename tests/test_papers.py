@@ -1,10 +1,10 @@
-"""fusion.papers: one section in quick form writes its files with finite numbers."""
+"""benchmarks.papers: one section in quick form writes its files with finite numbers."""
 import csv
 import math
 
 import pytest
 
-from fusion import papers
+from benchmarks import papers
 
 
 def test_section_003_quick(tmp_path):

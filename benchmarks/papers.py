@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 import fusion
-from fusion import compare, imu, metrics, quat, scenarios
+from fusion import imu, metrics, quat, scenarios
+from benchmarks import compare
 from fusion.constants import GRAVITY
 
 __all__ = ["SECTIONS", "PAPER", "SEEDS", "QUICK_SEEDS", "reproduce", "run_section"]

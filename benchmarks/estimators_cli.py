@@ -9,7 +9,7 @@ seed papers' Euler table and total / heading / inclination RMSE. Recorded: 9-axi
 trial has a magnetometer, 6-axis (one heading offset per trial removed) on every trial,
 trials whose quality is not 'ok' skipped; per-trial rows and the mean RMSE over trials per
 set and mode; a trial file that cannot be read is reported and skipped. The loops live in
-fusion.compare (matplotlib is imported only to draw).
+benchmarks.compare (matplotlib is imported only to draw).
 """
 import argparse
 import sys
@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 
 import fusion
-from fusion import compare, datasets, scenarios
+from fusion import datasets, scenarios
+from benchmarks import compare
 
 ERR_COLS = ["total", "heading", "inclination"]
 

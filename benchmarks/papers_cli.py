@@ -4,14 +4,14 @@ tables (beside the documents' own numbers) and PNG figures.
 
     spherebot-papers [--out results/papers] [--sections 000 001 003 004] [--seeds N] [--quick]
 
-The sections and what did not reproduce: docs/papers.md. The work lives in fusion.papers.
+The sections and what did not reproduce: docs/papers.md. The work lives in benchmarks.papers.
 """
 import argparse
 import sys
 import time
 from pathlib import Path
 
-from fusion import papers
+from benchmarks import papers
 
 
 def parse_args(argv=None):
