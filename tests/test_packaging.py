@@ -132,3 +132,28 @@ def test_isa_checker_on_compiled_code(tmp_path, flags, bad):
     strip = [] if "-g" in flags else ["-s"]
     subprocess.run(["gcc", "-shared", "-fPIC", *flags, *strip, str(tmp_path / "k.c"), "-o", str(so)], check=True)
     assert _checker().main(["--so", "x86_64", str(so)]) == (1 if bad else 0)
+
+
+HEAVY = ("matplotlib", "tqdm", "scipy", "torch", "pybullet", "gymnasium")
+
+
+@pytest.mark.parametrize("module, allowed", [
+    ("fusion", ()),                                        # numpy and the kernels only
+    ("fusion.metrics, fusion.quat, fusion.datasets, fusion.scenarios, fusion.imu", ()),
+    ("envs", ("gymnasium",)),                              # registration; no torch, no physics client
+])
+def test_imports_stay_light(module, allowed):
+    """What a package pulls in at import (DESIGN: `import fusion` needs numpy and the kernels;
+    the simulator needs no torch), in a fresh interpreter."""
+    code = (f"import sys, {module}; "
+            f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=120)
+    assert out.returncode == 0, out.stderr
+    pulled = set(out.stdout.split()) - set(allowed)
+    assert not pulled, f"import {module} pulled in {sorted(pulled)}"
+
+
+def test_the_import_check_sees_a_heavy_module():
+    code = f"import sys, fractions, json; print(' '.join(m for m in {HEAVY + ('json',)!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["json"]
