@@ -157,3 +157,21 @@ def test_the_import_check_sees_a_heavy_module():
     code = f"import sys, fractions, json; print(' '.join(m for m in {HEAVY + ('json',)!r} if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["json"]
+
+
+def test_console_scripts_resolve_into_the_wheels_packages():
+    """Every console script names a `main` in a package the wheel ships (the experiments'
+    commands in `benchmarks`, none in the library `fusion`)."""
+    if tomllib is None:
+        pytest.skip("tomllib: Python 3.11+")
+    import importlib
+    py = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    packages = py["tool"]["setuptools"]["packages"]
+    scripts = py["project"]["scripts"]
+    for name, target in scripts.items():
+        module, func = target.split(":")
+        assert module.split(".")[0] in packages, (name, target)
+        assert callable(getattr(importlib.import_module(module), func)), (name, target)
+    assert not [t for t in scripts.values() if t.startswith("fusion.")], "commands belong to the experiments"
+    assert not [p.name for p in (ROOT / "fusion").glob("*.py") if p.stem in ("compare", "papers", "papers_cli",
+                                                                              "estimators_cli")]
