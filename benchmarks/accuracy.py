@@ -8,8 +8,8 @@ body -> ENU quaternions for scoring. Every run starts from the first sample, as 
 
 Data:
 
-- recorded: every ``quality == 'ok'`` trial of ``fusion.datasets`` (../shared/data or
-  $FUSION_DATA_DIR); 9-axis where the trial has a magnetometer, 6-axis on every trial.
+- recorded: every ``quality == 'ok'`` trial of ``fusion.datasets`` (its
+  ``DATA_LOCATION``); 9-axis where the trial has a magnetometer, 6-axis on every trial.
 - synthetic: every ``fusion.scenarios.SCENARIOS`` entry (100 Hz, 60 s, seed 0) and, where the
   module has them, every ``SEED_SCENARIOS`` entry (``seed_scenario(name, seed=0)``); 9-axis
   and 6-axis.
@@ -17,8 +17,8 @@ Data:
 Timing: our estimators, imufusion (``set_sample_period`` before each sample) and the ``ahrs``
 filters (their per-sample ``dt``) follow the time stamps; VQF takes one sample time at
 construction, so it gets the mean step of the stamps, and where that is more than 0.1 % off
-``1/fs`` (ese650) also ``1/fs`` as a second row, "vqf.VQF (Ts=1/fs)", the feeding of ../shared/data/README.md's
-reference figures.
+``1/fs`` (ese650) also ``1/fs`` as a second row, "vqf.VQF (Ts=1/fs)", the feeding of the reference figures
+of the data folder's README ("Recorded IMU data with a reference orientation").
 
 Scoring (benchmarks.compare.score_mode): RMSE in degrees of the total, heading and inclination
 errors; in 6-axis mode after removing one constant heading offset per run. Per set and mode
@@ -50,7 +50,7 @@ FS = 100.0
 SYNTHETIC, SEED = "synthetic", "seed scenarios"
 SEED_ESTIMATORS = ("ekf", "aekf", "iir-ekf", "ukf", "cf-ekf")
 BASELINES = ("gyro", "mahony")
-# which source document (../shared/seeds/README.md) each seed estimator comes from, to find
+# which source document ("The four source documents, in short") each seed estimator comes from, to find
 # "its" seed scenarios when SEED_SCENARIOS does not say
 SEED_DOC = {"ekf": "000", "aekf": "001", "iir-ekf": "003", "ukf": "003", "cf-ekf": "004"}
 IDEAL = dict(name="slow", seed=0)
@@ -305,7 +305,7 @@ def parse_args(argv=None):
     ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks"),
                     help="output folder (default: %(default)s)")
     ap.add_argument("--data", default=None,
-                    help="recorded-data folder (default: $FUSION_DATA_DIR or ../shared/data)")
+                    help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
     ap.add_argument("--max-trials", type=int, default=None, help="at most this many 'ok' trials per set")
     ap.add_argument("--trial-seconds", type=float, default=None,
                     help="score only the first S seconds of each trial and seed scenario")
@@ -363,7 +363,7 @@ def main(argv=None):
     root = Path(args.data) if args.data else datasets.default_data_dir()
     items, skipped = [], []
     if root is None or not Path(root).is_dir():
-        print(f"\nrecorded data: folder not found ({args.data or '$' + datasets.ENV_VAR + ' or ../shared/data'}); "
+        print(f"\nrecorded data: folder not found ({args.data or datasets.DATA_LOCATION}); "
               "scoring the synthetic scenarios only")
     else:
         items, skipped = recorded_items(root, quick, max_trials, trial_seconds, print)

@@ -5,9 +5,10 @@ Numpy only at import; tqdm and matplotlib are imported where they are used.
 
 Modes: ``"9-axis"`` runs with the magnetometer and scores total / heading / inclination
 against the reference as it is; ``"6-axis"`` runs without it and scores after removing one
-constant heading offset per run (``metrics.remove_heading_offset``), as
-../shared/data/README.md asks. Estimators start as users run them: from the first sample
-(accelerometer, plus magnetometer in 9-axis mode), default parameters unless given.
+constant heading offset per run (``metrics.remove_heading_offset``), as the data folder's
+README ("Recorded IMU data with a reference orientation") asks. Estimators start as users run
+them: from the first sample (accelerometer, plus magnetometer in 9-axis mode), default
+parameters unless given.
 """
 import csv
 import math
@@ -24,7 +25,8 @@ __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_
 MODES = ("9-axis", "6-axis")
 ERRORS = ("total", "heading", "inclination")
 
-# ../shared/data/README.md: VQF (online, default parameters) on all 'ok' trials, degrees
+# the data folder's README ("Recorded IMU data with a reference orientation"): VQF (online, default
+# parameters) on all 'ok' trials, degrees
 REFERENCE_VQF = [
     dict(set="repoimu_tstick", mode="9-axis", total=1.92, heading=1.67, inclination=0.70),
     dict(set="repoimu_tstick", mode="6-axis", total=0.99, heading=0.60, inclination=0.70),

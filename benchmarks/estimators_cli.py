@@ -49,7 +49,7 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="spherebot-estimators", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="results/compare", help="output folder (default: %(default)s)")
     p.add_argument("--data", default=None,
-                   help="recorded-data folder (default: $FUSION_DATA_DIR or ../shared/data)")
+                   help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
     p.add_argument("--estimators", nargs="+", default=None, metavar="NAME",
                    help=f"estimators to score, names or comma-separated lists (default: all of {fusion.available()})")
     p.add_argument("--quick", action="store_true",
@@ -94,7 +94,7 @@ def _recorded(names, args, out):
     data_dir = Path(args.data) if args.data else datasets.default_data_dir()
     trial_rows, agg_rows, skipped = [], [], []
     if data_dir is None or not data_dir.is_dir():
-        where = args.data or f"${datasets.ENV_VAR} or ../shared/data"
+        where = args.data or datasets.DATA_LOCATION
         print(f"recorded data: folder not found ({where}); skipping the recorded-trial comparison")
     else:
         unreadable = []
@@ -146,7 +146,8 @@ def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
                                     ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
              "## Recorded trials: mean RMSE over trials\n", agg_md]
     if agg_rows:
-        parts += ["Reference (../shared/data/README.md, VQF online, default parameters; VQF takes one "
+        parts += ["Reference (the data folder's README, \"Recorded IMU data with a reference orientation\"; VQF "
+                  "online, default parameters; VQF takes one "
                   "constant sample time 1/fs, while the rows above use the trials' time stamps, which "
                   "matters on ese650's uneven stamps):\n",
                   compare.markdown_table(compare.REFERENCE_VQF, ["set", "mode"] + ERR_COLS, 2)]

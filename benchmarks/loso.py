@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Leave-one-set-out choice of estimator parameters on every recorded set, VQF in the same run.
 
-Cells: every (set, mode) of ../shared/data (9-axis where the set has a magnetometer, 6-axis
+Cells: every (set, mode) of the recorded data (``fusion.datasets``; 9-axis where the set has a magnetometer, 6-axis
 on every set). A candidate's score in a cell is its mean total RMSE over the cell's 'ok'
 trials divided by VQF's (online, defaults, the same feeding as benchmarks/accuracy.py), so
 that sets of different difficulty weigh alike. For each held-out set, the grid point with the
@@ -30,8 +30,9 @@ from benchmarks import compare, peers
 
 
 ERRORS = ("total", "heading", "inclination")
-# cells whose reference heading is not magnetic north (../shared/data/README.md: diodem's
-# magnetometer is strongly disturbed, its earth frame is the optical one): there a candidate is
+# cells whose reference heading is not magnetic north (the data folder's README, "Recorded IMU
+# data with a reference orientation": diodem's magnetometer is strongly disturbed, its earth
+# frame is the optical one): there a candidate is
 # judged by inclination alone, which the magnetometer's disturbances must not spoil
 INCLINATION_ONLY = {("diodem", "9-axis")}
 
@@ -65,7 +66,7 @@ def categories(names):
 def load_cells(root=None, quick=False, seconds=None):
     root = Path(root) if root else datasets.default_data_dir()
     if root is None or not Path(root).is_dir():
-        raise SystemExit("recorded data not found (../shared/data or $FUSION_DATA_DIR)")
+        raise SystemExit(f"recorded data not found ({datasets.DATA_LOCATION})")
     by = {}
     for tr in datasets.load_folder(root, only_ok=True):
         if not np.isfinite(tr.quat).all(axis=1).any():

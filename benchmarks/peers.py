@@ -6,7 +6,8 @@ Peers (``pip install '.[bench]'``) and how they are fed:
 - ``vqf.VQF`` / ``vqf.BasicVQF``: rad/s, m/s^2 (specific force), magnetometer in uT; output
   body -> ENU. One constant sample time, set at construction (no per-sample dt): ``Data.ts``,
   the mean step of the time stamps (``1/fs`` when they are even). ``vqf_method(...,
-  nominal=True)`` takes ``1/fs`` instead, as ../shared/data/README.md's reference figures do
+  nominal=True)`` takes ``1/fs`` instead, as the reference figures of the data folder's README
+  ("Recorded IMU data with a reference orientation") do
   (on ese650 the nominal fs, ~104.4 Hz, is 4 % off the stamps' mean rate of 100 Hz).
 - ``imufusion.Ahrs`` (1.3): deg/s, g, uT, ``CONVENTION_ENU``; output body -> ENU. Sample
   period set with ``set_sample_period``: ``1/fs``, or before every sample from the time

@@ -300,7 +300,7 @@ class Vibration:
             raise ValueError(f"{own}.n_tones must be an integer >= 1, got {n!r}")
 
 
-#: Motor vibration of seed 003's platform: its spectra show the noise in 130-200 Hz. The
+#: Motor vibration of the platform of "IIR-EKF, IMU dynamic error suppression": its spectra show the noise in 130-200 Hz. The
 #: amplitudes are not in the paper; these (0.2 g, 3 deg/s rms per axis) are assumed, of the
 #: order of small brushed/brushless drives on a light frame.
 VIBRATION_SEED003 = Vibration(130.0, 200.0, acc_rms=0.2 * G0, gyr_rms=3.0 * DEG)
@@ -400,7 +400,7 @@ PRESETS = {
     # A perfect sensor: returns the true signals sampled at the IMU rate.
     "ideal": IMUSpec("ideal", gyro=SensorSpec(), acc=SensorSpec(), mag=MagSpec(), rate_hz=100.0),
 
-    # Seed 000: MPU6050 + MAG3110, the robot's 10 Hz experiment. MPU-6000/6050 PS rev 3.4,
+    # "EKF attitude estimation for a spherical robot" (seed 000): MPU6050 + MAG3110, the robot's 10 Hz experiment. MPU-6000/6050 PS rev 3.4,
     # register defaults FS_SEL = AFS_SEL = 0; DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
     "mpu6050+mag3110": IMUSpec(
         "mpu6050+mag3110",
@@ -417,7 +417,7 @@ PRESETS = {
                     soft_iron=0.02, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=10.0, jitter_s=20e-6),
 
-    # Seed 001: Xsens MTi-10 at 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the
+    # "Adaptive EKF from predicted measurements, for arm attitude" (seed 001): Xsens MTi-10 at 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the
     # same generation for bandwidths and magnetometer). Outputs are floats (no ADC words);
     # strapdown integration inside: "average" sampling.
     "mti10": IMUSpec(
@@ -434,7 +434,7 @@ PRESETS = {
                     hard_iron_calibrated=0.5, soft_iron_calibrated=0.005),
         rate_hz=256.0, jitter_s=10e-6, sampling="average"),
 
-    # Seed 003: ICM20602 (4096 LSB/g, +-8 g; 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's
+    # "IIR-EKF, IMU dynamic error suppression" (seed 003): ICM20602 (4096 LSB/g, +-8 g; 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's
     # table 1) + QMC5883L, 200 Hz. ICM-20602 DS-000176 v1.0; DLPF register defaults
     # (gyro 250 Hz, accelerometer 218.1 Hz): the paper gives no setting.
     "icm20602+qmc5883l": IMUSpec(
@@ -453,7 +453,7 @@ PRESETS = {
                     hard_iron=10.0, soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=200.0, jitter_s=20e-6),
 
-    # Seed 004: MPU9250 (with its AK8963), 500 Hz. MPU-9250 PS rev 1.0/1.1, register
+    # "Attitude-angle solution for a mobile robot" (seed 004): MPU9250 (with its AK8963), 500 Hz. MPU-9250 PS rev 1.0/1.1, register
     # defaults: +-250 deg/s, +-2 g, DLPF gyro 250 Hz / accelerometer 218.1 Hz, AK8963
     # 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
     "mpu9250": IMUSpec(

@@ -9,8 +9,7 @@ from fusion import datasets, metrics, quat, scenarios
 from benchmarks import compare
 
 DATA = datasets.default_data_dir()
-needs_data = pytest.mark.skipif(DATA is None, reason="recorded data folder (../shared/data or "
-                                                      "$FUSION_DATA_DIR) not found")
+needs_data = pytest.mark.skipif(DATA is None, reason=f"recorded data folder ({datasets.DATA_LOCATION}) not found")
 
 
 # --- datasets ----------------------------------------------------------------------------
