@@ -19,8 +19,9 @@ import numpy as np
 import fusion
 from fusion import metrics
 
-__all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials",
-           "aggregate", "markdown_table", "write_table", "plot_errors", "REFERENCE_VQF"]
+__all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
+           "markdown_table", "write_table", "write_report", "new_figure", "save_figure", "plot_errors",
+           "REFERENCE_VQF"]
 
 MODES = ("9-axis", "6-axis")
 ERRORS = ("total", "heading", "inclination")
@@ -178,6 +179,17 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     return csv_path, md_path
 
 
+def write_report(path, parts, skipped, written, skipped_title="Not scored"):
+    """A Markdown report: ``parts`` (joined by newlines), then the skipped ``(what, reason)``
+    pairs and the list of ``written`` files; returns ``path``."""
+    path = Path(path)
+    if skipped:
+        parts = parts + [f"## {skipped_title}\n", markdown_table([dict(what=k, reason=r) for k, r in skipped])]
+    parts = parts + ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
+    path.write_text("\n".join(parts))
+    return path
+
+
 def new_figure(**kwargs):
     """A matplotlib ``Figure`` (``kwargs``: its arguments) on its own Agg canvas, apart from
     pyplot: drawing it neither switches the user's backend nor opens a window, and it is
@@ -206,8 +218,14 @@ def plot_errors(panels, path, title, t=None, fs=None):
         ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle(title)
-    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def save_figure(fig, path, dpi=110, rect=None):
+    """Lay ``fig`` out (tight, within ``rect`` if given) and write it as PNG to ``path`` (its
+    folder made); returns the path."""
+    fig.tight_layout(**({} if rect is None else dict(rect=rect)))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=dpi)
     return path

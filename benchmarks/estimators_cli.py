@@ -151,12 +151,7 @@ def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
                   "constant sample time 1/fs, while the rows above use the trials' time stamps, which "
                   "matters on ese650's uneven stamps):\n",
                   compare.markdown_table(compare.REFERENCE_VQF, ["set", "mode"] + ERR_COLS, 2)]
-    if skipped:
-        parts += ["## Skipped\n", compare.markdown_table([dict(what=k, reason=r) for k, r in skipped])]
-    parts += ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
-    report = out / "report.md"
-    report.write_text("\n".join(parts))
-    written.append(report)
+    written.append(compare.write_report(out / "report.md", parts, skipped, written, skipped_title="Skipped"))
     return syn_md, agg_md
 
 

@@ -203,11 +203,9 @@ def loso(name, grid, cells, base=None, log=print):
 def ratio_chart(results, cells, path):
     """One bar per estimator: its mean ours / VQF figure (objective); one marker per cell on
     it (total ratio; inclination ratio for INCLINATION_ONLY cells). 1 = VQF."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     names = list(results)
-    fig, ax = plt.subplots(figsize=(1.3 * len(names) + 3, 4.5))
+    fig = compare.new_figure(figsize=(1.3 * len(names) + 3, 4.5))
+    ax = fig.subplots()
     x = np.arange(len(names))
     ax.bar(x, [objective(results[n], cells) for n in names], color="lightsteelblue",
            label="mean figure (total + inclination ratio) / 2")
@@ -224,11 +222,7 @@ def ratio_chart(results, cells, path):
     ax.set_title("Defaults on every recorded set: ratio to VQF (below the dashed line: better than VQF)")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return compare.save_figure(fig, path, dpi=100)
 
 
 def main(argv=None):

@@ -50,12 +50,6 @@ def _subplots(nrows, ncols, figsize, **kwargs):
     return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
-def _save(fig, path):
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
-
-
 def _plot_euler(runs, path, title, ncols):
     """Euler-angle error over time, an angle per row and a run per column (``runs``:
     ``{column title: (scenario, {estimator: per-sample Euler errors})}``)."""
@@ -74,7 +68,7 @@ def _plot_euler(runs, path, title, ncols):
             axes[0, j].set_title(ctitle, fontsize=10)
         axes[-1, j].set_xlabel("time (s)")
     fig.suptitle(title)
-    return _save(fig, path)
+    return compare.save_figure(fig, path)
 
 
 # --- 000 -----------------------------------------------------------------------------------
@@ -173,7 +167,7 @@ def _plot_switching(s, qs, dec, path):
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.suptitle(f"seed001-faster (seed {s.seed}, {s.preset}, {s.fs:g} Hz): the aekf's switching")
-    return _save(fig, path)
+    return compare.save_figure(fig, path)
 
 
 # --- 003 -----------------------------------------------------------------------------------
@@ -227,7 +221,7 @@ def _plot_spectra(s, qs, cutoff, path):
         ax.grid(alpha=0.3, which="both")
         ax.set_xlabel("frequency (Hz)")
     fig.suptitle(f"seed003-vibration (seed {s.seed}, {s.preset})")
-    return _save(fig, path)
+    return compare.save_figure(fig, path)
 
 
 # --- 004 -----------------------------------------------------------------------------------
