@@ -17,7 +17,6 @@ MAX_LINES = 60
 KNOWN_LONG = {
     ("controllers/rl.py", "train"): 111,
     ("tests/reference_aekf.py", "_step"): 82,      # the reference's per-sample step
-    ("tests/test_imu.py", "test_bad_input_names_the_argument"): 64,
 }
 
 
