@@ -20,7 +20,7 @@ import fusion
 from fusion import metrics
 
 __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
-           "markdown_table", "write_table", "write_report", "new_figure", "save_figure", "plot_errors",
+           "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
            "REFERENCE_VQF"]
 
 MODES = ("9-axis", "6-axis")
@@ -188,6 +188,14 @@ def write_report(path, parts, skipped, written, skipped_title="Not scored"):
     parts = parts + ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
     path.write_text("\n".join(parts))
     return path
+
+
+def print_written(files, out, seconds):
+    """The closing lines of a command: the files written into ``out`` and the time taken."""
+    print(f"wrote {len(files)} files to {Path(out).resolve()}/:")
+    for f in files:
+        print(f"  {f}")
+    print(f"done in {seconds:.1f} s")
 
 
 def new_figure(**kwargs):

@@ -176,10 +176,7 @@ def main(argv=None):
 
     print("\nSynthetic scenarios, RMSE (deg):\n" + syn_md)
     print("Recorded trials, mean RMSE over trials (deg):\n" + agg_md)
-    print(f"wrote {len(written)} files to {out.resolve()}/:")
-    for p in written:
-        print(f"  {p}")
-    print(f"done in {time.perf_counter() - t_start:.1f} s")
+    compare.print_written(written, out, time.perf_counter() - t_start)
     return 0
 
 

@@ -10,9 +10,8 @@ benchmarks.papers, the report benchmarks.papers_report.
 import argparse
 import sys
 import time
-from pathlib import Path
 
-from benchmarks import papers, papers_report
+from benchmarks import compare, papers, papers_report
 
 
 def parse_args(argv=None):
@@ -35,10 +34,7 @@ def main(argv=None):
     seeds = range(args.seeds) if args.seeds is not None else None
     files = papers_report.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
     print(files[0].read_text())
-    print(f"wrote {len(files)} files to {Path(args.out).resolve()}/:")
-    for f in files:
-        print(f"  {f}")
-    print(f"done in {time.perf_counter() - t0:.1f} s")
+    compare.print_written(files, args.out, time.perf_counter() - t0)
     return 0
 
 

@@ -41,8 +41,18 @@ def _pm(values, digits=3):
     return f"{m:.{digits}f} ± {sd:.{digits}f}"
 
 
-def _verdicts(section):
-    return [f"- {p['label']}: " + verdict(p["diffs"], p["claim"]) for p in section.paired]
+def _table_md(columns, n_text, lines):
+    """A Markdown table: header of ``columns``, the first ``n_text`` left-aligned, ``lines``."""
+    return ["| " + " | ".join(columns) + " |",
+            "|" + "|".join(["---"] * n_text + ["---:"] * (len(columns) - n_text)) + "|", *lines, ""]
+
+
+def _section_md(sec, intro, table, fig, more=(), notes=(), verdicts="Verdicts (paired over seeds):"):
+    """A section's Markdown: title, ``intro``, its ``table`` (and ``more`` lines), a verdict
+    per claim from the paired per-seed differences, ``notes``, where the reasons are, the figure."""
+    claims = [f"- {p['label']}: " + verdict(p["diffs"], p["claim"]) for p in sec.paired]
+    return [f"## {SECTIONS[sec.key]}\n", intro, *table, *more, verdicts + "\n", *claims, "", *notes, WHY,
+            f"![{fig.stem.split('_')[-1]}]({fig.name})\n"]
 
 
 def _subplots(nrows, ncols, figsize, **kwargs):
@@ -83,17 +93,13 @@ def _report_000(sec, out):
     s = sec.figure[0]
     fig_path = _plot_euler({case: sec.figure}, out / "seed000_errors.png", ncols=1,
                            title=f"{case} (seed {s.seed}, {s.preset}, {s.fs:g} Hz): Euler-angle error")
-    md = [f"## {SECTIONS['000']}\n",
-          f"Scenario `{case}` ({scenarios.SEED_SCENARIOS[case]}), {len(sec.seeds)} seeds; "
-          "errors in degrees against the truth, the paper's against its 0° ideal; ours mean ± std over "
-          "seeds. The last two columns are a diagnosis, not the experiment: the same scenario with the "
-          "gyro's turn-on bias residual set to 0.\n",
-          "| angle | stat | paper CF | ours `mahony` | paper EKF | ours `ekf` "
-          "| `mahony`, no gyro bias | `ekf`, no gyro bias |",
-          "|---|---|---:|---:|---:|---:|---:|---:|", *lines, "",
-          "Verdicts (paired over seeds):\n", *_verdicts(sec), "", WHY,
-          f"![errors]({fig_path.name})\n"]
-    return md, [fig_path]
+    intro = (f"Scenario `{case}` ({scenarios.SEED_SCENARIOS[case]}), {len(sec.seeds)} seeds; "
+             "errors in degrees against the truth, the paper's against its 0° ideal; ours mean ± std over "
+             "seeds. The last two columns are a diagnosis, not the experiment: the same scenario with the "
+             "gyro's turn-on bias residual set to 0.\n")
+    table = _table_md(["angle", "stat", "paper CF", "ours `mahony`", "paper EKF", "ours `ekf`",
+                       "`mahony`, no gyro bias", "`ekf`, no gyro bias"], 2, lines)
+    return _section_md(sec, intro, table, fig_path), [fig_path]
 
 
 # --- 001 -----------------------------------------------------------------------------------
@@ -113,21 +119,17 @@ def _report_001(sec, out):
     diff = ", ".join(f"`{c}` {d:.1e}" for c, d in sec.numbers["aekf_ekf_max_diff"].items())
     same_md = [f"Largest difference between the aekf's and the ekf's quaternion components over seeds: {diff}.\n"]
     fig_path = _plot_switching(*sec.figure, out / "seed001_switching.png")
-    md = [f"## {SECTIONS['001']}\n",
-          f"Scenarios `seed001-slow`, `-fast`, `-faster` ({scenarios.SEED_SCENARIOS['seed001-fast']}); "
-          f"{len(sec.seeds)} seeds, RMSE in degrees, mean ± std over seeds; reduction = 1 - aekf/ekf per seed. "
-          "The paper's table is its experiment C (our `seed001-faster`) against a Polhemus tracker, and "
-          "compares with its ref. [17], not with a plain EKF.\n",
-          "| scenario | angle | ours `ekf` | ours `aekf` | reduction | paper aEKF | paper ref. [17] |",
-          "|---|---|---:|---:|---:|---:|---:|", *lines, "",
-          "How the aekf switches (percentage of samples whose variance was raised): inside / outside "
-          "the true disturbances (|a_lin| > 0.5 m/s²; magnet field > 5 % of the earth field).\n",
-          "| scenario | acc rejected, disturbed | acc rejected, quiet "
-          "| mag rejected, disturbed | mag rejected, quiet |",
-          "|---|---:|---:|---:|---:|", *sw_lines, "",
-          "Verdicts (paired over seeds):\n", *_verdicts(sec), "", *same_md, WHY,
-          f"![switching]({fig_path.name})\n"]
-    return md, [fig_path]
+    intro = (f"Scenarios `seed001-slow`, `-fast`, `-faster` ({scenarios.SEED_SCENARIOS['seed001-fast']}); "
+             f"{len(sec.seeds)} seeds, RMSE in degrees, mean ± std over seeds; reduction = 1 - aekf/ekf per seed. "
+             "The paper's table is its experiment C (our `seed001-faster`) against a Polhemus tracker, and "
+             "compares with its ref. [17], not with a plain EKF.\n")
+    table = _table_md(["scenario", "angle", "ours `ekf`", "ours `aekf`", "reduction", "paper aEKF",
+                       "paper ref. [17]"], 2, lines)
+    more = ["How the aekf switches (percentage of samples whose variance was raised): inside / outside "
+            "the true disturbances (|a_lin| > 0.5 m/s²; magnet field > 5 % of the earth field).\n",
+            *_table_md(["scenario", "acc rejected, disturbed", "acc rejected, quiet", "mag rejected, disturbed",
+                        "mag rejected, quiet"], 1, sw_lines)]
+    return _section_md(sec, intro, table, fig_path, more=more, notes=same_md), [fig_path]
 
 
 def _plot_switching(s, qs, dec, path):
@@ -183,19 +185,15 @@ def _report_003(sec, out):
                      f"{p['red_ekf']:.2f} % / {p['red_ukf']:.2f} % |")
     cutoff = sec.numbers["cutoff_hz"]
     fig_path = _plot_spectra(*sec.figure, cutoff, out / "seed003_spectra.png")
-    md = [f"## {SECTIONS['003']}\n",
-          f"Scenarios `seed003-static`, `-dynamic`, `-vibration` (icm20602+qmc5883l at 200 Hz); {len(sec.seeds)} "
-          "seeds. Roll error (estimate - truth) variance in deg², mean ± std over seeds; for the still cases this "
-          "is the variance of the roll output the paper reports. Reductions are of the std, per seed, as "
-          "the paper's percentages are (its 33.52 % = 1 - sqrt(0.001048 / 0.002371)).\n",
-          "| case | samples | `ekf` var | `ukf` var | `iir-ekf` var | std reduction vs EKF / vs UKF | "
-          "paper var EKF / UKF / IIR-EKF | paper reduction vs EKF / UKF |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|", *lines, "",
-          "Verdicts (paired over seeds):\n", *_verdicts(sec), "",
-          f"Share of the accelerometer's vibration tones that the 200 Hz sampling aliases below the `iir-ekf`'s "
-          f"{cutoff:g} Hz cut-off: {_pm(ps['alias_share_pct'], 0)} % per seed.\n", WHY,
-          f"![spectra]({fig_path.name})\n"]
-    return md, [fig_path]
+    intro = (f"Scenarios `seed003-static`, `-dynamic`, `-vibration` (icm20602+qmc5883l at 200 Hz); "
+             f"{len(sec.seeds)} seeds. Roll error (estimate - truth) variance in deg², mean ± std over seeds; for "
+             "the still cases this is the variance of the roll output the paper reports. Reductions are of the "
+             "std, per seed, as the paper's percentages are (its 33.52 % = 1 - sqrt(0.001048 / 0.002371)).\n")
+    table = _table_md(["case", "samples", "`ekf` var", "`ukf` var", "`iir-ekf` var", "std reduction vs EKF / vs UKF",
+                       "paper var EKF / UKF / IIR-EKF", "paper reduction vs EKF / UKF"], 1, lines)
+    notes = [f"Share of the accelerometer's vibration tones that the 200 Hz sampling aliases below the `iir-ekf`'s "
+             f"{cutoff:g} Hz cut-off: {_pm(ps['alias_share_pct'], 0)} % per seed.\n"]
+    return _section_md(sec, intro, table, fig_path, notes=notes), [fig_path]
 
 
 def _plot_spectra(s, qs, cutoff, path):
@@ -237,18 +235,14 @@ def _report_004(sec, out):
     fig_path = _plot_euler({f"{case} (seed {s.seed})": (s, errs) for case, (s, errs) in sec.figure.items()},
                            out / "seed004_errors.png", ncols=len(sec.figure),
                            title="mpu9250 at 500 Hz: Euler-angle error, ekf vs cf-ekf")
-    md = [f"## {SECTIONS['004']}\n",
-          f"Scenarios `seed004-static`, `seed004-fast` (mpu9250 at 500 Hz); {len(sec.seeds)} seeds; errors in "
-          "degrees, mean ± std over seeds; improvement = 1 - cf-ekf/ekf per seed. The patent claims the static "
-          "accuracy improves by 71 % (roll), 74 % (pitch), 66 % (yaw) over a plain EKF; it does not say "
-          "which statistic. The last block is a diagnosis, not the experiment: the same static scenario "
-          "with the gyro's turn-on bias residual set to 0.\n",
-          "| scenario | angle | `ekf` RMSE | `cf-ekf` RMSE | improvement "
-          "| `ekf` std | `cf-ekf` std | improvement | claimed |",
-          "|---|---|---:|---:|---:|---:|---:|---:|---:|", *lines, "",
-          "Verdicts on RMSE (paired over seeds):\n", *_verdicts(sec), "", WHY,
-          f"![errors]({fig_path.name})\n"]
-    return md, [fig_path]
+    intro = (f"Scenarios `seed004-static`, `seed004-fast` (mpu9250 at 500 Hz); {len(sec.seeds)} seeds; errors in "
+             "degrees, mean ± std over seeds; improvement = 1 - cf-ekf/ekf per seed. The patent claims the static "
+             "accuracy improves by 71 % (roll), 74 % (pitch), 66 % (yaw) over a plain EKF; it does not say "
+             "which statistic. The last block is a diagnosis, not the experiment: the same static scenario "
+             "with the gyro's turn-on bias residual set to 0.\n")
+    table = _table_md(["scenario", "angle", "`ekf` RMSE", "`cf-ekf` RMSE", "improvement", "`ekf` std",
+                       "`cf-ekf` std", "improvement", "claimed"], 2, lines)
+    return _section_md(sec, intro, table, fig_path, verdicts="Verdicts on RMSE (paired over seeds):"), [fig_path]
 
 
 # --- files ---------------------------------------------------------------------------------
