@@ -182,27 +182,8 @@ def vqf_method(cls_name, nominal=False):
 
     def update(d, n, nine):
         v = cls(ts(d))
-        upd = v.update
-        g, a = d.gyr[:n], d.acc[:n]
-        if nine:
-            m, get = d.mag_ut[:n], v.getQuat9D
-
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    upd(gi, ai, mi)
-                    q = get()
-                return q
-        else:
-            get = v.getQuat6D
-
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    upd(gi, ai)
-                    q = get()
-                return q
-        return go
+        return _last_loop(v.update, v.getQuat9D if nine else v.getQuat6D, d.gyr[:n], d.acc[:n],
+                          d.mag_ut[:n] if nine else None)
 
     def run(d, n, nine):
         v = cls(ts(d))                  # sample time fixed at construction: no per-sample dt
@@ -216,6 +197,26 @@ def vqf_method(cls_name, nominal=False):
                   per_sample_dt=False,
                   feeding="rad/s, m/s^2, uT; ENU; constant Ts = "
                           + ("1/fs (nominal)" if nominal else "mean step of t") + " (no per-sample dt API)")
+
+
+def _last_loop(upd, get, g, a, m=None):
+    """The timed per-sample loop of a peer: ``upd`` then ``get`` on every sample, keeping the
+    last output; one closure per case (with or without ``m``), so that the loop holds no branch."""
+    if m is not None:
+        def go():
+            q = None
+            for gi, ai, mi in zip(g, a, m):
+                upd(gi, ai, mi)
+                q = get()
+            return q
+    else:
+        def go():
+            q = None
+            for gi, ai in zip(g, a):
+                upd(gi, ai)
+                q = get()
+            return q
+    return go
 
 
 def _imufusion_ahrs(d):
@@ -257,36 +258,21 @@ def _imufusion_uneven_loop(ahrs, g, a, m, dts, out):
 def _imufusion_even_loop(ahrs, g, a, m, out):
     """One closure per case, so that the timed loop holds no branch; out=None keeps only the last."""
     get = ahrs.get_quaternion
+    upd = ahrs.update if m is not None else ahrs.update_no_magnetometer
+    if out is None:
+        return _last_loop(upd, get, g, a, m)
     if m is not None:
-        upd = ahrs.update
-        if out is not None:
-            def go():
-                for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
-                    upd(gi, ai, mi)
-                    out[i] = get()
-                return out
-        else:
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    upd(gi, ai, mi)
-                    q = get()
-                return q
+        def go():
+            for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
+                upd(gi, ai, mi)
+                out[i] = get()
+            return out
     else:
-        upd = ahrs.update_no_magnetometer
-        if out is not None:
-            def go():
-                for i, (gi, ai) in enumerate(zip(g, a)):
-                    upd(gi, ai)
-                    out[i] = get()
-                return out
-        else:
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    upd(gi, ai)
-                    q = get()
-                return q
+        def go():
+            for i, (gi, ai) in enumerate(zip(g, a)):
+                upd(gi, ai)
+                out[i] = get()
+            return out
     return go
 
 
