@@ -118,6 +118,13 @@ def count_invalid(gyr, acc, mag):
     return {"gyr": int(bad_g.sum()), "acc": int(bad_a.sum()), "mag": int(bad_m.sum())}
 
 
+def check_uneven_dt(est, r, gyr, acc, mag, compare=compare_state):
+    """A kernel against its reference over uneven steps (2-30 ms, a fixed draw)."""
+    dt = np.random.default_rng(5).uniform(0.002, 0.03, len(gyr))
+    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
+    compare(est, r)
+
+
 def check_ned_and_given_start(est, r, gyr, acc, mag, n6, compare=compare_state):
     """A NED kernel ``est`` against its NED reference ``r``: the run, then a start attitude
     given in NED and ``n6`` samples 6-axis."""
