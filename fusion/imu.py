@@ -300,8 +300,8 @@ class Vibration:
             raise ValueError(f"{own}.n_tones must be an integer >= 1, got {n!r}")
 
 
-#: Motor vibration of the platform of "IIR-EKF, IMU dynamic error suppression": its spectra show the noise in 130-200 Hz. The
-#: amplitudes are not in the paper; these (0.2 g, 3 deg/s rms per axis) are assumed, of the
+#: Motor vibration of the platform of "IIR-EKF, IMU dynamic error suppression" (seed 003): its
+#: spectra show the noise in 130-200 Hz. The amplitudes are not in the paper; these (0.2 g, 3 deg/s rms per axis) are assumed, of the
 #: order of small brushed/brushless drives on a light frame.
 VIBRATION_SEED003 = Vibration(130.0, 200.0, acc_rms=0.2 * G0, gyr_rms=3.0 * DEG)
 
@@ -396,29 +396,40 @@ _INV_ACC_NBW = 235.0
 _CAL_ACC = dict(scale_error_calibrated=0.003, misalignment_calibrated=0.002)
 _CAL_GYRO = dict(scale_error_calibrated=0.005, misalignment_calibrated=0.003)
 
+def _invensense_gyro(**kw):
+    """An InvenSense MEMS gyro of the presets: the family's bias instability and its random walk
+    (300 s correlation), a 16-bit ADC, the calibration residuals; ``kw`` the part's own values."""
+    return SensorSpec(bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0, bias_random_walk=_rrw(_INV_GYRO_BI, 300.0),
+                      adc_bits=16, **_CAL_GYRO, **kw)
+
+
+def _invensense_acc(**kw):
+    """An InvenSense MEMS accelerometer of the presets, as ``_invensense_gyro``."""
+    return SensorSpec(bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0, bias_random_walk=_rrw(_INV_ACC_BI, 300.0),
+                      adc_bits=16, **_CAL_ACC, **kw)
+
+
 PRESETS = {
     # A perfect sensor: returns the true signals sampled at the IMU rate.
     "ideal": IMUSpec("ideal", gyro=SensorSpec(), acc=SensorSpec(), mag=MagSpec(), rate_hz=100.0),
 
-    # "EKF attitude estimation for a spherical robot" (seed 000): MPU6050 + MAG3110, the robot's 10 Hz experiment. MPU-6000/6050 PS rev 3.4,
-    # register defaults FS_SEL = AFS_SEL = 0; DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
+    # "EKF attitude estimation for a spherical robot" (seed 000): MPU6050 + MAG3110, the robot's
+    # 10 Hz experiment. MPU-6000/6050 PS rev 3.4, register defaults FS_SEL = AFS_SEL = 0;
+    # DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
     "mpu6050+mag3110": IMUSpec(
         "mpu6050+mag3110",
-        gyro=SensorSpec(noise_density=0.005 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=20.0 * DEG,
-                        bias_turn_on_calibrated=0.8 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=5.0, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=400.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
-                       bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
-                       misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=5.0,
-                       **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.005 * DEG, bias_turn_on=20.0 * DEG, bias_turn_on_calibrated=0.8 * DEG,
+                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=5.0),
+        acc=_invensense_acc(noise_density=400.0 * UG, bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
+                            bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
+                            misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=5.0),
         mag=MagSpec(noise_rms=0.25, range=1000.0, lsb=0.1, adc_bits=16, rate_hz=80.0, hard_iron=100.0,
                     soft_iron=0.02, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=10.0, jitter_s=20e-6),
 
-    # "Adaptive EKF from predicted measurements, for arm attitude" (seed 001): Xsens MTi-10 at 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the
-    # same generation for bandwidths and magnetometer). Outputs are floats (no ADC words);
+    # "Adaptive EKF from predicted measurements, for arm attitude" (seed 001): Xsens MTi-10 at
+    # 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the same generation for bandwidths
+    # and magnetometer). Outputs are floats (no ADC words);
     # strapdown integration inside: "average" sampling.
     "mti10": IMUSpec(
         "mti10",
@@ -434,40 +445,33 @@ PRESETS = {
                     hard_iron_calibrated=0.5, soft_iron_calibrated=0.005),
         rate_hz=256.0, jitter_s=10e-6, sampling="average"),
 
-    # "IIR-EKF, IMU dynamic error suppression" (seed 003): ICM20602 (4096 LSB/g, +-8 g; 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's
-    # table 1) + QMC5883L, 200 Hz. ICM-20602 DS-000176 v1.0; DLPF register defaults
-    # (gyro 250 Hz, accelerometer 218.1 Hz): the paper gives no setting.
+    # "IIR-EKF, IMU dynamic error suppression" (seed 003): ICM20602 (4096 LSB/g, +-8 g;
+    # 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's table 1) + QMC5883L, 200 Hz. ICM-20602
+    # DS-000176 v1.0; DLPF register defaults (gyro 250 Hz, accelerometer 218.1 Hz): the paper
+    # gives no setting.
     "icm20602+qmc5883l": IMUSpec(
         "icm20602+qmc5883l",
-        gyro=SensorSpec(noise_density=0.004 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=1.0 * DEG,
-                        bias_turn_on_calibrated=0.05 * DEG, scale_error=0.01, misalignment=0.02,
-                        range=2000.0 * DEG, lsb=DEG / 16.4, adc_bits=16, lpf_hz=250.0,
-                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=100.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=40.0 * MG,
-                       bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
-                       misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, adc_bits=16, lpf_hz=218.1,
-                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.004 * DEG, bias_turn_on=1.0 * DEG, bias_turn_on_calibrated=0.05 * DEG,
+                              scale_error=0.01, misalignment=0.02, range=2000.0 * DEG, lsb=DEG / 16.4, lpf_hz=250.0,
+                              noise_bw_hz=_INV_GYRO_NBW),
+        acc=_invensense_acc(noise_density=100.0 * UG, bias_turn_on=40.0 * MG,
+                            bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
+                            misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, lpf_hz=218.1, noise_bw_hz=_INV_ACC_NBW),
         mag=MagSpec(noise_rms=0.2, range=8.0 * GAUSS, lsb=GAUSS / 3000.0, adc_bits=16, rate_hz=200.0,
                     hard_iron=10.0, soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=200.0, jitter_s=20e-6),
 
-    # "Attitude-angle solution for a mobile robot" (seed 004): MPU9250 (with its AK8963), 500 Hz. MPU-9250 PS rev 1.0/1.1, register
-    # defaults: +-250 deg/s, +-2 g, DLPF gyro 250 Hz / accelerometer 218.1 Hz, AK8963
-    # 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
+    # "Attitude-angle solution for a mobile robot" (seed 004): MPU9250 (with its AK8963), 500 Hz.
+    # MPU-9250 PS rev 1.0/1.1, register defaults: +-250 deg/s, +-2 g, DLPF gyro 250 Hz /
+    # accelerometer 218.1 Hz, AK8963 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
     "mpu9250": IMUSpec(
         "mpu9250",
-        gyro=SensorSpec(noise_density=0.01 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=5.0 * DEG,
-                        bias_turn_on_calibrated=0.3 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=250.0,
-                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=300.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
-                       bias_turn_on_calibrated=3.0 * MG, scale_error=0.03, misalignment=0.02,
-                       range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=218.1,
-                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.01 * DEG, bias_turn_on=5.0 * DEG, bias_turn_on_calibrated=0.3 * DEG,
+                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=250.0,
+                              noise_bw_hz=_INV_GYRO_NBW),
+        acc=_invensense_acc(noise_density=300.0 * UG, bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
+                            bias_turn_on_calibrated=3.0 * MG, scale_error=0.03, misalignment=0.02,
+                            range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=218.1, noise_bw_hz=_INV_ACC_NBW),
         mag=MagSpec(noise_rms=0.6, range=4800.0, lsb=0.6, adc_bits=14, rate_hz=100.0, hard_iron=75.0,
                     soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=500.0, jitter_s=20e-6),
