@@ -63,6 +63,11 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     return Bank._own(filters)
 
 
+def _shared(attr, doc):
+    """A read-only property every filter of a bank has alike (read from the first)."""
+    return property(lambda self: getattr(self._filters[0], attr), doc=doc)
+
+
 def _stacked(attr, doc):
     """A read-only property: every filter's ``attr`` stacked into one array (``Bank._stack``)."""
     return property(lambda self: self._stack(attr), doc=doc)
@@ -212,21 +217,10 @@ class Bank(BankCore):
         s = self._read(lambda: [e.skipped for e in self._filters])
         return {k: np.array([d[k] for d in s], dtype=np.int64) for k in ("gyr", "acc", "mag")}
 
-    @property
-    def name(self):
-        return self._filters[0].name
-
-    @property
-    def fs(self):
-        return self._filters[0].fs
-
-    @property
-    def frame(self):
-        return self._filters[0].frame
-
-    @property
-    def on_invalid(self):
-        return self._filters[0].on_invalid
+    name = _shared("name", "The estimator's name (fusion.available()).")
+    fs = _shared("fs", "Sample rate (Hz).")
+    frame = _shared("frame", '"ENU" or "NED", the frame of the quaternions in and out.')
+    on_invalid = _shared("on_invalid", '"raise" or "skip", what a non-finite or all-zero sample does.')
 
     @property
     def params(self):
