@@ -243,6 +243,10 @@ def _field_ut(norm_ut, dip_deg):
     return norm_ut * np.array([0.0, np.cos(d), -np.sin(d)])
 
 
+# The source documents by seed number: 000 "EKF attitude estimation for a spherical robot"
+# (Software Engineering, 2022), 001 "Adaptive EKF from predicted measurements, for arm
+# attitude", 003 "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023),
+# 004 "Attitude-angle solution for a mobile robot" (Chinese patent, 2019).
 # Per scenario: IMU preset, output rate fs (Hz), physics rate = ratio * fs, length (samples or
 # s), motion (turn, tilt in deg, freq in Hz, as SCENARIOS), window (s: still before and after,
 # seed 001's experiment B), lever (m: IMU on an arm this far from the pivot, along body x: the
