@@ -26,14 +26,11 @@ import sys
 import time
 
 import numpy as np
+import pybullet as p
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-import pybullet as p  # noqa: E402
-
-from envs import convergence  # noqa: E402
-from envs.robot import DCMotor, RobotParams, Servo, build_robot  # noqa: E402
-from envs.sphere import SphereRobotEnv  # noqa: E402
+from envs import convergence
+from envs.robot import DCMotor, RobotParams, Servo, build_robot
+from envs.sphere import SphereRobotEnv
 
 
 def rss_mb():

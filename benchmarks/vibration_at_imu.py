@@ -21,12 +21,8 @@ the ideal IMU and the MPU-9250 at each range setting (+-2, 4, 8, 16 g), straight
 0.6 drive over bumps 1 m apart (``envs.convergence.bump_peaks``; docs/envs/robot.md).
 """
 import argparse
-import os
-import sys
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 
 def measure(drive, seconds, realism, seed=0):
