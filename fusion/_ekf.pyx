@@ -408,8 +408,8 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
+              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, "acc_update": "vector",
               **REST_PARAMS, **MAGDIST_PARAMS}
 
