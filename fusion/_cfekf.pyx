@@ -77,7 +77,8 @@ cdef class CFEKF(EKF):
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
         self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
-                          acc_lowpass=p["acc_lowpass"], **{k: p[k] for k in MAGDIST_PARAMS})
+                          acc_lowpass=p["acc_lowpass"], rest_time=0.0,
+                          **{k: p[k] for k in MAGDIST_PARAMS})
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

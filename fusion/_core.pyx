@@ -54,7 +54,7 @@ PARAM_RANGES = {
     "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
     "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4), "acc_lowpass": (1e-3, 1e4),
     "rest_time": (1e-3, 1e4), "rest_gyro_tol": (1e-6, 10.0), "rest_acc_tol": (1e-6, 100.0),
-    "rest_noise": (1e-7, 1.0), "magdist_time": (1e-3, 1e5), "magdist_norm_tol": (1e-4, 10.0),
+    "rest_noise": (1e-7, 1.0), "rest_tau": (1e-3, 1e4), "magdist_time": (1e-3, 1e5), "magdist_norm_tol": (1e-4, 10.0),
     "magdist_dip_tol": (1e-3, 90.0), "magdist_new_time": (1e-3, 1e5),
 }
 

@@ -12,5 +12,6 @@ cdef class Mahony(Estimator):
     cdef double acc_lp[3]
     cdef double acc_qg[4]
     cdef bint acc_lp_started
+    cdef readonly double rest_tau      # s: the bias's time constant at rest
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil

@@ -7,9 +7,10 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG,
-                          BIAS_MAX, RECOVERY)
+                          BIAS_MAX, RECOVERY, REST_PARAMS)
 from fusion._ekf import check_choice, MAG_UPDATES
 from fusion._magdist cimport magd_check, magd_set
+from fusion._rest cimport rest_detect, rest_clear
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
@@ -218,6 +219,20 @@ cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, co
     acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
 
 
+cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
+                      double dt) noexcept nogil:
+    """Rest detection (fusion/_rest.pxd) on the raw samples and, at rest, the bias -ki eint
+    pulled toward the measured rate with the time constant rest_tau (first order; out of
+    line: the batch loop keeps its inlined step)."""
+    cdef double k
+    cdef int i
+    if not rest_detect(&e.rest, gyr, acc, dt) or e.ki <= 0.0:
+        return
+    k = dt / (e.rest_tau + dt)
+    for i in range(3):
+        eint[i] += k * (-gyr[i] / e.ki - eint[i])
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
@@ -226,7 +241,8 @@ cdef class Mahony(Estimator):
     # kp, ki and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md);
     # kp / ki = 100 s as before, so the integral learns the bias as fast
     PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
-              **MAGDIST_PARAMS}
+              "rest_time": REST_PARAMS["rest_time"], "rest_gyro_tol": REST_PARAMS["rest_gyro_tol"],
+              "rest_acc_tol": REST_PARAMS["rest_acc_tol"], "rest_tau": 1.0, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -237,6 +253,11 @@ cdef class Mahony(Estimator):
         self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
         self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
         magd_set(&self.magd, check_magdist_params(p))
+        # the shared rest detector; its zero-rate noise is the Kalman filters' (unused here)
+        self.rest.time = check_param("rest_time", p["rest_time"], allow_zero=True)
+        self.rest.gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
+        self.rest.acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
+        self.rest_tau = check_param("rest_tau", p["rest_tau"])
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
@@ -248,7 +269,7 @@ cdef class Mahony(Estimator):
                                                  ("acc_lp", <double[:3]>self.acc_lp, None),
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._magd_fields())
+                + self._rest_fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
@@ -256,6 +277,7 @@ cdef class Mahony(Estimator):
         self.eint[2] = 0.0
         self.t_recover = 0.0
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        rest_clear(&self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -271,6 +293,8 @@ cdef class Mahony(Estimator):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        if self.rest.time > 0.0:
+            mahony_rest(self, self.eint, gyr, acc, dt)
         if acc != NULL and self.acc_lowpass > 0.0:
             mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
             acc = af
@@ -312,6 +336,8 @@ cdef class Mahony(Estimator):
                 ai = a + 3 * i
                 if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
                     acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+                if self.rest.time > 0.0:
+                    mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
                 if self.acc_lowpass > 0.0:
                     mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
                     ai = af
