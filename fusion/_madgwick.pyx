@@ -4,7 +4,8 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_gyro_range, BIAS, RECOVERY
+from fusion._core import BIAS, RECOVERY
+from fusion.params import Param, table, GYRO_RANGE
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
@@ -28,14 +29,19 @@ cdef class Madgwick(Estimator):
     learning with gain zeta (rad/s^2). With gyro_range (rad/s) a saturated sample raises
     beta and holds the bias learning for 3 s (recovery_gain)."""
     name = "madgwick"
-    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None}
+    PARAMS = table(
+        Param("beta", 0.041, "rad/s", 1e-6, 1e3, "gradient-descent step rate (the gyro error it "
+              "corrects)"),
+        Param("zeta", 0.0, "rad/s²", 1e-9, 1e3, "gyro-bias learning gain; 0: no bias learning",
+              allow_zero=True),
+        GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
+                       "bias learning held"))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.beta = check_param("beta", p["beta"])
-        self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
-        self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        p = self._take_params(params)       # checked; gyro_range taken
+        self.beta = p["beta"]
+        self.zeta = p["zeta"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

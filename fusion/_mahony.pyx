@@ -6,10 +6,9 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG,
-                          BIAS_MAX, RECOVERY)
-from fusion._ekf import check_choice, MAG_UPDATES
-from fusion._magdist cimport magd_check, magd_set
+from fusion._core import FLAG, BIAS_MAX, RECOVERY
+from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS
+from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
@@ -225,18 +224,21 @@ cdef class Mahony(Estimator):
     name = "mahony"
     # kp, ki and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md);
     # kp / ki = 100 s as before, so the integral learns the bias as fast
-    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
-              **MAGDIST_PARAMS}
+    PARAMS = table(
+        Param("kp", 1.0, "1/s", 1e-6, 1e3, "proportional gain on the gravity and field errors",
+              allow_zero=True),
+        Param("ki", 0.01, "1/s²", 1e-9, 1e3, "integral gain (the bias learned is -ki ε)", allow_zero=True),
+        GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample kp is raised and the "
+                       "integral held"),
+        MAG_UPDATE, ACC_LOWPASS, *MAGDIST)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.kp = check_param("kp", p["kp"], allow_zero=True)
-        self.ki = check_param("ki", p["ki"], allow_zero=True)
-        self.gyro_range_ = check_gyro_range(p["gyro_range"])
-        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
-        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
-        magd_set(&self.magd, check_magdist_params(p))
+        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        self.kp = p["kp"]
+        self.ki = p["ki"]
+        self.mag_heading = p["mag_update"] == "heading"
+        self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

@@ -420,19 +420,19 @@ def test_bad_input_names_the_argument():
         imu.IMU(3, rng)
     with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
         imu.IMU("ideal", 0)
-    with pytest.raises(ValueError, match="physics_rate_hz must be a number > 0"):
+    with pytest.raises(ValueError, match="physics_rate_hz must be finite and > 0"):
         imu.IMU("ideal", rng, physics_rate_hz=-1.0)
     with pytest.raises(ValueError, match="physics_rate_hz must be >= the IMU rate"):
         imu.IMU("mpu9250", rng, physics_rate_hz=100.0)
     with pytest.raises(ValueError, match="mag_unit must be one of uT, nT"):
         imu.IMU("ideal", rng, mag_unit="tesla")
-    with pytest.raises(ValueError, match="IMUSpec.rate_hz must be a number > 0"):
+    with pytest.raises(ValueError, match="IMUSpec.rate_hz must be finite and > 0"):
         imu.preset("ideal").replace(rate_hz=0.0)
     with pytest.raises(ValueError, match="SensorSpec.lpf_hz must be .* > 0"):
         imu.SensorSpec(lpf_hz=0.0)
-    with pytest.raises(ValueError, match="SensorSpec.noise_density must be a number >= 0"):
+    with pytest.raises(ValueError, match="SensorSpec.noise_density must be finite and >= 0"):
         imu.SensorSpec(noise_density=-1.0)
-    with pytest.raises(ValueError, match=r"SensorSpec.bias_turn_on must be a number >= 0 or 3 such numbers"):
+    with pytest.raises(ValueError, match=r"SensorSpec.bias_turn_on must be finite and >= 0, or 3 such numbers"):
         imu.SensorSpec(bias_turn_on=(1.0, 2.0))
     with pytest.raises(ValueError, match="Vibration.f_high_hz must be >= f_low_hz"):
         imu.Vibration(200.0, 100.0)

@@ -201,7 +201,7 @@ def madgwick_runs(fs, noisy, nine_axis, seconds=8.0, written_form=False):
     m = mag if nine_axis else None
     q0 = ref.qmul(np.r_[math.cos(0.0873), math.sin(0.0873) * ref.normalise(np.array([1.0, -1.0, 0.5]))],
                   q_true[0])
-    beta = fusion.Madgwick.PARAMS["beta"]
+    beta = fusion.Madgwick.PARAMS["beta"].default
     est = fusion.make("madgwick", fs)
     est.reset(q0)
     out = {"kernel": est.run(gyr, acc, m), "ahrs": ahrs_madgwick(q0, gyr, acc, m, fs, beta)}
