@@ -386,8 +386,8 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
 
 
 cdef class EKF(Estimator):
-    """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
-    vector measurements and the Joseph-form covariance update."""
+    """Quaternion + gyro-bias extended Kalman filter (seeds 000, 003) with accelerometer and
+    magnetometer vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
     PARAMS = table(

@@ -30,10 +30,10 @@ cdef class Madgwick(Estimator):
     beta and holds the bias learning for 3 s (recovery_gain)."""
     name = "madgwick"
     PARAMS = table(
-        Param("beta", 0.041, "rad/s", 1e-6, 1e3, "gradient-descent step rate (the gyro error it "
-              "corrects)"),
-        Param("zeta", 0.0, "rad/s²", 1e-9, 1e3, "gyro-bias learning gain; 0: no bias learning",
-              allow_zero=True),
+        Param("beta", 0.041, "rad/s", 1e-6, 1e3, "step of the quaternion along the normalised "
+              "gradient, per second (the attitude turns by up to 2 beta rad/s toward the vectors)"),
+        Param("zeta", 0.0, "rad/s²", 1e-9, 1e3, "gain of Madgwick's gyro-bias compensation (0: off, as "
+              "in MadgwickAHRS.c and ahrs)", allow_zero=True),
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
                        "bias learning held"))
 

@@ -218,7 +218,7 @@ cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, co
 
 
 cdef class Mahony(Estimator):
-    """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
+    """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"

@@ -105,15 +105,15 @@ REST = (
 # magnetic disturbance rejection (docs/estimators.md, "Magnetic disturbances"): VQF's
 # thresholds and times
 MAGDIST = (
-    Param("magdist_time", 60.0, "s", 1e-3, 1e5, "magnetic disturbance detection: the longest a "
-          "disturbance is waited out before the field it shows is taken as the new reference; 0: "
-          "detection off", allow_zero=True),
+    Param("magdist_time", 60.0, "s", 1e-3, 1e5, "magnetic disturbance detection: after this long "
+          "rejecting (decaying twice as fast while undisturbed) the current field becomes the "
+          "reference; 0: detection off", allow_zero=True),
     Param("magdist_norm_tol", 0.1, "1", 1e-4, 10.0, "a field whose norm differs from the "
           "reference's by more than this share is disturbed"),
     Param("magdist_dip_tol", 10.0, "deg", 1e-3, 90.0, "a field whose dip differs from the "
           "reference's by more than this is disturbed"),
-    Param("magdist_new_time", 20.0, "s", 1e-3, 1e5, "a steady new field held this long (while "
-          "turning) becomes the reference"),
+    Param("magdist_new_time", 20.0, "s", 1e-3, 1e5, "a field other than the reference that stays "
+          "steady this long while the sensor turns (|ω| >= 20 °/s) becomes the reference"),
 )
 
 # saturation and gap recovery (docs/robustness.md, "Recovery")
