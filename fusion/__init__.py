@@ -19,13 +19,14 @@ from fusion._madgwick import Madgwick
 from fusion._ukf import UKF
 from fusion._cfekf import CFEKF
 from fusion._aekf import AEKF
+from fusion._triad import Triad
 from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
 __all__ = ["__version__", "Param", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF",
-           "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF", "Butterworth", "SlidingMean"]
+           "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF", "Triad", "Butterworth", "SlidingMean"]
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF, Triad)}
 
 
 def available() -> list[str]:
