@@ -34,6 +34,7 @@ import pybullet as p  # noqa: E402
 from envs import convergence  # noqa: E402
 from envs.robot import DCMotor, RobotParams, Servo, build_robot  # noqa: E402
 from envs.sphere import SphereRobotEnv  # noqa: E402
+from fusion.constants import GRAVITY  # noqa: E402
 
 
 def rss_mb():
@@ -62,7 +63,7 @@ class RawWorld:
         self.motor, self.servo = DCMotor(params), Servo(params)
         c = self.c = p.connect(p.DIRECT)
         p.resetSimulation(physicsClientId=c)
-        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setGravity(0, 0, -GRAVITY, physicsClientId=c)
         p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
         floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
         p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
