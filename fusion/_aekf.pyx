@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`aekf`: seed 001's adaptive EKF from predicted measurements, on the 7-state `ekf`
-(docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of fusion/_wahba.pxd."""
+"""`aekf`: the adaptive EKF of "Adaptive EKF from predicted measurements, for arm attitude",
+on the 7-state `ekf` (docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of
+fusion/_wahba.pxd."""
 import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
@@ -54,8 +55,9 @@ def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
 
 
 cdef class AEKF(EKF):
-    """Seed 001's adaptive EKF: the `ekf` whose accelerometer / magnetometer variances switch
-    to reject_factor times their values when the readings disagree with what the predicted
+    """The adaptive EKF of "Adaptive EKF from predicted measurements, for arm attitude": the
+    `ekf` whose accelerometer / magnetometer variances switch to reject_factor times their
+    values when the readings disagree with what the predicted
     attitude expects (linear acceleration, magnetic disturbance); with measurement="quest" a
     QUEST quaternion is the measurement while both sensors are accepted."""
     name = "aekf"

@@ -17,8 +17,9 @@ from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_bo
 
 from fusion._constants cimport GRAVITY as G0
 
-# the vector updates' gains: "vector" the Kalman gain (seed 003 as written), "heading" the
-# magnetometer's projected onto a turn about the vertical, "tilt" the accelerometer's off it
+# the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
+# error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
+# "tilt" the accelerometer's off it
 cdef enum:
     GAIN_FULL = 0
     GAIN_HEADING = 1
@@ -295,7 +296,8 @@ cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double*
 
 cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
-    # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
+    # "IIR-EKF, IMU dynamic error suppression", eqs. 11-16: the measured field in the navigation
+    # frame, its horizontal part
     # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
     # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
     # heading residuals tilt the estimate and drag the gyro bias with them.
@@ -517,12 +519,12 @@ cdef class EKF(Estimator):
 
     @property
     def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
+        """"heading" (the magnetometer corrects the heading only) or "vector" (the IIR-EKF paper's)."""
         return "heading" if self.mag_gain == GAIN_HEADING else "vector"
 
     @property
     def acc_update(self):
-        """"tilt" (the accelerometer corrects the inclination only) or "vector" (seed 003)."""
+        """"tilt" (the accelerometer corrects the inclination only) or "vector" (the IIR-EKF paper's)."""
         return "tilt" if self.acc_gain == GAIN_TILT else "vector"
 
     @property
@@ -539,7 +541,8 @@ cdef class EKF(Estimator):
 
 
 cdef class IIREKF(EKF):
-    """Seed 003's IIR-EKF: the `ekf` with a second-order Butterworth low-pass in front of the
+    """The IIR-EKF of "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023):
+    the `ekf` with a second-order Butterworth low-pass in front of the
     accelerometer (and optionally the magnetometer) to suppress vibration before it reaches
     the measurement update. cutoff_hz defaults to 40 Hz (the paper's, at 200 Hz sampling),
     lowered to 0.45 fs when the sample rate is too low for it."""

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`ukf`: unscented Kalman filter on the attitude error + gyro bias (docs/ukf.md), the UKF
-seed 003 compares against, with the process and measurement models of `ekf`."""
+that "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023)
+compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
 

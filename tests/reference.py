@@ -537,7 +537,20 @@ class RefRest:
         return False
 
 
-class RefEKF(RefEstimator):
+class RestAndMagCounts:
+    """The counts of a filter that holds a rest detector (``rest``) and a magnetic disturbance
+    detector (``magd``)."""
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
+
+    @property
+    def mag_rejected(self):
+        return self.magd.n
+
+
+class RefEKF(RestAndMagCounts, RefEstimator):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
               "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
@@ -599,14 +612,6 @@ class RefEKF(RefEstimator):
             H = np.zeros((3, 7))
             H[:, 4:] = I3
             self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
 
     def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost, measured_gyr,
-                       RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid,
+                       RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian, gyro_valid,
                        unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi, qconj, qmul,
                        rotmat, vector_valid)
 
@@ -155,7 +155,7 @@ def mag_model_rows(q, z):
     return np.einsum("kji,kj->ki", R, v)
 
 
-class RefUKF(RefEstimator):
+class RefUKF(RestAndMagCounts, RefEstimator):
     PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=0.5, acc_lowpass=1.0)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
@@ -180,14 +180,6 @@ class RefUKF(RefEstimator):
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
 
     @property
     def bias(self):

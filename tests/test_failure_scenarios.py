@@ -10,7 +10,8 @@ magnetic disturbance rejection: 6.7 / 8.0 deg total with the magnets)."""
 import pytest
 
 import fusion
-from fusion import compare, scenarios
+from fusion import scenarios
+from benchmarks import compare
 
 NAMES = ("ekf", "iir-ekf", "aekf", "ukf", "mahony", "cf-ekf")
 TOTAL_9, INCL = 4.0, 2.5

@@ -9,8 +9,8 @@ import pytest
 import fusion
 import reference as ref
 import reference_more as rm
-from _helpers import (FS, N, TOL, compare_state, count_invalid, inject_invalid, qdiff, recovery_data, rest_data,
-                      synthetic)
+from _helpers import (FS, N, TOL, check_ned_and_given_start, check_skipped, check_uneven_dt, compare_state,
+                      inject_invalid, qdiff, recovery_data, rest_data, synthetic)
 
 N_SHORT = 600       # dt / NED / skip variants (the UKF reference takes ~0.5 ms per sample)
 NAMES = ["madgwick", "ukf", "cf-ekf"]
@@ -112,19 +112,9 @@ def test_kernel_equals_reference_other_parameters(data, name, params):
 def test_uneven_dt_ned_and_a_given_start(data, name):
     _, gyr, acc, mag = data
     gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
-    dt = np.random.default_rng(5).uniform(0.002, 0.03, N_SHORT)
-    est, r = fusion.make(name, FS), rm.make(name, FS)
-    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
-    compare_more(est, r)
-    est, r = fusion.make(name, FS, frame="NED"), rm.make(name, FS, frame="NED")
-    assert qdiff(est.run(gyr, acc, mag), r.run(gyr, acc, mag)) < TOL
-    compare_more(est, r)
-    q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))      # given in NED, then 6-axis
-    est.reset(q0)
-    r.reset(q0)
-    assert np.abs(est.quaternion - q0).max() < 1e-15
-    assert qdiff(est.run(gyr[:300], acc[:300]), r.run(gyr[:300], acc[:300])) < TOL
-    compare_more(est, r)
+    check_uneven_dt(fusion.make(name, FS), rm.make(name, FS), gyr, acc, mag, compare_more)
+    check_ned_and_given_start(fusion.make(name, FS, frame="NED"), rm.make(name, FS, frame="NED"), gyr, acc, mag, 300,
+                              compare_more)
 
 
 @pytest.mark.parametrize("frame", ["ENU", "NED"])
@@ -133,15 +123,8 @@ def test_skip_invalid_samples(data, name, frame):
     _, gyr, acc, mag = data
     gyr, acc, mag = inject_invalid(gyr, acc, mag)
     gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
-    expected = count_invalid(gyr, acc, mag)
-    est = fusion.make(name, FS, frame=frame, on_invalid="skip")
-    r = rm.make(name, FS, frame=frame, on_invalid="skip")
-    q, qr = est.run(gyr, acc, mag), r.run(gyr, acc, mag)
-    assert qdiff(q, qr) < TOL
-    compare_more(est, r)
-    assert est.skipped == r.skipped == expected
-    identity = ref.C_NED if frame == "NED" else ref.IDENTITY
-    assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
+    check_skipped(fusion.make(name, FS, frame=frame, on_invalid="skip"),
+                  rm.make(name, FS, frame=frame, on_invalid="skip"), gyr, acc, mag, frame, compare_more)
 
 
 # --- madgwick against the peer library ahrs -------------------------------------------------
