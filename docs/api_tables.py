@@ -47,6 +47,16 @@ def _differing(cls, base):
     return [p for k, p in cls.PARAMS.items() if base.PARAMS.get(k) != p]
 
 
+def _first_sentence(text):
+    """text up to its first ". " outside parentheses (a citation's "J. Nanjing Univ." is not an end)."""
+    depth = 0
+    for i, c in enumerate(text):
+        depth += (c == "(") - (c == ")")
+        if c == "." and depth == 0 and text[i + 1:i + 2] in (" ", ""):
+            return text[:i]
+    return text
+
+
 def _base_of(name, classes):
     """The earlier estimator whose declarations this one shares most (at least half of its
     own), or None."""
@@ -65,7 +75,7 @@ def summary_table():
     classes = _classes()
     rows = ["| name | what | parameters (defaults) |", "|---|---|---|"]
     for name, cls in classes.items():
-        what = " ".join((cls.__doc__ or "").split()).split(". ")[0].rstrip(".")
+        what = _first_sentence(" ".join((cls.__doc__ or "").split()))
         base = _base_of(name, classes)
         params = _differing(cls, classes[base]) if base else list(cls.PARAMS.values())
         listed = ", ".join(f"`{p.name}={_value(p.default)}`" + (f" {p.unit}" if p.unit not in ("", "1") else "")
