@@ -67,6 +67,7 @@ cdef class AEKF(EKF):
         *[p for p in EKF.PARAMS.values() if p.name != "acc_lowpass"],
         EKF.PARAMS["acc_noise"].but(default=1.0),
         EKF.PARAMS["acc_update"].but(default="tilt"),
+        EKF.PARAMS["bias_init_std"].but(default=0.02),
         Param("acc_norm_tol", 1.0, "m/s²", 0.0, None, "accelerometer rejected if | |a| - g | > this; g "
               "is 9.81 until the first rest, then the accelerometer's low-passed norm at rest "
               "(seed 001's e_a1)", open_low=True),

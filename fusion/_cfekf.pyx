@@ -43,7 +43,9 @@ cdef class CFEKF(EKF):
     mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
     PARAMS = table(
-        *[_EKF.PARAMS[k] for k in ("gyro_noise", "bias_noise", "q_init_std", "bias_init_std")],
+        # the ekf's noise declarations at the values cf-ekf's folds chose (docs/accuracy.md)
+        _EKF.PARAMS["gyro_noise"].but(default=0.01), _EKF.PARAMS["bias_noise"], _EKF.PARAMS["q_init_std"],
+        _EKF.PARAMS["bias_init_std"].but(default=0.02),
         Param("window", None, "samples", 1, WINDOW_MAX, "sliding-mean length, step 1, on gyro, "
               "accelerometer and magnetometer; None: round(0.02 fs), at least 1", integer=True),
         _Mahony.PARAMS["kp"].but(allow_zero=False, doc="the complementary filter's proportional gain"),

@@ -388,12 +388,12 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
 
 
 cdef class EKF(Estimator):
-    """Quaternion + gyro-bias extended Kalman filter (seeds 000, 003) with accelerometer and
-    magnetometer vector measurements and the Joseph-form covariance update."""
+    """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
+    vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
     PARAMS = table(
-        Param("gyro_noise", 0.01, "rad/s/√Hz", 1e-5, 10.0, "gyro white-noise density (inflated over "
+        Param("gyro_noise", 0.015, "rad/s/√Hz", 1e-5, 10.0, "gyro white-noise density (inflated over "
               "datasheet figures, about 1e-4, to cover scale, misalignment and vibration)"),
         Param("bias_noise", 1e-4, "rad/s/√s", 1e-9, 0.01, "gyro bias random walk", allow_zero=True),
         Param("acc_noise", 0.5, "m/s²/√Hz", 1e-3, 1e3, "accelerometer noise density about gravity, "
@@ -401,8 +401,9 @@ cdef class EKF(Estimator):
         Param("mag_noise", 0.03, "1/√Hz", 1e-4, 10.0, "magnetometer noise density, relative to the "
               "field norm, including disturbances"),
         Param("q_init_std", 0.05, "1", 1e-4, 1.0, "initial std of each quaternion component"),
-        Param("bias_init_std", 0.02, "rad/s", 1e-6, 1.0, "initial std of each gyro bias component "
-              "(MEMS turn-on bias)", allow_zero=True),
+        Param("bias_init_std", 0.0087, "rad/s", 1e-6, 1.0, "initial std of each gyro bias component "
+              "(MEMS turn-on bias; 0.0087 = 0.5 °/s, VQF's, chosen leave-one-set-out: docs/accuracy.md)",
+              allow_zero=True),
         GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS,
         Param("acc_update", "vector", "", doc='"vector": seed 003\'s update; "tilt": the accelerometer '
               "corrects the inclination (and the bias across the vertical) only, so that a linear "

@@ -4,4 +4,6 @@ from fusion._core import Array, Estimator
 class Madgwick(Estimator):
     beta: float
     zeta: float
+    acc_lowpass: float
+    mag_update: str
     bias: Array

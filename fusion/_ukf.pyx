@@ -82,6 +82,7 @@ cdef class UKF(Estimator):
     # the ekf's but acc_update; every variance > 0: the sigma points need a positive-definite
     # covariance
     PARAMS = table(*[p for p in _EKF.PARAMS.values() if p.name != "acc_update"],
+                   _EKF.PARAMS["gyro_noise"].but(default=0.01),
                    _EKF.PARAMS["bias_noise"].but(allow_zero=False),
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
 

@@ -53,7 +53,7 @@ def wahba_svd(b, r, w):
 
 class RefAEKF(ref.RefEKF):
     PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0,
-                  acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
+                  bias_init_std=0.02, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 

@@ -328,7 +328,9 @@ def test_one_out_of_range_gyro_sample_does_not_derail(name):
     iir-ekf 8.5, aekf 24.5). The sample is now not a measurement, held as a dropped one:
     mean error over the last 30 s 0.13 deg (ekf; undisturbed 0.067), 0.10 (aekf; 0.068),
     final 0.12 deg, bias within 0.01 deg/s of the truth, and the same as dropping it.
-    The 0.05 deg left is the heading's slow return from the 0.9 deg turn the sample missed."""
+    The 0.05 deg left is the heading's slow return from the 0.9 deg turn the sample missed.
+    Since issue 19's bias_init_std 0.0087 rad/s the bias is learned more slowly (undisturbed:
+    0.023 deg/s off after 90 s, was within 0.01): the glitch is held to add at most 0.005."""
     run_script(f"""
         from fusion import quat
         from fusion.scenarios import make_scenario
@@ -350,7 +352,7 @@ def test_one_out_of_range_gyro_sample_does_not_derail(name):
         assert np.abs(q1 - q2).max() < 1e-12     # as a dropped sample (to the rounding of the
                                                  # ekf's inlined batch step)
         assert m1 < m0 + 0.1 and f1 < 0.25, (m0, m1, f1)
-        assert b1 < 0.01, b1
+        assert b1 < b0 + 0.005, (b0, b1)
     """)
 
 
