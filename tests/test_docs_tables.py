@@ -33,6 +33,7 @@ def test_a_changed_default_makes_the_pages_stale(monkeypatch):
 
 
 def test_the_table_shows_unit_default_range_and_meaning():
-    table = api_tables.param_table(fusion._REGISTRY["ekf"].PARAMS.values())
+    params = fusion._REGISTRY["ekf"].PARAMS
+    table = api_tables.param_table(params.values())
     row = next(r for r in table.splitlines() if r.startswith("| `gyro_noise`"))
-    assert "rad/s/√Hz" in row and "`0.01`" in row and "[1e-05, 10]" in row and "white-noise" in row
+    assert "rad/s/√Hz" in row and f"`{params['gyro_noise'].default}`" in row and "[1e-05, 10]" in row and "white-noise" in row
