@@ -31,6 +31,7 @@ import pybullet as p
 from envs import convergence
 from envs.robot import DCMotor, RobotParams, Servo, build_robot
 from envs.sphere import SphereRobotEnv
+from fusion.constants import GRAVITY
 
 
 def rss_mb():
@@ -59,7 +60,7 @@ class RawWorld:
         self.motor, self.servo = DCMotor(params), Servo(params)
         c = self.c = p.connect(p.DIRECT)
         p.resetSimulation(physicsClientId=c)
-        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setGravity(0, 0, -GRAVITY, physicsClientId=c)
         p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
         floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
         p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
@@ -244,7 +245,7 @@ def step_scaling(counts=(1, 2, 4, 8, 16), steps=2000, rounds=3):
         res = []
         for spread in (False, True):
             c = p.connect(p.DIRECT)
-            p.setGravity(0, 0, -9.81, physicsClientId=c)
+            p.setGravity(0, 0, -GRAVITY, physicsClientId=c)
             p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
             floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
             p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)

@@ -34,12 +34,13 @@ edge of the statistical precipice"), paired differences by bootstrap over the sh
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+from fusion.checks import integer
 
 if TYPE_CHECKING:
     from controllers.base import Controller
@@ -193,19 +194,13 @@ def run_episode(controller: Controller, env: Any, seed: int, settle_s: float = 2
     return out
 
 
-def _check_int(name, v, lo):
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < lo:
-        raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
-    return int(v)
-
-
 def evaluate(controller: Controller, env_kwargs: dict[str, Any] | None = None, episodes: int = 10, seed: int = 0,
              record_path: bool = False, env: Any = None) -> dict[str, Any]:
     """Run ``controller`` for ``episodes`` episodes of ``SphereRobotEnv(**env_kwargs)``
     (or of ``env`` if given), episode ``i`` seeded ``seed + i``. Returns
     ``{"episodes": [per-episode dicts], "summary": aggregate(...)}``."""
-    episodes = _check_int("episodes", episodes, 1)
-    seed = _check_int("seed", seed, 0)
+    episodes = integer("episodes", episodes, 1)
+    seed = integer("seed", seed, 0)
     own = env is None
     if own:
         from envs.sphere import SphereRobotEnv

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from controllers.base import Controller, obs_batch
+from fusion.checks import choice
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
                                    save_model, save_normalization, vec_normalize)
 
@@ -54,11 +55,6 @@ class UntrustedPolicyWarning(UserWarning):
 def available_policies() -> list[str]:
     """The names of the policies shipped in the package (``load_policy(name)`` takes them)."""
     return sorted(p.stem for p in POLICY_DIR.glob("*.zip"))
-
-
-def _check_choice(name, value, accepted):
-    if value not in accepted:
-        raise ValueError(f"unknown {name} {value!r}; accepted: {', '.join(accepted)}")
 
 
 def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR) -> Path:
@@ -91,8 +87,8 @@ def latest_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.P
 def hyperparams(algo: str, task: str) -> dict[str, Any]:
     """The YAML entry of ``algo`` for ``task``'s environment id, as a dict (a copy)."""
     import yaml
-    _check_choice("algorithm", algo, ALGOS)
-    _check_choice("task", task, tuple(TASK_IDS))
+    choice("algorithm", algo, ALGOS)
+    choice("task", task, tuple(TASK_IDS))
     path = HYPERPARAMS_DIR / f"{algo}.yml"
     with open(path) as f:
         table = yaml.safe_load(f)
@@ -682,9 +678,9 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
-    _check_choice("algorithm", algo, ALGOS)
-    _check_choice("task", task, tuple(TASK_IDS))
-    _check_choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
+    choice("algorithm", algo, ALGOS)
+    choice("task", task, tuple(TASK_IDS))
+    choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
     hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
     default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
     timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,

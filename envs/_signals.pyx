@@ -29,7 +29,7 @@ cdef extern from *:
     #endif
     """
 
-cdef double G = 9.81                 # envs.sphere.G
+from fusion._constants cimport GRAVITY as G     # envs.base.G
 cdef double TWO_PI = 6.283185307179586
 cdef tuple ZERO2 = (0.0, 0.0)        # the unused targets and gains of a torque command
 

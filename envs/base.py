@@ -10,7 +10,6 @@ import, so environments can be built in subprocesses; every ``reset`` empties th
 from __future__ import annotations
 
 import math
-import numbers
 import os
 import sys
 
@@ -20,6 +19,7 @@ from gymnasium import spaces
 
 import fusion
 from fusion import imu as fimu
+from fusion.checks import integer, number
 from fusion.constants import GRAVITY as G
 
 from envs import _signals
@@ -55,26 +55,6 @@ def obs_layout(parts):
 
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _number(name, value, lo, hi, lo_open=False, allow_zero=False):
-    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
-        value = value.item()        # a 0-d real array counts as its number
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {value!r}")
-    v = float(value)
-    if (v == 0 and allow_zero):
-        return v
-    if v < lo or v > hi or (lo_open and v == lo):
-        raise ValueError(f"{name} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
-                         f"{' or 0' if allow_zero else ''}, got {value!r}")
-    return v
-
-
-def _count(name, v, lo=0):
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not lo <= v <= 1000:
-        raise ValueError(f"{name} must be an integer in [{lo}, 1000], got {v!r}")
-    return int(v)
 
 
 def _vector3(name, value, what):
@@ -197,13 +177,13 @@ class SphereRobotBase(gym.Env):
         if self.robot.latency_s > 1.0 / self.control_hz + 1e-12:
             raise ValueError(f"robot.latency_s must be in [0, 1 / control_hz = {1.0 / self.control_hz:g}] s, "
                              f"got {self.robot.latency_s!r}")
-        self.arena_size = _number("arena_size", arena_size, 2.0, 1000.0)
+        self.arena_size = number("arena_size", arena_size, 2.0, 1000.0)
         eps = self.default_episode_s if episode_s is None else episode_s
-        self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
+        self.episode_s = number("episode_s", eps, 0.0, 1e6, open_low=True)
         self.max_steps = max(1, int(round(self.episode_s * self.control_hz)))
         self._check_world(imu_offset, bumps, bump_height, ramps, ramp_deg, ramp_height, n_mag_zones, earth_field)
-        self.slippery_patches = _count("slippery_patches", slippery_patches)
-        self.patch_friction = _number("patch_friction", patch_friction, 0.0, 1.0)
+        self.slippery_patches = integer("slippery_patches", slippery_patches, 0, 1000)
+        self.patch_friction = number("patch_friction", patch_friction, 0.0, 1.0)
         self._mag_zone_spec = _mag_zone_spec(mag_zones)
         try:
             rw, rh = (int(v) for v in render_size)
@@ -234,9 +214,9 @@ class SphereRobotBase(gym.Env):
     def _check_rates(self, imu_hz, physics_hz, control_hz):
         # lower bounds: the estimator's fs range starts at 1 Hz here (slower is no IMU), and one
         # step() runs at most MAX_SUBSTEPS physics steps (~50 us each: about half a second)
-        self.imu_hz = _number("imu_hz", imu_hz, 1.0, 10000.0)
-        self.physics_hz = _number("physics_hz", physics_hz, 0.0, 20000.0, lo_open=True)
-        self.control_hz = _number("control_hz", control_hz, 0.1, 1000.0)
+        self.imu_hz = number("imu_hz", imu_hz, 1.0, 10000.0)
+        self.physics_hz = number("physics_hz", physics_hz, 0.0, 20000.0, open_low=True)
+        self.control_hz = number("control_hz", control_hz, 0.1, 1000.0)
         if self.control_hz > self.imu_hz:
             raise ValueError(f"control_hz must be <= imu_hz = {self.imu_hz:g} Hz (one IMU sample or more per "
                              f"action), got {control_hz!r}")
@@ -262,11 +242,11 @@ class SphereRobotBase(gym.Env):
             raise ValueError(f"imu_offset must be 3 finite numbers {what}, got {imu_offset!r}")
         self.imu_offset = off
         self._has_offset = any(v != 0.0 for v in off)
-        self.bumps, self.ramps = _count("bumps", bumps), _count("ramps", ramps)
-        self.n_mag_zones = _count("n_mag_zones", n_mag_zones)
-        self.bump_height = _number("bump_height", bump_height, 0.001, 0.5 * self.robot.shell_radius)
-        self.ramp_deg = _number("ramp_deg", ramp_deg, 0.5, 30.0)
-        self.ramp_height = _number("ramp_height", ramp_height, 0.005, 1.0)
+        self.bumps, self.ramps = integer("bumps", bumps, 0, 1000), integer("ramps", ramps, 0, 1000)
+        self.n_mag_zones = integer("n_mag_zones", n_mag_zones, 0, 1000)
+        self.bump_height = number("bump_height", bump_height, 0.001, 0.5 * self.robot.shell_radius)
+        self.ramp_deg = number("ramp_deg", ramp_deg, 0.5, 30.0)
+        self.ramp_height = number("ramp_height", ramp_height, 0.005, 1.0)
         what = "(uT, ENU) with a norm in (0, 1e4)"
         ef = _vector3("earth_field", earth_field, what)
         if not 0 < math.sqrt(sum(v * v for v in ef)) < 1e4:
@@ -796,10 +776,7 @@ class SphereRobotBase(gym.Env):
                 raise ValueError(f"options['start_xy'] must be (x, y) inside the arena, got {options['start_xy']!r}")
             self._xy0 = xy
         if "start_yaw" in options:
-            yaw = options["start_yaw"]
-            if isinstance(yaw, bool) or not isinstance(yaw, numbers.Real) or not math.isfinite(yaw):
-                raise ValueError(f"options['start_yaw'] must be a finite angle (rad), got {yaw!r}")
-            self._yaw0 = float(yaw)
+            self._yaw0 = number("options['start_yaw']", options["start_yaw"])
 
     def step(self, action):
         a0, a1 = self._begin_step(action)

@@ -22,8 +22,8 @@ Sources and reasoning for each number: docs/envs/robot.md and the docstrings bel
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, fields, replace
+from fusion.checks import integer, number
 from fusion.constants import GRAVITY
 
 __all__ = ["RobotParams", "DCMotor", "Servo", "build_robot", "spin_torque", "DRIVE_JOINT", "STEER_JOINT", "REALISM"]
@@ -142,21 +142,11 @@ class RobotParams:
             "vib_motor": (0.0, 100.0), "vib_commutation": (0.0, 100.0), "vib_gear": (0.0, 100.0),
             "vib_seam": (0.0, 100.0), "mag_steer": (0.0, 1000.0), "mag_current": (0.0, 1000.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
         }
-        for name, (lo, hi) in ranges.items():
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-                raise ValueError(f"robot.{name} must be a finite number in [{lo}, {hi}], got {v!r}")
-            object.__setattr__(self, name, float(v))
-        for name, (lo, hi) in ranges.items():
-            v = getattr(self, name)
-            if name == "pendulum_length":
-                hi = 0.9 * self.shell_radius
-            if v < lo or v > hi:
-                raise ValueError(f"robot.{name} must be in [{lo:g}, {hi:g}], got {v!r}")
+        for name, (lo, hi) in ranges.items():     # shell_radius first: pendulum_length's bound
+            hi = 0.9 * self.shell_radius if name == "pendulum_length" else hi
+            object.__setattr__(self, name, number(f"robot.{name}", getattr(self, name), lo, hi))
         self._check_relations()
-        c = self.encoder_cpr
-        if isinstance(c, bool) or not isinstance(c, numbers.Integral) or not 1 <= c <= 10 ** 7:
-            raise ValueError(f"robot.encoder_cpr must be an integer in [1, 10000000], got {c!r}")
+        object.__setattr__(self, "encoder_cpr", integer("robot.encoder_cpr", self.encoder_cpr, 1, 10 ** 7))
         for name in ("frame_size", "pendulum_size"):
             v = getattr(self, name)
             try:

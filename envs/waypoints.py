@@ -5,7 +5,8 @@ import math
 
 import numpy as np
 
-from envs.base import SphereRobotBase, _count, _number
+from envs.base import SphereRobotBase
+from fusion.checks import integer, number
 
 __all__ = ["SphereBotWaypointsEnv"]
 
@@ -80,10 +81,10 @@ class SphereBotWaypointsEnv(SphereRobotBase):
     def __init__(self, estimator="ekf", imu="mpu9250", *, n_waypoints=4, waypoint_radius=0.5,
                  position_fix_hz=0.0, position_fix_std=0.5, **kwargs):
         super().__init__(estimator, imu, **kwargs)
-        self.n_waypoints = _count("n_waypoints", n_waypoints, lo=1)
-        self.waypoint_radius = _number("waypoint_radius", waypoint_radius, 0.05, 10.0)
-        self.position_fix_hz = _number("position_fix_hz", position_fix_hz, 0.0, self.control_hz)
-        self.position_fix_std = _number("position_fix_std", position_fix_std, 0.0, 100.0)
+        self.n_waypoints = integer("n_waypoints", n_waypoints, 1, 1000)
+        self.waypoint_radius = number("waypoint_radius", waypoint_radius, 0.05, 10.0)
+        self.position_fix_hz = number("position_fix_hz", position_fix_hz, 0.0, self.control_hz)
+        self.position_fix_std = number("position_fix_std", position_fix_std, 0.0, 100.0)
 
     def _draw_task(self):
         rng = self.np_random

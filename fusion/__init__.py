@@ -10,6 +10,7 @@ into the navigation frame (ENU, or NED with frame="NED"); ZYX Euler angles; SI u
 from typing import Any
 
 from fusion._version import __version__
+from fusion.params import Param
 from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
@@ -18,13 +19,14 @@ from fusion._madgwick import Madgwick
 from fusion._ukf import UKF
 from fusion._cfekf import CFEKF
 from fusion._aekf import AEKF
+from fusion._triad import Triad
 from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
-__all__ = ["__version__", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF", "IIREKF",
-           "Madgwick", "UKF", "CFEKF", "AEKF", "Butterworth", "SlidingMean"]
+__all__ = ["__version__", "Param", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF",
+           "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF", "Triad", "Butterworth", "SlidingMean"]
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF, Triad)}
 
 
 def available() -> list[str]:
@@ -38,7 +40,8 @@ def make(name: str, fs: float, frame: str = "ENU", on_invalid: str = "raise", **
     frame: "ENU" (default) or "NED", the navigation frame of quaternions in and out.
     on_invalid: "raise" (a ValueError names the first non-finite or all-zero sample) or
     "skip" (that measurement update is skipped and counted in est.skipped).
-    params: the estimator's own parameters, see type(est).PARAMS for names and defaults.
+    params: the estimator's own parameters, type(est).PARAMS declares them (name -> fusion.Param:
+    default, unit, accepted range, meaning).
     """
     try:
         cls = _REGISTRY[name]

@@ -1,13 +1,10 @@
 # Type stubs of the compiled fusion._aekf (fusion/_aekf.pyx).
-from typing import ClassVar
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._core import Array
 from fusion._ekf import EKF
 
-MEASUREMENTS: tuple[str, ...]
 ACC_REJECTED: int
 MAG_REJECTED: int
 QUEST_USED: int
@@ -16,39 +13,21 @@ def quest(b1: ArrayLike, b2: ArrayLike, r1: ArrayLike, r2: ArrayLike, w1: float 
           w2: float = 1.0) -> Array | None: ...
 
 class AEKF(EKF):
-    name: ClassVar[str]
     def record_decisions(self, on: bool = True) -> None: ...
-    @property
-    def decisions(self) -> NDArray[np.uint8]: ...
-    @property
-    def last_decision(self) -> int: ...
-    @property
-    def rejected(self) -> dict[str, int]: ...
-    @property
-    def tested(self) -> dict[str, int]: ...
-    @property
-    def quest_updates(self) -> int: ...
-    @property
-    def mag_reference(self) -> tuple[float, float] | None: ...
-    @property
-    def measurement(self) -> str: ...
-    @property
-    def mag_norm(self) -> float | None: ...
-    @property
-    def mag_dip(self) -> float | None: ...
-    @property
-    def acc_norm_tol(self) -> float: ...
-    @property
-    def acc_pred_tol(self) -> float: ...
-    @property
-    def acc_pred_timeout(self) -> float: ...
-    @property
-    def mag_norm_tol(self) -> float: ...
-    @property
-    def mag_dip_tol(self) -> float: ...
-    @property
-    def reject_factor(self) -> float: ...
-    @property
-    def learn_time(self) -> float: ...
-    @property
-    def quest_mag_weight(self) -> float: ...
+    decisions: NDArray[np.uint8]
+    last_decision: int
+    rejected: dict[str, int]
+    tested: dict[str, int]
+    quest_updates: int
+    mag_reference: tuple[float, float] | None
+    measurement: str
+    mag_norm: float | None
+    mag_dip: float | None
+    acc_norm_tol: float
+    acc_pred_tol: float
+    acc_pred_timeout: float
+    mag_norm_tol: float
+    mag_dip_tol: float
+    reject_factor: float
+    learn_time: float
+    quest_mag_weight: float

@@ -2,8 +2,6 @@
 """`aekf`: the adaptive EKF of "Adaptive EKF from predicted measurements, for arm attitude",
 on the 7-state `ekf` (docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of
 fusion/_wahba.pxd."""
-import numbers
-
 import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
@@ -12,36 +10,23 @@ from libc.stdlib cimport realloc, free
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
 from fusion._magdist cimport magd_check
-from fusion._core import check_positive, check_param, check_fs, FLAG, COUNT, TIMER, VALUE_MAX
+from fusion._core import check_fs, FLAG, COUNT, TIMER, VALUE_MAX
+from fusion.checks import number
+from fusion.params import Param, table
 from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
 from fusion._wahba cimport quest2
 
 cnp.import_array()
 
-cdef double G0 = 9.81
+from fusion._constants cimport GRAVITY as G0
 cdef double DEG = M_PI / 180.0
 cdef double UP[3]
 UP[:] = [0.0, 0.0, 1.0]
-
-MEASUREMENTS = ("vectors", "quest")
 
 # codes of est.decisions / est.last_decision (bits)
 ACC_REJECTED = 1
 MAG_REJECTED = 2
 QUEST_USED = 4
-
-
-def _check_range(name, value, lo, hi, lo_open, hi_open, unit=""):
-    """float(value) if it is a real number in the interval, else a ValueError naming it."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    v = float(value)
-    ok = np.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
-    if not ok:
-        rng = (("(" if lo_open else "[") + f"{lo:g}, " + (f"{hi:g}" if np.isfinite(hi) else "inf")
-               + (")" if hi_open or not np.isfinite(hi) else "]"))
-        raise ValueError(f"{name} must be finite and in {rng}{unit}, got {value!r}")
-    return v
 
 
 def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
@@ -62,8 +47,8 @@ def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
             raise ValueError(f"{('b1', 'b2', 'r1', 'r2')[i]} must be finite and non-zero")
         for j in range(3):
             v[i][j] = a[j] / n
-    cdef double c1 = check_positive("w1", w1)
-    cdef double c2 = check_positive("w2", w2)
+    cdef double c1 = number("w1", w1, 0.0, open_low=True)
+    cdef double c2 = number("w2", w2, 0.0, open_low=True)
     if not quest2(v[0], v[1], v[2], v[3], c1, c2, q):
         return None
     return np.array([q[0], q[1], q[2], q[3]])
@@ -78,33 +63,49 @@ cdef class AEKF(EKF):
     name = "aekf"
     # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer); the
     # accelerometer corrects the inclination only (docs/aekf.md, "Rest and tilt")
-    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0, bias_init_std=0.02, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
-                  mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
-                  mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
+    PARAMS = table(
+        *[p for p in EKF.PARAMS.values() if p.name != "acc_lowpass"],
+        EKF.PARAMS["acc_noise"].but(default=1.0),
+        EKF.PARAMS["acc_update"].but(default="tilt"),
+        EKF.PARAMS["bias_init_std"].but(default=0.02),
+        Param("acc_norm_tol", 1.0, "m/s²", 0.0, None, "accelerometer rejected if | |a| - g | > this; g "
+              "is 9.81 until the first rest, then the accelerometer's low-passed norm at rest "
+              "(seed 001's e_a1)", open_low=True),
+        Param("acc_pred_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if |a - g u| > this, u "
+              "the predicted vertical (e_a2)", open_low=True),
+        Param("acc_pred_timeout", 2.0, "s", 0.0, None, "a distance-test failure lasting longer than "
+              "this is the estimate's fault", open_low=True),
+        Param("mag_norm_tol", 0.1, "1", 0.0, None, "magnetometer rejected if | |m| / B_ref - 1 | > "
+              "this (e_m1)", open_low=True),
+        Param("mag_dip_tol", 5.0, "deg", 0.0, 180.0, "magnetometer rejected if the dip is off by more "
+              "than this (e_m2)", open_low=True),
+        Param("reject_factor", 1e4, "1", 1.0, 1e12, "a rejected sensor's variance is this times its own"),
+        Param("mag_norm", None, "mag. unit", 0.0, None, "reference field norm; None: learned",
+              open_low=True),
+        Param("mag_dip", None, "deg", -90.0, 90.0, "reference dip angle (positive: the field points "
+              "down, north hemisphere); None: learned", open_low=True, open_high=True),
+        Param("learn_time", 1.0, "s", 1e-6, 1e4, "the references are learned over the first "
+              "max(1, round(learn_time fs)) samples", allow_zero=True),
+        Param("measurement", "vectors", "", doc='"vectors": the two vector updates; "quest": the '
+              "QUEST quaternion when both sensors are accepted", choices=("vectors", "quest")),
+        Param("quest_mag_weight", 0.01, "1", 0.0, 1.0, "the magnetometer's Wahba weight (the "
+              "accelerometer's is 1 - quest_mag_weight)", open_low=True, open_high=True))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         own = set(self.PARAMS) - set(EKF.PARAMS)
-        p = self._take_params(params)       # unknown names: a ValueError naming the accepted
-        self.acc_norm_tol = check_positive("acc_norm_tol", p["acc_norm_tol"])
-        self.acc_pred_tol = check_positive("acc_pred_tol", p["acc_pred_tol"])
-        self.acc_pred_timeout = check_positive("acc_pred_timeout", p["acc_pred_timeout"])
-        self.mag_norm_tol = check_positive("mag_norm_tol", p["mag_norm_tol"])
-        self.mag_dip_tol = check_positive("mag_dip_tol", p["mag_dip_tol"], upper=180.0)
+        p = self._take_params(params)       # checked (EKF.__init__ takes the ekf's part)
+        self.acc_norm_tol = p["acc_norm_tol"]
+        self.acc_pred_tol = p["acc_pred_tol"]
+        self.acc_pred_timeout = p["acc_pred_timeout"]
+        self.mag_norm_tol = p["mag_norm_tol"]
+        self.mag_dip_tol = p["mag_dip_tol"]
         self.dip_tol_rad = self.mag_dip_tol * DEG
-        self.reject_factor = _check_range("reject_factor", p["reject_factor"], 1.0, 1e12,
-                                          False, False)
-        self.learn_time = check_param("learn_time", p["learn_time"], allow_zero=True)
-        self.quest_mag_weight = _check_range("quest_mag_weight", p["quest_mag_weight"], 0.0, 1.0,
-                                             True, True)
-        m = p["measurement"]
-        if not isinstance(m, str) or m not in MEASUREMENTS:
-            raise ValueError(f"measurement must be one of {MEASUREMENTS}, got {m!r}")
-        self.use_quest = m == "quest"
-        self.mag_norm_param = (None if p["mag_norm"] is None
-                               else check_positive("mag_norm", p["mag_norm"]))
-        self.mag_dip_param = (None if p["mag_dip"] is None
-                              else _check_range("mag_dip", p["mag_dip"], -90.0, 90.0, True, True,
-                                                " degrees"))
+        self.reject_factor = p["reject_factor"]
+        self.learn_time = p["learn_time"]
+        self.quest_mag_weight = p["quest_mag_weight"]
+        self.use_quest = p["measurement"] == "quest"
+        self.mag_norm_param = p["mag_norm"]
+        self.mag_dip_param = p["mag_dip"]
         self.learn_norm = self.mag_norm_param is None
         self.learn_dip = self.mag_dip_param is None
         self.norm_given = 0.0 if self.learn_norm else self.mag_norm_param

@@ -1,6 +1,4 @@
 # Type stubs of the compiled fusion._cfekf (fusion/_cfekf.pyx).
-from typing import ClassVar
-
 from fusion._core import Array
 from fusion._ekf import EKF
 
@@ -10,16 +8,9 @@ MAHONY_KI: float
 def default_window(fs: float) -> int: ...
 
 class CFEKF(EKF):
-    name: ClassVar[str]
-    @property
-    def window(self) -> int: ...
-    @property
-    def kp(self) -> float | None: ...
-    @property
-    def ki(self) -> float | None: ...
-    @property
-    def cf_noise(self) -> float: ...
-    @property
-    def bias_feedback(self) -> bool: ...
-    @property
-    def cf_quaternion(self) -> Array: ...
+    window: int
+    kp: float
+    ki: float
+    cf_noise: float
+    bias_feedback: bool
+    cf_quaternion: Array

@@ -9,10 +9,11 @@ from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
-from fusion._prefilter import check_window
-from fusion._core import check_positive, check_param, check_rest_params, REST_PARAMS, MAGDIST_PARAMS, FLAG, TIMER
-from fusion._ekf import check_recovery_params
+from fusion._prefilter import WINDOW_MAX
+from fusion._core import FLAG, TIMER
+from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
+from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
@@ -21,7 +22,7 @@ MAHONY_KI = 0.005     # ki's default without bias_feedback (mahony's before issu
 # bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
 # with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
 # 2 acos(LEARN_COS) = 2 deg of the EKF's prediction
-cdef double G0 = 9.81
+from fusion._constants cimport GRAVITY as G0
 cdef double LEARN_ACC_TOL = 0.5             # m/s^2, the aekf's acc_norm_tol
 cdef double LEARN_COS = 0.99984769515639127 # cos(1 deg): 2 deg between the quaternions
 cdef double LEARN_HOLD = 0.5                # s
@@ -41,44 +42,49 @@ cdef class CFEKF(EKF):
     integrates the averaged gyro minus the EKF's bias (ki then defaults to 0, else to
     mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
     name = "cf-ekf"
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 1.0, "ki": None, "cf_noise": 0.005, "gyro_range": None,
-              "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
-              **REST_PARAMS, **MAGDIST_PARAMS}
+    PARAMS = table(
+        # the ekf's noise declarations at the values cf-ekf's folds chose (docs/accuracy.md)
+        _EKF.PARAMS["gyro_noise"].but(default=0.01), _EKF.PARAMS["bias_noise"], _EKF.PARAMS["q_init_std"],
+        _EKF.PARAMS["bias_init_std"].but(default=0.02),
+        Param("window", None, "samples", 1, WINDOW_MAX, "sliding-mean length, step 1, on gyro, "
+              "accelerometer and magnetometer; None: round(0.02 fs), at least 1", integer=True),
+        _Mahony.PARAMS["kp"].but(allow_zero=False, doc="the complementary filter's proportional gain"),
+        _Mahony.PARAMS["ki"].but(default=None, doc="its integral gain; None: 0 with bias_feedback, "
+                                 f"else {MAHONY_KI}"),
+        Param("cf_noise", 0.005, "1/√Hz", 1e-4, 10.0, "noise density of each component of the "
+              "complementary filter's quaternion, as a measurement"),
+        GYRO_RANGE, MOTION_RATE,
+        Param("bias_feedback", True, "", doc="the complementary filter integrates the averaged gyro "
+              "minus the EKF's bias, which the EKF learns from the filter only while it is quiet"),
+        MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
-        self.q_init_std = check_param("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
-        self.cf_noise = check_param("cf_noise", p["cf_noise"])
-        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
-        kp = check_param("kp", p["kp"])
-        if p["bias_feedback"] not in (True, False):
-            raise ValueError(f"bias_feedback must be True or False, got {p['bias_feedback']!r}")
-        self.bias_feedback = bool(p["bias_feedback"])
+        p = self._take_params(params)       # checked; gyro_range, rest taken
+        self.gyro_noise = p["gyro_noise"]
+        self.bias_noise = p["bias_noise"]
+        self.q_init_std = p["q_init_std"]
+        self.bias_init_std = p["bias_init_std"]
+        self.cf_noise = p["cf_noise"]
+        self.bias_feedback = p["bias_feedback"]
         # with the EKF's bias fed back the complementary filter needs no integral of its own
         # (docs/cfekf.md, "bias_feedback"); without it, mahony's default
         ki = p["ki"]
         if ki is None:
             ki = 0.0 if self.bias_feedback else MAHONY_KI
-        ki = check_param("ki", ki, allow_zero=True)
-        w = p["window"]
-        w = check_window(default_window(self.fs) if w is None else w, " or None (round(0.02 fs))")
-        self.pre_gyr = SlidingMean(int(w))
-        self.pre_acc = SlidingMean(int(w))
-        self.pre_mag = SlidingMean(int(w))
+        w = default_window(self.fs) if p["window"] is None else p["window"]
+        self.pre_gyr = SlidingMean(w)
+        self.pre_acc = SlidingMean(w)
+        self.pre_mag = SlidingMean(w)
         # a saturated gyro (tested on the raw samples: _process) restarts the complementary
         # filter's gain ramp, and the EKF's attitude covariance grows as the ekf's does, so
         # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
-        self.gyro_range_, self.motion_rate = check_recovery_params(p)
+        self.motion_rate = p["motion_rate"]
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
-        self.cf = _Mahony(self.fs, kp=kp, ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
+        self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
                           acc_lowpass=p["acc_lowpass"], rest_time=0.0,
-                          **{k: p[k] for k in MAGDIST_PARAMS})
+                          **{d.name: p[d.name] for d in MAGDIST})
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

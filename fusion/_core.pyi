@@ -1,13 +1,19 @@
 # Type stubs of the compiled fusion._core (fusion/_core.pyx): the Estimator base class of every
 # kernel and the shared checks. Keep in step with the .pyx (tests/test_code_health.py checks
-# that the public names exist).
+# that the public names exist). A kernel's stub declares what it adds; its parameters and
+# properties are read-only attributes (annotations here). Classes named with a leading underscore are
+# stub-only groups of attributes that several kernels have (no such class at run time).
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.params import Param
+
 Array = NDArray[np.float64]
 
+GRAVITY: float
+STANDARD_GRAVITY: float
 FRAMES: tuple[str, ...]
 ON_INVALID: tuple[str, ...]
 STATE_VERSION: int
@@ -19,25 +25,18 @@ COV_MAX: float
 DT_MIN: float
 DT_MAX: float
 FUSED_CHECK_MIN: int
-PARAM_RANGES: dict[str, tuple[float, float]]
-REST_PARAMS: dict[str, float]
 
-def check_positive(name: str, value: Any, upper: float | None = None, allow_zero: bool = False,
-                   lower: float | None = None) -> float: ...
-def check_rest_params(p: dict[str, Any]) -> tuple[float, float, float, float]: ...
-def check_gyro_range(value: Any) -> float: ...
-def check_param(name: str, value: Any, allow_zero: bool = False) -> float: ...
 def check_fs(value: Any) -> float: ...
 def check_dt(value: Any) -> float: ...
 
 class Prefilter: ...
 
 class Estimator:
-    PARAMS: ClassVar[dict[str, Any]]
+    PARAMS: ClassVar[dict[str, Param]]
     name: ClassVar[str | None]
-    @property
-    def fs(self) -> float: ...
-    def __init__(self, fs: float, frame: str = "ENU", on_invalid: str = "raise") -> None: ...
+    fs: float
+    # the kernels take their parameters (PARAMS) as keywords; the base class none
+    def __init__(self, fs: float, frame: str = "ENU", on_invalid: str = "raise", **params: Any) -> None: ...
     def reset(self, q0: ArrayLike | None = None) -> None: ...
     def update(self, gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None = None,
                dt: float | None = None) -> Array: ...
@@ -47,38 +46,34 @@ class Estimator:
     def load_state(self, state: dict[str, Any]) -> None: ...
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> Estimator: ...
-    @property
-    def quaternion(self) -> Array: ...
-    @property
-    def euler(self) -> Array: ...
-    @property
-    def bias(self) -> Array | None: ...
-    @property
-    def covariance(self) -> Array | None: ...
-    @property
-    def gyro_range(self) -> float | None: ...
-    @property
-    def rest_time(self) -> float: ...
-    @property
-    def rest_gyro_tol(self) -> float: ...
-    @property
-    def rest_acc_tol(self) -> float: ...
-    @property
-    def rest_noise(self) -> float: ...
-    @property
-    def at_rest(self) -> bool: ...
-    @property
-    def rest_samples(self) -> int: ...
-    @property
-    def frame(self) -> str: ...
-    @property
-    def on_invalid(self) -> str: ...
-    @property
-    def initialised(self) -> bool: ...
-    @property
-    def skipped(self) -> dict[str, int]: ...
-    @property
-    def prefilters(self) -> dict[str, Prefilter | None]: ...
-    @property
-    def params(self) -> dict[str, Any]: ...
+    quaternion: Array
+    euler: Array
+    bias: Array | None
+    covariance: Array | None
+    gyro_range: float | None
+    rest_time: float
+    rest_gyro_tol: float
+    rest_acc_tol: float
+    rest_noise: float
+    at_rest: bool
+    rest_samples: int
+    frame: str
+    on_invalid: str
+    initialised: bool
+    skipped: dict[str, int]
+    prefilters: dict[str, Prefilter | None]
+    params: dict[str, Any]
     def __reduce__(self) -> tuple[Any, ...]: ...
+
+
+class _KalmanParams:
+    """The process and measurement noise of the Kalman filters (ekf family, ukf)."""
+    gyro_noise: float
+    bias_noise: float
+    acc_noise: float
+    mag_noise: float
+    q_init_std: float
+    bias_init_std: float
+    motion_rate: float
+    bias: Array
+    covariance: Array

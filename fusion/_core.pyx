@@ -1,12 +1,12 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """Estimator base class: the public interface shared by every kernel (docs/estimators.md)."""
-import numbers
-
 import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
-from fusion._magdist cimport magd_clear
+from fusion._magdist cimport magd_clear, magd_set
+from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
+from fusion.checks import number, choice
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -17,6 +17,10 @@ cnp.import_array()
 # c = [0, √½, √½, 0] (output_q in _core.pxd), its conjugate for q0 given in NED.
 cdef double C_NED_CONJ[4]
 C_NED_CONJ[:] = [0.0, -SQRT_HALF, -SQRT_HALF, 0.0]
+
+# fusion/_constants.pxd's values, for fusion.constants (their Python names)
+GRAVITY = C_GRAVITY
+STANDARD_GRAVITY = C_STANDARD_GRAVITY
 
 FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
@@ -43,88 +47,14 @@ COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s
 DT_MIN = 1e-6
 DT_MAX = 100.0
 
-# Accepted ranges of the estimators' parameters, name: (smallest positive value, largest
-# value): wide enough for any real sensor and tuning (datasheet noise densities are about
-# 1e-4 rad/s/sqrt(Hz) and 2e-3 m/s^2/sqrt(Hz)), narrow enough that no combination with dt in
-# [DT_MIN, DT_MAX] and any valid sample over- or underflows to NaN or leaves the covariance
-# indefinite (tests/test_fuzz.py).
-PARAM_RANGES = {
-    "gyro_noise": (1e-5, 10.0), "bias_noise": (1e-9, 0.01), "acc_noise": (1e-3, 1e3),
-    "mag_noise": (1e-4, 10.0), "q_init_std": (1e-4, 1.0), "bias_init_std": (1e-6, 1.0),
-    "cf_noise": (1e-4, 10.0), "kp": (1e-6, 1e3), "ki": (1e-9, 1e3), "beta": (1e-6, 1e3),
-    "zeta": (1e-9, 1e3), "learn_time": (1e-6, 1e4), "acc_lowpass": (1e-3, 1e4),
-    "rest_time": (1e-3, 1e4), "rest_gyro_tol": (1e-6, 10.0), "rest_acc_tol": (1e-6, 100.0),
-    "rest_noise": (1e-7, 1.0), "rest_tau": (1e-3, 1e4), "magdist_time": (1e-3, 1e5), "magdist_norm_tol": (1e-4, 10.0),
-    "magdist_dip_tol": (1e-3, 90.0), "magdist_new_time": (1e-3, 1e5),
-}
-
-
-def check_positive(name, value, upper=None, allow_zero=False, lower=None):
-    """Return value as float if it is a finite real number > 0 (>= 0 with allow_zero), and
-    (if given) >= lower (zero, where allowed, excepted) and <= upper. A 0-d real array
-    (what indexing or reducing an array gives) counts as its number."""
-    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
-        value = value.item()
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    v = float(value)
-    ok = (np.isfinite(v) and (v >= 0.0 if allow_zero else v > 0.0)
-          and (upper is None or v <= upper) and (lower is None or v == 0.0 or v >= lower))
-    if not ok:
-        rng = f"{'>= 0' if allow_zero else '> 0'}"
-        if lower is not None:
-            rng += f" and in [{lower:g}, {upper:g}]" + (" (or 0)" if allow_zero else "")
-        elif upper is not None:
-            rng += f" and <= {upper}"
-        raise ValueError(f"{name} must be finite and {rng}, got {value!r}")
-    return v
-
-
-# rest detection (docs/estimators.md, "Rest"): 2 deg/s and 0.5 m/s^2 are VQF's thresholds
-REST_PARAMS = {"rest_time": 1.5, "rest_gyro_tol": 0.034906585039886591, "rest_acc_tol": 0.5,
-               "rest_noise": 1e-3}
-
-
-def check_rest_params(p):
-    """(rest_time, rest_gyro_tol, rest_acc_tol, rest_noise) from the merged parameters p."""
-    return (check_param("rest_time", p["rest_time"], allow_zero=True),
-            check_param("rest_gyro_tol", p["rest_gyro_tol"]),
-            check_param("rest_acc_tol", p["rest_acc_tol"]), check_param("rest_noise", p["rest_noise"]))
-
-
-# magnetic disturbance rejection (docs/estimators.md, "Magnetic disturbances"): VQF's
-# thresholds and times (s; the dip tolerance in degrees)
-MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_tol": 10.0,
-                  "magdist_new_time": 20.0}
-
-
-def check_magdist_params(p):
-    """(magdist_time, magdist_norm_tol, magdist_dip_tol in degrees, magdist_new_time) from
-    the merged parameters p; magdist_time 0 turns the detection off."""
-    return (check_param("magdist_time", p["magdist_time"], allow_zero=True),
-            check_param("magdist_norm_tol", p["magdist_norm_tol"]),
-            check_param("magdist_dip_tol", p["magdist_dip_tol"]),
-            check_param("magdist_new_time", p["magdist_new_time"]))
-
-
-def check_gyro_range(value):
-    """gyro_range (docs/robustness.md, "Recovery"): None (unknown, stored as 0) or > 0 rad/s."""
-    return 0.0 if value is None else check_positive("gyro_range", value, upper=1e6)
-
-
-def check_param(name, value, allow_zero=False):
-    """check_positive with the range of PARAM_RANGES[name]."""
-    lo, hi = PARAM_RANGES[name]
-    return check_positive(name, value, upper=hi, allow_zero=allow_zero, lower=lo)
-
 
 def check_fs(value):
     """The sample rate in Hz: 1 / fs must be a valid dt."""
-    return check_positive("fs", value, lower=1.0 / DT_MAX, upper=1.0 / DT_MIN)
+    return number("fs", value, 1.0 / DT_MAX, 1.0 / DT_MIN)
 
 
 def check_dt(value):
-    return check_positive("dt", value, lower=DT_MIN, upper=DT_MAX)
+    return number("dt", value, DT_MIN, DT_MAX)
 
 
 def _as_samples(x, name, int n=-1):
@@ -323,7 +253,8 @@ cdef void _release(Estimator e) noexcept:
 cdef class Estimator:
     """Base of every attitude estimator. Use fusion.make(name, fs, ...) to build one."""
 
-    #: Parameter names and defaults of this estimator (subclasses fill it in).
+    #: This estimator's parameters, name -> fusion.Param (default, unit, range, doc); the
+    #: subclasses declare theirs, with fusion.params.table.
     PARAMS = {}
     #: Registry name (subclasses fill it in).
     name = None
@@ -333,23 +264,32 @@ cdef class Estimator:
             raise RuntimeError("estimator in use by another thread")
         self.fs = check_fs(fs)
         self.dt_nominal = 1.0 / self.fs
-        if frame not in FRAMES:
-            raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
-        if on_invalid not in ON_INVALID:
-            raise ValueError(f"on_invalid must be one of {ON_INVALID}, got {on_invalid!r}")
+        choice("frame", frame, FRAMES)
+        choice("on_invalid", on_invalid, ON_INVALID)
         self.ned = frame == "NED"
         self.skip_invalid = on_invalid == "skip"
 
     def _take_params(self, params):
-        """Defaults overridden by params; unknown names are a ValueError naming the accepted ones."""
+        """The parameters: each given one checked by its Param, the defaults for the rest.
+        Unknown names, and bad values, are a ValueError naming them and what is accepted.
+        The parts the base class holds (saturation range, rest and magnetic disturbance
+        detection) take theirs here, in the estimators that declare them."""
         unknown = sorted(set(params) - set(self.PARAMS))
         if unknown:
             accepted = ", ".join(sorted(self.PARAMS)) or "none"
             raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for estimator "
                              f"{self.name!r}; accepted: {accepted}")
-        merged = dict(self.PARAMS)
-        merged.update(params)
-        return merged
+        p = {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
+        if "gyro_range" in p:
+            self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
+        if "rest_time" in p:
+            self.rest.time, self.rest.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
+            # a filter without a zero-rate update (mahony) declares no rest_noise
+            self.rest.acc_tol, self.rest.noise = p["rest_acc_tol"], p.get("rest_noise", 0.0)
+        if "magdist_time" in p:
+            magd_set(&self.magd, (p["magdist_time"], p["magdist_norm_tol"], p["magdist_dip_tol"],
+                                  p["magdist_new_time"]))
+        return p
 
     # --- kernel hooks -------------------------------------------------------------------
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,

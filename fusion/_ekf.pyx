@@ -5,42 +5,26 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._rest cimport rest_detect, rest_clear
-from fusion._magdist cimport magd_check, magd_set
+from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
-from fusion._core import (check_rest_params, REST_PARAMS, check_magdist_params, MAGDIST_PARAMS, check_param, check_fs,
-                          check_positive, check_gyro_range, FLAG, BIAS, COV, TIMER)
+from fusion._core import check_fs, FLAG, BIAS, COV, TIMER
+from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
-cdef double G0 = 9.81
-MOTION_RATE_MAX = 100.0     # rad/s; the variance it adds is capped at pi^2 anyway
-
-
-def check_recovery_params(p):
-    """(gyro_range, motion_rate) of docs/robustness.md, "Recovery": gyro_range None (unknown:
-    stored as 0) or > 0 rad/s; motion_rate in [0, 100] rad/s (0: no inflation)."""
-    return check_gyro_range(p["gyro_range"]), check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
-
+from fusion._constants cimport GRAVITY as G0
 
 # the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
 # error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
 # "tilt" the accelerometer's off it
-MAG_UPDATES = ("heading", "vector")
-ACC_UPDATES = ("tilt", "vector")
 cdef enum:
     GAIN_FULL = 0
     GAIN_HEADING = 1
     GAIN_TILT = 2
     GAIN_BIAS = 3
-
-
-def check_choice(name, value, choices):
-    if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-    return value
 
 
 cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
@@ -408,27 +392,38 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
-    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", "acc_lowpass": 1.0, "acc_update": "vector",
-              **REST_PARAMS, **MAGDIST_PARAMS}
+    PARAMS = table(
+        Param("gyro_noise", 0.015, "rad/s/√Hz", 1e-5, 10.0, "gyro white-noise density (inflated over "
+              "datasheet figures, about 1e-4, to cover scale, misalignment and vibration)"),
+        Param("bias_noise", 1e-4, "rad/s/√s", 1e-9, 0.01, "gyro bias random walk", allow_zero=True),
+        Param("acc_noise", 0.5, "m/s²/√Hz", 1e-3, 1e3, "accelerometer noise density about gravity, "
+              "including the linear acceleration a moving body adds (datasheets: about 0.002)"),
+        Param("mag_noise", 0.03, "1/√Hz", 1e-4, 10.0, "magnetometer noise density, relative to the "
+              "field norm, including disturbances"),
+        Param("q_init_std", 0.05, "1", 1e-4, 1.0, "initial std of each quaternion component"),
+        Param("bias_init_std", 0.0087, "rad/s", 1e-6, 1.0, "initial std of each gyro bias component "
+              "(MEMS turn-on bias; 0.0087 = 0.5 °/s, VQF's, chosen leave-one-set-out: docs/accuracy.md)",
+              allow_zero=True),
+        GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS,
+        Param("acc_update", "vector", "", doc='"vector": seed 003\'s update; "tilt": the accelerometer '
+              "corrects the inclination (and the bias across the vertical) only, so that a linear "
+              "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
+        *REST, *MAGDIST)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.gyro_range_, self.motion_rate = check_recovery_params(p)
-        self.mag_gain = GAIN_HEADING if check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading" else GAIN_FULL
-        self.acc_gain = GAIN_TILT if check_choice("acc_update", p["acc_update"], ACC_UPDATES) == "tilt" else GAIN_FULL
-        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_param("bias_noise", p["bias_noise"], allow_zero=True)
-        self.acc_noise = check_param("acc_noise", p["acc_noise"])
-        self.mag_noise = check_param("mag_noise", p["mag_noise"])
-        self.q_init_std = check_param("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"], allow_zero=True)
+        p = self._take_params(params)       # checked; gyro_range, rest, magdist taken
+        self.motion_rate = p["motion_rate"]
+        self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
+        self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
+        self.gyro_noise = p["gyro_noise"]
+        self.bias_noise = p["bias_noise"]
+        self.acc_noise = p["acc_noise"]
+        self.mag_noise = p["mag_noise"]
+        self.q_init_std = p["q_init_std"]
+        self.bias_init_std = p["bias_init_std"]
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
-        self.acc_lowpass = check_param("acc_lowpass", p.get("acc_lowpass", 0.0), allow_zero=True)
-        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
-        magd_set(&self.magd, check_magdist_params(p))
+        self.acc_lowpass = p.get("acc_lowpass", 0.0)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
@@ -553,19 +548,19 @@ cdef class IIREKF(EKF):
     the measurement update. cutoff_hz defaults to 40 Hz (the paper's, at 200 Hz sampling),
     lowered to 0.45 fs when the sample rate is too low for it."""
     name = "iir-ekf"
-    PARAMS = dict(EKF.PARAMS, cutoff_hz=40.0, filter_mag=False)
+    PARAMS = table(*EKF.PARAMS.values(),
+                   Param("cutoff_hz", 40.0, "Hz", 0.0, None, "the Butterworth's cutoff, below fs / 2; "
+                         "not given: min(40, 0.45 fs)", open_low=True),
+                   Param("filter_mag", False, "", doc="the magnetometer through the same low-pass"))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         if self.busy:       # as Estimator.__init__: the prefilter is replaced before it runs
             raise RuntimeError("estimator in use by another thread")
-        own = {k: params.pop(k) for k in ("cutoff_hz", "filter_mag") if k in params}
         fs = check_fs(fs)
-        cutoff = own.get("cutoff_hz", min(self.PARAMS["cutoff_hz"], 0.45 * fs))
+        p = self._take_params(params)
+        cutoff = p["cutoff_hz"] if "cutoff_hz" in params else min(p["cutoff_hz"], 0.45 * fs)
         self.pre_acc = Butterworth(fs, cutoff)
-        filter_mag = own.get("filter_mag", False)
-        if filter_mag not in (True, False):
-            raise ValueError(f"filter_mag must be True or False, got {filter_mag!r}")
-        if filter_mag:
+        if p["filter_mag"]:
             self.pre_mag = Butterworth(fs, cutoff)
         EKF.__init__(self, fs, frame, on_invalid, **params)
 

@@ -16,7 +16,7 @@ cdef inline void gyro_step(double* q, const double* gyr, double dt) noexcept nog
 cdef class Gyro(Estimator):
     """Integrates the body rate with the exact exponential step; no correction."""
     name = "gyro"
-    PARAMS = {}
+    PARAMS = {}     # no parameters
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)

@@ -4,15 +4,13 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params,
-                          MAGDIST_PARAMS, BIAS, RECOVERY, FLAG)
+from fusion._core import BIAS, RECOVERY, FLAG
+from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
-from fusion._magdist cimport magd_set, magd_check
+from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
-
-MAG_UPDATES = ("heading", "vector")
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -36,21 +34,22 @@ cdef class Madgwick(Estimator):
     skipped (fusion/_magdist.pxd); acc_lowpass (s): the gradient's accelerometer low-passed
     in a gyro-integrated frame (fusion/_acclp.pxd)."""
     name = "madgwick"
-    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None, "mag_update": "heading",
-              "acc_lowpass": 0.0, **MAGDIST_PARAMS}
+    PARAMS = table(
+        Param("beta", 0.041, "rad/s", 1e-6, 1e3, "step of the quaternion along the normalised "
+              "gradient, per second (the attitude turns by up to 2 beta rad/s toward the vectors)"),
+        Param("zeta", 0.0, "rad/s²", 1e-9, 1e3, "gain of Madgwick's gyro-bias compensation (0: off, as "
+              "in MadgwickAHRS.c and ahrs)", allow_zero=True),
+        GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
+                       "bias learning held"),
+        MAG_UPDATE, ACC_LOWPASS.but(default=0.0), *MAGDIST)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.beta = check_param("beta", p["beta"])
-        self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
-        self.gyro_range_ = check_gyro_range(p["gyro_range"])
-        mu = p["mag_update"]
-        if not isinstance(mu, str) or mu not in MAG_UPDATES:
-            raise ValueError(f"mag_update must be one of {MAG_UPDATES}, got {mu!r}")
-        self.mag_heading = mu == "heading"
-        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
-        magd_set(&self.magd, check_magdist_params(p))
+        p = self._take_params(params)       # checked; gyro_range and the disturbance detector taken
+        self.beta = p["beta"]
+        self.zeta = p["zeta"]
+        self.mag_heading = p["mag_update"] == "heading"
+        self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

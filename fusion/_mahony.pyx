@@ -6,10 +6,9 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params, MAGDIST_PARAMS, FLAG,
-                          BIAS_MAX, RECOVERY, REST_PARAMS)
-from fusion._ekf import check_choice, MAG_UPDATES
-from fusion._magdist cimport magd_check, magd_set
+from fusion._core import FLAG, BIAS_MAX, RECOVERY
+from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
+from fusion._magdist cimport magd_check
 from fusion._rest cimport rest_detect, rest_clear
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
@@ -234,30 +233,32 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
 
 
 cdef class Mahony(Estimator):
-    """Mahony's explicit complementary filter: gravity and magnetic cross-product errors,
+    """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
     name = "mahony"
     # kp, ki and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md);
     # kp / ki = 100 s as before, so the integral learns the bias as fast
-    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
-              "rest_time": REST_PARAMS["rest_time"], "rest_gyro_tol": REST_PARAMS["rest_gyro_tol"],
-              "rest_acc_tol": REST_PARAMS["rest_acc_tol"], "rest_tau": 1.0, **MAGDIST_PARAMS}
+    PARAMS = table(
+        Param("kp", 1.0, "1/s", 1e-6, 1e3, "proportional gain on the gravity and field errors",
+              allow_zero=True),
+        Param("ki", 0.01, "1/s²", 1e-9, 1e3, "integral gain (the bias learned is -ki ε)", allow_zero=True),
+        GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample kp is raised and the "
+                       "integral held"),
+        MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
+        # the shared rest detector; no zero-rate update here, so no rest_noise
+        *[d for d in REST if d.name != "rest_noise"],
+        Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest (and ki > 0): the time constant with which "
+              "the bias -ki ε is pulled toward the measured rate"))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.kp = check_param("kp", p["kp"], allow_zero=True)
-        self.ki = check_param("ki", p["ki"], allow_zero=True)
-        self.gyro_range_ = check_gyro_range(p["gyro_range"])
-        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
-        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
-        magd_set(&self.magd, check_magdist_params(p))
-        # the shared rest detector; its zero-rate noise is the Kalman filters' (unused here)
-        self.rest.time = check_param("rest_time", p["rest_time"], allow_zero=True)
-        self.rest.gyro_tol = check_param("rest_gyro_tol", p["rest_gyro_tol"])
-        self.rest.acc_tol = check_param("rest_acc_tol", p["rest_acc_tol"])
-        self.rest_tau = check_param("rest_tau", p["rest_tau"])
+        p = self._take_params(params)       # checked; gyro_range, magdist, rest detector taken
+        self.kp = p["kp"]
+        self.ki = p["ki"]
+        self.mag_heading = p["mag_update"] == "heading"
+        self.acc_lowpass = p["acc_lowpass"]
+        self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

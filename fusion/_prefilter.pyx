@@ -2,26 +2,16 @@
 """Prefilter kernels that estimators compose (DESIGN.md): a second-order Butterworth low-pass
 ("IIR-EKF, IMU dynamic error suppression") and a sliding-window mean ("Attitude-angle solution
 for a mobile robot"), each on one 3-axis sensor stream."""
-import numbers
-
 import numpy as np
 from libc.math cimport tan, sqrt, M_PI
 from libc.stdlib cimport calloc, free
 
 from fusion._core cimport Prefilter
-from fusion._core import check_positive, _as_samples, FLAG
+from fusion._core import _as_samples, FLAG
+from fusion.checks import number, integer
 
 
 WINDOW_MAX = 100_000     # samples (1000 s at 100 Hz, 0.1 s at 1 MHz; 2.4 MB a stream)
-
-
-def check_window(window, alternative=""):
-    """The sliding mean's window (samples) as an int in [1, WINDOW_MAX], or a ValueError."""
-    if (isinstance(window, (bool, np.bool_)) or not isinstance(window, numbers.Integral)
-            or not 1 <= window <= WINDOW_MAX):
-        raise ValueError(f"window must be an integer in [1, {WINDOW_MAX}] (samples){alternative}, "
-                         f"got {window!r}")
-    return int(window)
 
 
 cdef int _claim(Prefilter f) except -1:
@@ -62,8 +52,8 @@ cdef class Butterworth(Prefilter):
     scipy.signal.lfilter with zi = lfilter_zi(b, a) * x[0]."""
 
     def __init__(self, fs, cutoff_hz):
-        self.fs = check_positive("fs", fs)
-        c = check_positive("cutoff_hz", cutoff_hz)
+        self.fs = number("fs", fs, 0.0, open_low=True)
+        c = number("cutoff_hz", cutoff_hz, 0.0, open_low=True)
         if c >= 0.5 * self.fs:
             raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
                              f"got {cutoff_hz!r}")
@@ -124,7 +114,7 @@ cdef class SlidingMean(Prefilter):
     has filled, the mean of the samples so far."""
 
     def __cinit__(self, window):
-        self.window = check_window(window)
+        self.window = integer("window", window, 1, WINDOW_MAX, unit=" (samples)")
         self.buf = <double*>calloc(<size_t>3 * <size_t>self.window, sizeof(double))
         if self.buf == NULL:
             raise MemoryError("SlidingMean buffer")

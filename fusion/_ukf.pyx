@@ -6,18 +6,17 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._rest cimport rest_detect, rest_clear
-from fusion._magdist cimport magd_check, magd_set
+from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
-from fusion._core import (check_positive, check_param, check_rest_params, REST_PARAMS, check_magdist_params,
-                          MAGDIST_PARAMS, FLAG, BIAS, COV, TIMER)
-from fusion._ekf import check_choice, MAG_UPDATES
-from fusion._ekf import check_recovery_params
+from fusion._core import FLAG, BIAS, COV, TIMER
+from fusion._ekf import EKF as _EKF
+from fusion.params import table
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
                             rot_to_nav, rot_to_body, up_in_body, unit3, unobserved_variance,
                             saturated, out_of_range)
 
-cdef double G0 = 9.81
+from fusion._constants cimport GRAVITY as G0
 # scaled unscented transform, n = 6, alpha = 1, beta = 2, kappa = 0: lambda = 0
 DEF NS = 13                   # 2 n + 1 sigma points
 cdef double GAMMA = sqrt(6.0)          # sqrt(n + lambda)
@@ -80,25 +79,25 @@ cdef class UKF(Estimator):
     north-folded magnetometer measurements as the `ekf`."""
     name = "ukf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", "acc_lowpass": 1.0, **REST_PARAMS, **MAGDIST_PARAMS}
+    # the ekf's but acc_update; every variance > 0: the sigma points need a positive-definite
+    # covariance
+    PARAMS = table(*[p for p in _EKF.PARAMS.values() if p.name != "acc_update"],
+                   _EKF.PARAMS["gyro_noise"].but(default=0.01),
+                   _EKF.PARAMS["bias_noise"].but(allow_zero=False),
+                   _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)
-        self.gyro_range_, self.motion_rate = check_recovery_params(p)
-        # every variance > 0: the sigma points need a positive-definite covariance
-        self.gyro_noise = check_param("gyro_noise", p["gyro_noise"])
-        self.bias_noise = check_param("bias_noise", p["bias_noise"])
-        self.acc_noise = check_param("acc_noise", p["acc_noise"])
-        self.mag_noise = check_param("mag_noise", p["mag_noise"])
-        self.q_init_std = check_param("q_init_std", p["q_init_std"])
-        self.bias_init_std = check_param("bias_init_std", p["bias_init_std"])
-        self.rest.time, self.rest.gyro_tol, self.rest.acc_tol, self.rest.noise = check_rest_params(p)
-        magd_set(&self.magd, check_magdist_params(p))
-        self.mag_heading = check_choice("mag_update", p["mag_update"], MAG_UPDATES) == "heading"
-        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
+        p = self._take_params(params)       # checked; gyro_range, rest, magdist taken
+        self.motion_rate = p["motion_rate"]
+        self.gyro_noise = p["gyro_noise"]
+        self.bias_noise = p["bias_noise"]
+        self.acc_noise = p["acc_noise"]
+        self.mag_noise = p["mag_noise"]
+        self.q_init_std = p["q_init_std"]
+        self.bias_init_std = p["bias_init_std"]
+        self.mag_heading = p["mag_update"] == "heading"
+        self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
 from fusion._core import Estimator, check_dt
+from fusion.checks import integer
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
@@ -31,12 +32,6 @@ def _per_filter(value):
     return isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim >= 1)
 
 
-def _check_count(count):
-    if isinstance(count, (bool, np.bool_)) or not isinstance(count, numbers.Integral) or count < 1:
-        raise ValueError(f"count must be an integer >= 1, got {count!r}")
-    return int(count)
-
-
 def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: str = "raise",
               **params: Any) -> Bank:
     """count independent estimators `name` at sample rate fs (Hz), as fusion.Bank.
@@ -44,7 +39,7 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     A parameter given as a sequence of length count gives each filter its own value; any
     other value is shared. frame and on_invalid are the bank's (fusion.make's meanings)."""
     import fusion
-    count = _check_count(count)
+    count = integer("count", count, 1)
     per = {k: v for k, v in params.items() if _per_filter(v)}
     for k, v in per.items():
         if len(v) != count:
@@ -147,9 +142,7 @@ class Bank(BankCore):
         one [w, x, y, z] for all, or with index None a (count, 4) array, one per filter."""
         n = self._count
         if index is not None:
-            if isinstance(index, (bool, np.bool_)) or not isinstance(index, numbers.Integral) \
-                    or not -n <= index < n:
-                raise ValueError(f"index must be None or an integer in [{-n}, {n - 1}], got {index!r}")
+            integer("index", index, -n, n - 1)
             targets, q0s = [self._filters[index]], [q0]
         else:
             targets = self._filters

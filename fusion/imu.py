@@ -29,6 +29,8 @@ from typing import NamedTuple, Optional, Tuple, Union
 import numpy as np
 
 from fusion._imu import StepKernel as _StepKernel
+from fusion.checks import integer, number
+from fusion.constants import STANDARD_GRAVITY
 
 __all__ = [
     "SensorSpec", "MagSpec", "Vibration", "IMUSpec", "IMU", "IMURecord", "IMUSample",
@@ -40,7 +42,7 @@ __all__ = [
 # ---------------------------------------------------------------------------------------
 # Units (SI in code): multiply a datasheet figure by these to get SI.
 DEG = math.pi / 180.0          # rad per degree
-G0 = 9.80665                   # m/s^2 per g (standard gravity, the datasheets' g)
+G0 = STANDARD_GRAVITY          # m/s^2 per g (the datasheets' g)
 MG = 1e-3 * G0                 # m/s^2 per milli-g
 UG = 1e-6 * G0                 # m/s^2 per micro-g
 DPH = DEG / 3600.0             # rad/s per deg/h
@@ -65,16 +67,8 @@ _CHUNK = 1 << 17               # physics samples per internal batch step
 
 
 def _check_number(owner, name, value, *, positive=False, allow_inf=False, allow_none=False):
-    if value is None and allow_none:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{owner}.{name} must be a real number, got {value!r}")
-    v = float(value)
-    if math.isnan(v) or (math.isinf(v) and not allow_inf) or v < 0 or (positive and v == 0):
-        what = "> 0" if positive else ">= 0"
-        raise ValueError(f"{owner}.{name} must be {'a' if not allow_inf else 'a (possibly infinite)'} "
-                         f"number {what}, got {value!r}")
-    return v
+    """fusion.checks.number of a field >= 0 (> 0 with positive), named owner.name."""
+    return number(f"{owner}.{name}", value, 0.0, open_low=positive, allow_inf=allow_inf, allow_none=allow_none)
 
 
 def _check_axes(owner, name, value):
@@ -86,7 +80,7 @@ def _check_axes(owner, name, value):
     except (TypeError, ValueError):
         arr = None
     if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ValueError(f"{owner}.{name} must be a number >= 0 or 3 such numbers (x, y, z), got {value!r}")
+        raise ValueError(f"{owner}.{name} must be finite and >= 0, or 3 such numbers (x, y, z), got {value!r}")
     return tuple(float(v) for v in arr)
 
 
@@ -167,9 +161,7 @@ class SensorSpec:
                                                          allow_none=True))
         for name in ("bias_turn_on", "bias_turn_on_calibrated"):
             object.__setattr__(self, name, _check_axes(own, name, getattr(self, name)))
-        b = self.adc_bits
-        if b is not None and (isinstance(b, bool) or not isinstance(b, numbers.Integral) or not 2 <= b <= 32):
-            raise ValueError(f"{own}.adc_bits must be None or an integer from 2 to 32, got {b!r}")
+        integer(f"{own}.adc_bits", self.adc_bits, 2, 32, allow_none=True)
 
     @property
     def arw(self):
@@ -260,9 +252,7 @@ class MagSpec:
         object.__setattr__(self, "range", _check_number(own, "range", self.range, positive=True, allow_inf=True))
         object.__setattr__(self, "rate_hz", _check_number(own, "rate_hz", self.rate_hz, positive=True,
                                                           allow_none=True))
-        b = self.adc_bits
-        if b is not None and (isinstance(b, bool) or not isinstance(b, numbers.Integral) or not 2 <= b <= 32):
-            raise ValueError(f"{own}.adc_bits must be None or an integer from 2 to 32, got {b!r}")
+        integer(f"{own}.adc_bits", self.adc_bits, 2, 32, allow_none=True)
 
     code_limits = SensorSpec.code_limits
 
@@ -295,9 +285,7 @@ class Vibration:
         object.__setattr__(self, "f_high_hz", hi)
         object.__setattr__(self, "acc_rms", _check_number(own, "acc_rms", self.acc_rms))
         object.__setattr__(self, "gyr_rms", _check_number(own, "gyr_rms", self.gyr_rms))
-        n = self.n_tones
-        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
-            raise ValueError(f"{own}.n_tones must be an integer >= 1, got {n!r}")
+        integer(f"{own}.n_tones", self.n_tones, 1)
 
 
 #: Motor vibration of the platform of "IIR-EKF, IMU dynamic error suppression" (seed 003): its

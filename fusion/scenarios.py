@@ -35,17 +35,18 @@ peaks of about 3 rad/s plus linear-acceleration bursts), ``shaking`` (gentle rot
 linear acceleration).
 """
 from dataclasses import dataclass, field as dc_field
-import numbers
 
 import numpy as np
 
 from fusion import imu as imu_model
 from fusion import quat
+from fusion.checks import integer, number
+from fusion.constants import GRAVITY
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "G", "FIELD",
            "SEED_SCENARIOS", "seed_scenario", "EARTH_FIELD_UT", "ACC_DISTURBED", "MAG_DISTURBED"]
 
-G = 9.81
+G = GRAVITY
 FIELD = (0.0, 0.4, -0.3)
 
 # motion and disturbance presets (angles in degrees, accelerations in m/s^2)
@@ -386,10 +387,7 @@ def _seed_samples(cfg, duration):
     fs = cfg["fs"]
     if duration is None:
         return cfg["samples"] if "samples" in cfg else int(round(cfg["duration"] * fs))
-    if isinstance(duration, bool) or not isinstance(duration, numbers.Real) \
-            or not np.isfinite(duration) or duration <= 0:
-        raise ValueError(f"duration must be None or a finite number of seconds > 0, got {duration!r}")
-    n = int(round(duration * fs))
+    n = int(round(number("duration", duration, 0.0, open_low=True) * fs))
     if n < 2:
         raise ValueError(f"duration must give at least 2 samples at {fs:g} Hz "
                          f"(>= {1.5 / fs:g} s), got {duration!r}")
@@ -421,8 +419,7 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
     """
     if not isinstance(name, str) or name not in _SEED:
         raise ValueError(f"unknown seed scenario {name!r}; available: {', '.join(_SEED)}")
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    integer("seed", seed, 0)
     cfg = _SEED[name]
     fs = cfg["fs"]
     n = _seed_samples(cfg, duration)

@@ -200,7 +200,7 @@ def test_unconfigured_estimators_raise():
     run_script("""
         import pytest
         classes = [type(fusion.make(n, 100.0)) for n in fusion.available()]
-        assert len(classes) == 8
+        assert len(classes) == 9      # with triad
         g, a, m = np.zeros(3), np.array([0.0, 0.0, 9.81]), np.array([0.0, 20.0, -40.0])
         for cls in classes:
             Mine = type("Mine", (cls,), {"__init__": lambda self, fs: None})

@@ -90,7 +90,9 @@ def test_constant_rotation_rate_is_followed_exactly(name):
         assert angle_between(out, q).max() < 1e-9
 
 
-@pytest.mark.parametrize("name", [n for n in NAMES if n != "gyro"])
+# gyro never corrects; triad has no start to recover from (each sample's attitude alone, its
+# noise unfiltered: tests/test_triad.py)
+@pytest.mark.parametrize("name", [n for n in NAMES if n not in ("gyro", "triad")])
 @pytest.mark.parametrize("nine_axis", [True, False])
 def test_static_sensor_recovers_from_a_30_degree_wrong_start(name, nine_axis):
     q_true = axis_angle([0.3, -0.5, 0.2], 0.4)
@@ -200,7 +202,7 @@ def test_inputs_of_any_real_dtype_order_and_layout(name):
     assert np.allclose(est.update([0, 0, 0], (0, 0, 9.8)), [1, 0, 0, 0])
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", [n for n in NAMES if n != "triad"])    # triad: no gyro, no dt
 def test_uneven_time_stamps(name):
     q, gyr, acc, mag = rotating_body([0.0, 0.0, 1.0], 1, 100.0)
     dt = np.array([0.01, 0.02, 0.005, 0.03])

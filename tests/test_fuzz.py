@@ -12,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
 import fusion
-from fusion._core import PARAM_RANGES, DT_MIN, DT_MAX
+from fusion._core import DT_MIN, DT_MAX
 from _helpers import SETTINGS, bad_message, check_output
 
 NAMES = fusion.available()
@@ -24,9 +24,11 @@ values = st.one_of(st.floats(-30.0, 30.0), st.sampled_from(SPECIAL))
 
 # --- construction ---------------------------------------------------------------------
 
-def param_values(name, default):
-    """Values at, inside and beyond the parameter's range, and of wrong types."""
-    lo, hi = PARAM_RANGES.get(name, (1e-6, 1e6))
+def param_values(p):
+    """Values at, inside and beyond the parameter's (a fusion.Param) range, and of wrong types."""
+    default = p.default
+    lo = p.low if p.low is not None and p.low > 0 else 1e-6     # a log-uniform draw: ends > 0
+    hi = p.high if p.high is not None else 1e6
     edge = [lo, hi, lo * 0.999, hi * 1.001, 0.0, -lo, math.nan, math.inf]
     good = st.floats(math.log10(lo), math.log10(hi)).map(lambda e: 10.0 ** e)
     wrong = st.sampled_from(["1", None, True, 1 + 1j, [1.0]])
@@ -38,7 +40,7 @@ def param_values(name, default):
 @st.composite
 def configs(draw, name):
     cls = type(fusion.make(name, 100.0))
-    params = {k: draw(param_values(k, v)) for k, v in cls.PARAMS.items() if draw(st.booleans())}
+    params = {k: draw(param_values(p)) for k, p in cls.PARAMS.items() if draw(st.booleans())}
     fs = draw(st.one_of(st.sampled_from([100.0, 1.0 / DT_MAX, 1.0 / DT_MIN, 1.01 / DT_MIN, 0.99 / DT_MAX,
                                          0.0, math.nan, 1000]),
                         st.floats(1.0, 2000.0)))

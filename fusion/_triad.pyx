@@ -1,0 +1,40 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`triad`: the attitude from each sample's accelerometer and magnetometer alone, no gyro
+(docs/estimators.md, "triad"). The floor on the other side from `gyro`: no drift, all the
+accelerometer's and magnetometer's noise and disturbance."""
+from fusion._core cimport Estimator
+from fusion._prefilter cimport Butterworth
+from fusion._qmath cimport quat_from_acc_mag
+from fusion._core import check_fs
+from fusion.params import Param, table
+
+
+cdef class Triad(Estimator):
+    """TRIAD from each sample (Black 1964), the accelerometer the primary vector: up from the
+    accelerometer, north from the magnetometer's component across it; without a magnetometer
+    the heading is 0. The gyro is not used. With cutoff_hz the accelerometer and magnetometer
+    pass a second-order Butterworth low-pass first."""
+    name = "triad"
+    PARAMS = table(
+        Param("cutoff_hz", None, "Hz", 0.0, None, "cutoff of the Butterworth low-pass in front of "
+              "the accelerometer and magnetometer, below fs / 2; None: raw samples", open_low=True))
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        if self.busy:       # as Estimator.__init__: the prefilters are replaced before it runs
+            raise RuntimeError("estimator in use by another thread")
+        fs = check_fs(fs)
+        p = self._take_params(params)
+        self.pre_acc = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
+        self.pre_mag = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
+        Estimator.__init__(self, fs, frame, on_invalid)
+        self.configured = True     # before reset(), which refuses an unconfigured object
+        self.reset()
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        if acc != NULL:     # an invalid accelerometer sample: the last attitude is held
+            quat_from_acc_mag(acc, mag, self.q)
+
+    @property
+    def cutoff_hz(self):
+        return None if self.pre_acc is None else self.pre_acc.cutoff_hz

@@ -1,0 +1,80 @@
+"""The one validator of numbers, integers, choices and flags given by users: fusion's
+estimators (through `fusion.Param`), the IMU model, the environments and the controllers.
+Each check returns the value in its canonical type or raises a ValueError that names the
+argument, says what is accepted and shows what was given."""
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+__all__ = ["number", "integer", "choice", "flag", "interval"]
+
+
+def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
+    """'[low, high]' with '(' / ')' for open ends (None: unbounded)."""
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    return (("(" if open_low or low is None else "[") + f"{lo}, {hi}"
+            + (")" if open_high or high is None else "]"))
+
+
+def _accepted(low, high, open_low, open_high, allow_zero, allow_inf):
+    finite = "finite (or inf)" if allow_inf else "finite"
+    rng = interval(low, high, open_low, open_high)
+    if low is None or low < 0:
+        return f"{finite} and in {rng}" + (" or 0" if allow_zero else "")
+    sign = ">= 0" if allow_zero or (low == 0 and not open_low) else "> 0"
+    if low == 0 and high is None:
+        return f"{finite} and {sign}"
+    return f"{finite} and {sign} and in {rng}" + (" (or 0)" if allow_zero and low > 0 else "")
+
+
+def number(name: str, value: Any, low: float | None = None, high: float | None = None, *,
+           open_low: bool = False, open_high: bool = False, allow_zero: bool = False,
+           allow_inf: bool = False, allow_none: bool = False, unit: str = "") -> float | None:
+    """float(value) if it is a finite real number in [low, high] (an end None: unbounded;
+    open_low / open_high: that end excluded), or 0 with allow_zero, or +inf with allow_inf,
+    or None with allow_none. A 0-d real array (what indexing or reducing an array gives)
+    counts as its number."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
+        value = value.item()
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a real number{' or None' if allow_none else ''}, got {value!r}")
+    v = float(value)
+    ok = (math.isfinite(v) or (allow_inf and v == math.inf)) and (
+        (allow_zero and v == 0.0)
+        or ((low is None or (v > low if open_low else v >= low))
+            and (high is None or v == math.inf or (v < high if open_high else v <= high))))
+    if not ok:
+        rng = _accepted(low, high, open_low, open_high, allow_zero, allow_inf)
+        raise ValueError(f"{name} must be {rng}{unit}{' or None' if allow_none else ''}, got {value!r}")
+    return v
+
+
+def integer(name: str, value: Any, low: int | None = None, high: int | None = None, *,
+            allow_none: bool = False, unit: str = "") -> int | None:
+    """int(value) if it is an integer (not a bool) in [low, high] (None: unbounded)."""
+    if value is None and allow_none:
+        return None
+    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)
+            or (low is not None and value < low) or (high is not None and value > high)):
+        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise ValueError(f"{name} must be an integer {rng}{unit}{' or None' if allow_none else ''}, got {value!r}")
+    return int(value)
+
+
+def choice(name: str, value: Any, choices: tuple) -> Any:
+    """value if it is one of choices (compared by type and value: "1" is not 1)."""
+    if not any(type(value) is type(c) and value == c for c in choices):
+        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+    return value
+
+
+def flag(name: str, value: Any) -> bool:
+    """value as a bool if it is True or False (numpy's too), else a ValueError."""
+    if value is not True and value is not False and not isinstance(value, np.bool_):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
