@@ -539,10 +539,44 @@ def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):
     model: training must beat it."""
     from stable_baselines3.common.evaluation import evaluate_policy
     eval_env.obs_rms = venv.obs_rms
-    mean_reward, _ = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
-    saver.save_best(float(mean_reward))
-    ev.best_mean_reward = float(mean_reward)
+    rewards, lengths = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True,
+                                       return_episode_rewards=True)
+    mean_reward = float(np.mean(rewards))
+    saver.save_best(mean_reward)
+    ev.best_mean_reward = mean_reward
+    # the first point of the run's evaluation log (evaluations.npz: its learning curve)
+    ev.evaluations_timesteps.append(int(saver.model.num_timesteps))
+    ev.evaluations_results.append(list(rewards))
+    ev.evaluations_length.append(list(lengths))
+    _save_evaluations(ev)
     log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+
+
+def _save_evaluations(ev):
+    """The evaluation log as EvalCallback writes it (``<run>/evaluations.npz``), atomically."""
+    def write(f):
+        np.savez(f, timesteps=np.asarray(ev.evaluations_timesteps), results=np.asarray(ev.evaluations_results),
+                 ep_lengths=np.asarray(ev.evaluations_length))
+    atomic_write(ev.log_path + ".npz", write)
+
+
+def _resume_evaluations(ev, run_dir, timesteps):
+    """A resumed run continues its evaluation log (EvalCallback would start it over): the
+    rows up to the checkpoint's ``timesteps`` (later ones were of the lost part of the run)."""
+    path = Path(run_dir) / "evaluations.npz"
+    if not path.is_file():
+        return
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            keep = d["timesteps"] <= timesteps
+            rows = d["timesteps"][keep], d["results"][keep], d["ep_lengths"][keep]
+    except (OSError, ValueError, KeyError) as e:
+        warnings.warn(f"{path} cannot be read ({e}); the resumed run starts a new evaluation log",
+                      RuntimeWarning, stacklevel=3)
+        return
+    ev.evaluations_timesteps = [int(t) for t in rows[0]]
+    ev.evaluations_results = [list(r) for r in rows[1]]
+    ev.evaluations_length = [list(n) for n in rows[2]]
 
 
 def _write_run_json(stem, best_json, meta):
@@ -723,6 +757,8 @@ def _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log):
     best_json = p.run_dir / "best.json"
     if start_ckpt is not None and best_json.is_file() and (p.run_dir / "best_model.zip").is_file():
         ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
+    if start_ckpt is not None:
+        _resume_evaluations(ev, p.run_dir, model.num_timesteps)
     if p.clone or init is not None:
         _evaluate_start(saver, venv, eval_env, ev, p.eval_episodes, log)
     wall, rate, train_rate = _learn(saver, p.timesteps, CallbackList([ckpt, ev]), ev,
