@@ -61,9 +61,29 @@ def _check_choice(name, value, accepted):
         raise ValueError(f"unknown {name} {value!r}; accepted: {', '.join(accepted)}")
 
 
-def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR) -> Path:
-    """The policy of (algo, task, estimator) in ``directory`` (default: the package's)."""
-    return Path(directory) / f"{algo}-{task}-{estimator}"
+def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR,
+                seed: int = 0) -> Path:
+    """The policy of (algo, task, estimator) in ``directory`` (default: the package's): of
+    training seed 0 ``<algo>-<task>-<estimator>`` (the one the comparison runs), of other
+    seeds ``<algo>-<task>-<estimator>-seed<seed>``."""
+    return Path(directory) / (f"{algo}-{task}-{estimator}" + (f"-seed{seed}" if seed else ""))
+
+
+FINAL_EVAL_SEED = 1_000_000     # the final evaluation's episodes: seeds neither training nor the comparison use
+
+
+def final_evaluation(stem, task, estimator, env_kwargs=None, episodes=10, seed=FINAL_EVAL_SEED) -> dict:
+    """Evaluate the policy ``stem`` (``controllers.evaluate``, ``episodes`` from ``seed``) and
+    write the means into its JSON as ``final_evaluation``; returns them."""
+    from controllers.evaluation import evaluate
+    ctrl = load_policy(stem, trusted=True)      # written by this run
+    res = evaluate(ctrl, dict(env_kwargs or {}, task=task, estimator=estimator), episodes=episodes, seed=seed)
+    summary = {k: v["mean"] for k, v in res["summary"].items()}
+    meta_path = Path(str(stem) + ".json")
+    meta = json.loads(meta_path.read_text())
+    meta["final_evaluation"] = {"episodes": episodes, "seed": seed, "mean": summary}
+    atomic_write(meta_path, lambda f: f.write(json.dumps(meta, indent=2).encode()))
+    return summary
 
 
 def new_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path:
