@@ -9,6 +9,7 @@ task and estimator: every seed's curve, and the mean over seeds with their sprea
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -48,11 +49,28 @@ def _panel(ax, runs, title):
     if len(runs) > 1 and len(t):
         ax.fill_between(t, lo, hi, color="0.6", alpha=0.3, lw=0, label=f"min-max of {len(runs)} seeds")
         ax.plot(t, mean, color="k", lw=1.8, label="mean over seeds")
+    from matplotlib.ticker import FuncFormatter
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if abs(x) >= 1000 else f"{x:g}"))
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("timesteps of this run")
+    ax.set_xlabel("environment steps of the run")
     ax.set_ylabel("mean evaluation return")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
+
+
+def _start_label(runs):
+    """What the runs started from, in a few words: the PID clone, or the policy they fine-tune
+    (its seed suffix dropped: each seed starts from its own)."""
+    starts = set()
+    for r in runs:
+        start = str(r["init_from"])
+        if start.startswith("pid"):
+            starts.add("from the PID clone")
+        elif r["init_from"] is None:
+            starts.add("from scratch")
+        else:
+            starts.add("fine-tuned from " + re.sub(r"(-seed\d+)?(\.zip)?$", "", Path(start).name))
+    return ", ".join(sorted(starts))
 
 
 def plot_training_curves(runs, path, title=None) -> list[tuple[str, str]]:
@@ -73,8 +91,7 @@ def plot_training_curves(runs, path, title=None) -> list[tuple[str, str]]:
             if not cell:
                 ax.set_axis_off()
                 continue
-            starts = sorted({str(r["init_from"]).split(" ")[0] for r in cell})
-            _panel(ax, cell, f"{task}, {est} (from {', '.join(starts)})")
+            _panel(ax, cell, f"{task}, {est} ({_start_label(cell)})")
             drawn.append((task, est))
     if title:
         fig.suptitle(title, fontsize=10)

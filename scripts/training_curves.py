@@ -28,8 +28,8 @@ def main(argv=None):
     try:
         runs = [load_run(s) for s in stems]
         runs = [r for r in runs if a.estimators is None or r["estimator"] in a.estimators]
-        drawn = plot_training_curves(runs, a.out, title="PPO training curves (evaluation every "
-                                                        "10,000-30,000 steps, 5 episodes each)")
+        drawn = plot_training_curves(runs, a.out, title="PPO: mean return of the periodic evaluations "
+                                                        "(5 episodes each)")
     except (ValueError, FileNotFoundError) as e:
         ap.error(str(e))
     for r in runs:
