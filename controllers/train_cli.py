@@ -99,8 +99,8 @@ def parser():
                     help=f"the attitude estimator in the loop: one of {', '.join(fusion.available())} or "
                          f"'truth' (default: ekf); several: a grid")
     ap.add_argument("-n", "--n-timesteps", "--timesteps", dest="timesteps", nargs="+", default=None,
-                    metavar="N", help="total environment steps (default: the YAML file's n_timesteps), or "
-                                      "TASK:N items per task (a grid); --timesteps is an alias")
+                    metavar="N", help="total environment steps, or TASK:N items (one per task of a grid); "
+                                      "alias: --timesteps (default: the YAML file's n_timesteps)")
     ap.add_argument("--seed", type=_int(0), default=[0], nargs="+",
                     help="random seed, an integer >= 0 (default: 0); several: a grid")
     ap.add_argument("--n-envs", type=_int(1), default=None, metavar="N",
@@ -142,6 +142,11 @@ def parser():
                     help="after training and the final evaluation, copy the policy into the package's "
                          "controllers/policies/ (replacing the shipped one of that name)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _grid_options(ap)
+    return ap
+
+
+def _grid_options(ap):
     ap.add_argument("--backend", choices=("local", "ray"), default=None,
                     help="run the grid (--env x --estimator x --seed; also a single job) on a local process "
                          "pool or on Ray; each job writes LOG_FOLDER/<algo>-<task>-<estimator>[-seed<S>], "
@@ -151,7 +156,6 @@ def parser():
                          "processes) or the CPUs of a local Ray cluster")
     ap.add_argument("--address", default=None,
                     help="grid on Ray: join the cluster at this address (e.g. auto) instead of starting one")
-    return ap
 
 
 def _timesteps(items, tasks):
