@@ -8,8 +8,8 @@ body -> ENU quaternions for scoring. Every run starts from the first sample, as 
 
 Data:
 
-- recorded: every ``quality == 'ok'`` trial of ``fusion.datasets`` (../shared/data or
-  $FUSION_DATA_DIR); 9-axis where the trial has a magnetometer, 6-axis on every trial.
+- recorded: every ``quality == 'ok'`` trial of ``fusion.datasets`` (its
+  ``DATA_LOCATION``); 9-axis where the trial has a magnetometer, 6-axis on every trial.
 - synthetic: every ``fusion.scenarios.SCENARIOS`` entry (100 Hz, 60 s, seed 0) and, where the
   module has them, every ``SEED_SCENARIOS`` entry (``seed_scenario(name, seed=0)``); 9-axis
   and 6-axis.
@@ -17,10 +17,10 @@ Data:
 Timing: our estimators, imufusion (``set_sample_period`` before each sample) and the ``ahrs``
 filters (their per-sample ``dt``) follow the time stamps; VQF takes one sample time at
 construction, so it gets the mean step of the stamps, and where that is more than 0.1 % off
-``1/fs`` (ese650) also ``1/fs`` as a second row, "vqf.VQF (Ts=1/fs)", the feeding of ../shared/data/README.md's
-reference figures.
+``1/fs`` (ese650) also ``1/fs`` as a second row, "vqf.VQF (Ts=1/fs)", the feeding of the reference figures
+of the data folder's README ("Recorded IMU data with a reference orientation").
 
-Scoring (fusion.compare.score_mode): RMSE in degrees of the total, heading and inclination
+Scoring (benchmarks.compare.score_mode): RMSE in degrees of the total, heading and inclination
 errors; in 6-axis mode after removing one constant heading offset per run. Per set and mode
 the mean RMSE over its trials (or scenarios).
 
@@ -34,26 +34,23 @@ thresholds is fed wrongly (units or frame) and is not scored.
 """
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import fusion
+from fusion import datasets, scenarios
+from benchmarks import compare, loso, peers
 
-import fusion                                    # noqa: E402
-from fusion import compare, datasets, scenarios  # noqa: E402
-from benchmarks import loso, peers               # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 ERRORS = ("total", "heading", "inclination")
 FS = 100.0
 SYNTHETIC, SEED = "synthetic", "seed scenarios"
 SEED_ESTIMATORS = ("ekf", "aekf", "iir-ekf", "ukf", "cf-ekf")
 BASELINES = ("gyro", "mahony")
-# which source document (../shared/seeds/README.md) each seed estimator comes from, to find
+# which source document ("The four source documents, in short") each seed estimator comes from, to find
 # "its" seed scenarios when SEED_SCENARIOS does not say
 SEED_DOC = {"ekf": "000", "aekf": "001", "iir-ekf": "003", "ukf": "003", "cf-ekf": "004"}
 IDEAL = dict(name="slow", seed=0)
@@ -62,6 +59,10 @@ IDEAL = dict(name="slow", seed=0)
 IDEAL_MAX = dict(inclination=1.0, heading=2.0)
 TARGETS = (("repoimu_tstick", "9-axis"), ("ese650", "6-axis"))
 VQF = "vqf.VQF"
+# the columns of the per-(set, mode) tables and of the overall table
+SET_COLS = ["method", "group", "n_trials"] + list(ERRORS) + ["÷ best peer", "÷ VQF"]
+OVERALL_COLS = ["set", "mode", "n", "best_ours", "ours_total", "ours_heading", "ours_inclination",
+                "best_peer", "peer_total", "peer_heading", "peer_inclination", "ours / best peer"]
 
 
 class Item:
@@ -118,7 +119,7 @@ def synthetic_items(duration, seed, only=None, seconds=None):
 # running and scoring
 
 def score_run(method, d, mode, q_ref=None, tail=None):
-    """Run ``method`` over ``d`` in ``mode`` and score it with fusion.compare.score_mode:
+    """Run ``method`` over ``d`` in ``mode`` and score it with benchmarks.compare.score_mode:
     ``(RMSE dict, heading offset removed in deg or None)``. ``tail``: score only the last
     ``tail`` samples (the ideal check, after convergence). ValueError on non-finite output
     (which RMSE over the finite rows would hide)."""
@@ -260,17 +261,14 @@ def seed_verdicts(rows, names):
 def bar_chart(agg, path, title):
     """One panel per (set, mode): mean total RMSE of every method, ours and peers in two
     colours, log axis (the gyro-only rows are orders of magnitude above the rest)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     groups = {}
     for r in agg:
         groups.setdefault((r["set"], r["mode"]), []).append(r)
     ncol = 2
     nrow = math.ceil(len(groups) / ncol)
     height = max(len(rs) for rs in groups.values()) * 0.32 + 1.2
-    fig, axes = plt.subplots(nrow, ncol, figsize=(15, height * nrow), squeeze=False)
+    fig = compare.new_figure(figsize=(15, height * nrow))
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     for ax, ((set_, mode), rs) in zip(axes.flat, groups.items()):
         rs = sorted(rs, key=lambda r: r["total"])
         y = np.arange(len(rs))
@@ -292,11 +290,7 @@ def bar_chart(agg, path, title):
     fig.legend(handles=[Patch(color="tab:blue", label="ours (fusion.*)"),
                         Patch(color="tab:orange", label="peers")], loc="upper right")
     fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0, 0.93, 0.97))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return compare.save_figure(fig, path, dpi=100, rect=(0, 0, 0.93, 0.97))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -308,7 +302,7 @@ def parse_args(argv=None):
     ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks"),
                     help="output folder (default: %(default)s)")
     ap.add_argument("--data", default=None,
-                    help="recorded-data folder (default: $FUSION_DATA_DIR or ../shared/data)")
+                    help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
     ap.add_argument("--max-trials", type=int, default=None, help="at most this many 'ok' trials per set")
     ap.add_argument("--trial-seconds", type=float, default=None,
                     help="score only the first S seconds of each trial and seed scenario")
@@ -326,27 +320,10 @@ def fmt_target(label, row):
             f"inclination {row['inclination']:6.2f}")
 
 
-def main(argv=None):
-    args = parse_args(argv)
-    t_start = time.perf_counter()
-    quick = args.quick
-    duration = args.duration or (20.0 if quick else 60.0)
-    max_trials = args.max_trials if args.max_trials is not None else (2 if quick else None)
-    trial_seconds = args.trial_seconds if args.trial_seconds is not None else (20.0 if quick else None)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    names = fusion.available()
-
-    print("# Estimator accuracy: ours and peers, same run\n")
-    methods = peers.all_methods(print)
+def _ideal_phase(methods, quick):
+    """The noise-free check of every method's feeding (printed): (rows, failed, the methods to
+    score, the peers refused)."""
     by_name = {m.name: m for m in methods}
-    print("feeding:")
-    for m in methods:
-        if m.group == "peer":
-            print(f"  {m.name:<16s} {m.feeding}")
-    print(f"  {'fusion.*':<16s} {methods[0].feeding}")
-
-    # --- ideal check ----------------------------------------------------------------------
     ideal_dur = 30.0 if quick else 60.0
     print(f"\nideal check: noise-free, bias-free '{IDEAL['name']}' scenario ({ideal_dur:g} s, "
           f"{FS:g} Hz), RMSE over the second half (deg); a peer passes with inclination <= "
@@ -361,12 +338,15 @@ def main(argv=None):
         print(f"  {m.name:<16s} {line}  {verdict}", flush=True)
     scored = [m for m in methods if m.group == "ours" or m.name not in failed]
     refused = {n: why for n, why in failed.items() if by_name[n].group == "peer"}
+    return ideal_rows, failed, scored, refused
 
-    # --- what to score --------------------------------------------------------------------
+
+def _items(args, quick, duration, max_trials, trial_seconds):
+    """What to score (printed): (recorded + synthetic items, the trials not scored)."""
     root = Path(args.data) if args.data else datasets.default_data_dir()
     items, skipped = [], []
     if root is None or not Path(root).is_dir():
-        print(f"\nrecorded data: folder not found ({args.data or '$' + datasets.ENV_VAR + ' or ../shared/data'}); "
+        print(f"\nrecorded data: folder not found ({args.data or datasets.DATA_LOCATION}); "
               "scoring the synthetic scenarios only")
     else:
         items, skipped = recorded_items(root, quick, max_trials, trial_seconds, print)
@@ -381,28 +361,24 @@ def main(argv=None):
     print(f"synthetic: {sum(it.set == SYNTHETIC for it in syn)} scenarios ({duration:g} s, seed {args.seed}); "
           + (f"{n_seed} seed scenarios" if hasattr(scenarios, "SEED_SCENARIOS")
              else "fusion.scenarios has no SEED_SCENARIOS yet"))
-    items += syn
+    return items + syn, skipped
 
+
+def _jobs(items, scored):
+    """Every (item, mode, method) run, with the README's VQF feeding (nominal 1/fs) added where
+    the nominal rate is off the stamps' mean by > 0.1 %: (jobs, that VQF method or None)."""
     vqf_nominal = peers.vqf_method("VQF", nominal=True) if VQF in {m.name for m in scored} else None
     jobs = []
     for it in items:
         for mode in it.modes:
             jobs += [(it, mode, m) for m in scored]
-            # the README's VQF feeding, where the nominal rate is off the stamps' mean by > 0.1 %
             if vqf_nominal is not None and abs(it.data.ts * it.data.fs - 1.0) > 1e-3:
                 jobs.append((it, mode, vqf_nominal))
-    print(f"{len(jobs)} runs\n", flush=True)
-    rows, run_skips = run_all(jobs, progress=not args.no_progress)
-    skipped += run_skips
+    return jobs, vqf_nominal
 
-    # --- tables ---------------------------------------------------------------------------
-    order = {m.name: i for i, m in enumerate(scored + ([vqf_nominal] if vqf_nominal else []))}
-    agg = compare.aggregate(rows, by=("set", "mode", "method", "group"))
-    agg.sort(key=lambda r: (r["set"] in (SYNTHETIC, SEED), r["set"], compare.MODES.index(r["mode"]),
-                            order[r["method"]]))
-    best = add_ratio(agg, ("set", "mode"))
-    per_item = [dict(r) for r in rows if r["set"] in (SYNTHETIC, SEED)]
-    # per motion category, where a recorded set's trial names carry one (benchmarks/loso.py)
+
+def _category_rows(rows):
+    """Per motion category, where a recorded set's trial names carry one (benchmarks/loso.py)."""
     cat_rows = []
     for set_ in sorted({r["set"] for r in rows} - {SYNTHETIC, SEED}):
         trial_names = sorted({r["item"] for r in rows if r["set"] == set_})
@@ -411,17 +387,17 @@ def main(argv=None):
             sub = [dict(r, category=cat[r["item"]]) for r in rows if r["set"] == set_]
             cat_rows += compare.aggregate(sub, by=("set", "category", "mode", "method", "group"))
     add_ratio(cat_rows, ("set", "category", "mode"))
-    add_ratio(per_item, ("set", "item", "mode"))
-    overall = overall_rows(best)
-    verdicts = seed_verdicts(rows, names)
+    return cat_rows
 
-    cols = ["method", "group", "n_trials"] + list(ERRORS) + ["÷ best peer", "÷ VQF"]
+
+def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows, verdicts):
+    """The CSV + Markdown tables and the bar chart; returns the files written."""
     written = []
     for (set_, mode) in best:
         sub = [r for r in agg if (r["set"], r["mode"]) == (set_, mode)]
         stem = out / f"accuracy_{set_.replace(' ', '_')}_{mode}"
         kind = 'trials' if set_ not in (SYNTHETIC, SEED) else 'scenarios'
-        written += compare.write_table(sub, stem, cols, title=f"{set_}, {mode}: mean RMSE (deg) over "
+        written += compare.write_table(sub, stem, SET_COLS, title=f"{set_}, {mode}: mean RMSE (deg) over "
                                        f"{sub[0]['n_trials']} {kind}")
     if cat_rows:
         written += compare.write_table(cat_rows, out / "accuracy_categories",
@@ -447,10 +423,11 @@ def main(argv=None):
                                        title="Seed estimators vs gyro and mahony (total RMSE, deg)")
     png = bar_chart(agg, out / "accuracy.png",
                     "Mean total RMSE per set and mode (6-axis: one heading offset per run removed)") if agg else None
-    if png:
-        written.append(png)
+    return written + ([png] if png else [])
 
-    # --- report ---------------------------------------------------------------------------
+
+def _target_text(best, agg, vqf_nominal):
+    """Best of ours against VQF (both feedings) and the data README's VQF figures, per target."""
     ref = {(r["set"], r["mode"]): r for r in compare.REFERENCE_VQF}
     lines = []
     for set_, mode in TARGETS:
@@ -468,9 +445,12 @@ def main(argv=None):
                              f"({'ours better' if bo['total'] < v['total'] else 'VQF better'})")
         if (set_, mode) in ref:
             lines.append("  " + fmt_target("VQF, data README", ref[(set_, mode)]))
-    target_txt = "\n".join(lines)
+    return "\n".join(lines)
 
-    verdict_txt = []
+
+def _verdict_text(verdicts):
+    """Per seed estimator: on how many scenarios it beats gyro and mahony, and where not."""
+    lines = []
     for e in SEED_ESTIMATORS:
         vs = [v for v in verdicts if v["estimator"] == e]
         if not vs:
@@ -478,35 +458,74 @@ def main(argv=None):
         wins = [v for v in vs if v["beats_both"] == "yes"]
         losses = ", ".join(f"{v['scenario']} {v['mode']} ({v['total']:.2f} vs gyro {v['gyro_total']:.2f}, "
                            f"mahony {v['mahony_total']:.2f})" for v in vs if v["beats_both"] == "no")
-        verdict_txt.append(f"  {e:<8s} beats gyro and mahony on {len(wins)}/{len(vs)} ({vs[0]['scope']})"
-                           + (f"; not on: {losses}" if losses else ""))
-    verdict_txt = "\n".join(verdict_txt) or "  (no synthetic rows)"
+        lines.append(f"  {e:<8s} beats gyro and mahony on {len(wins)}/{len(vs)} ({vs[0]['scope']})"
+                     + (f"; not on: {losses}" if losses else ""))
+    return "\n".join(lines) or "  (no synthetic rows)"
 
-    ocols_md = ["set", "mode", "n", "best_ours", "ours_total", "ours_heading", "ours_inclination",
-                "best_peer", "peer_total", "peer_heading", "peer_inclination", "ours / best peer"]
-    overall_md = compare.markdown_table(overall, ocols_md, 2)
+
+def _report(out, settings, overall_md, target_txt, verdict_txt, feeding, ideal_rows, refused, agg, best, skipped,
+            written):
+    """accuracy.md; returns its path."""
     report = ["# Estimator accuracy: ours and peers, same run\n",
-              f"Settings: {'quick' if quick else 'full'}; synthetic {duration:g} s at {FS:g} Hz, seed {args.seed}; "
-              "errors in degrees; 6-axis: one constant heading offset per run removed. Mean RMSE over the "
-              "trials / scenarios of each set. 'ours / best peer' = best of ours / best peer (total).\n",
+              f"Settings: {settings}; errors in degrees; 6-axis: one constant heading offset per run removed. "
+              "Mean RMSE over the trials / scenarios of each set. 'ours / best peer' = best of ours / best peer "
+              "(total).\n",
               "## Overall\n", overall_md,
               "## Targets\n", "```\n" + target_txt + "\n```\n",
               "## Seed estimators vs gyro and mahony (total RMSE)\n", "```\n" + verdict_txt + "\n```\n",
-              "## Feeding\n", "\n".join(f"- {m.name}: {m.feeding}" for m in methods
-                                         + ([vqf_nominal] if vqf_nominal else [])) + "\n",
+              "## Feeding\n", "\n".join(f"- {m.name}: {m.feeding}" for m in feeding) + "\n",
               "## Ideal check\n", compare.markdown_table(ideal_rows, ["method", "mode"] + list(ERRORS) + ["ok"], 4)]
     if refused:
         report += ["Not scored (failed the ideal check):\n",
                    "\n".join(f"- {n}: {why}" for n, why in refused.items()) + "\n"]
     for (set_, mode) in best:
         sub = [r for r in agg if (r["set"], r["mode"]) == (set_, mode)]
-        report += [f"## {set_}, {mode}\n", compare.markdown_table(sub, cols, 3)]
-    if skipped:
-        report += ["## Not scored\n", compare.markdown_table([dict(what=k, reason=r) for k, r in skipped])]
-    report += ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
-    md = out / "accuracy.md"
-    md.write_text("\n".join(report))
-    written.append(md)
+        report += [f"## {set_}, {mode}\n", compare.markdown_table(sub, SET_COLS, 3)]
+    return compare.write_report(out / "accuracy.md", report, skipped, written)
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    quick = args.quick
+    duration = args.duration or (20.0 if quick else 60.0)
+    max_trials = args.max_trials if args.max_trials is not None else (2 if quick else None)
+    trial_seconds = args.trial_seconds if args.trial_seconds is not None else (20.0 if quick else None)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    print("# Estimator accuracy: ours and peers, same run\n")
+    methods = peers.all_methods(print)
+    print("feeding:")
+    for m in methods:
+        if m.group == "peer":
+            print(f"  {m.name:<16s} {m.feeding}")
+    print(f"  {'fusion.*':<16s} {methods[0].feeding}")
+    ideal_rows, failed, scored, refused = _ideal_phase(methods, quick)
+    items, skipped = _items(args, quick, duration, max_trials, trial_seconds)
+    jobs, vqf_nominal = _jobs(items, scored)
+    print(f"{len(jobs)} runs\n", flush=True)
+    rows, run_skips = run_all(jobs, progress=not args.no_progress)
+    skipped += run_skips
+
+    order = {m.name: i for i, m in enumerate(scored + ([vqf_nominal] if vqf_nominal else []))}
+    agg = compare.aggregate(rows, by=("set", "mode", "method", "group"))
+    agg.sort(key=lambda r: (r["set"] in (SYNTHETIC, SEED), r["set"], compare.MODES.index(r["mode"]),
+                            order[r["method"]]))
+    best = add_ratio(agg, ("set", "mode"))
+    per_item = [dict(r) for r in rows if r["set"] in (SYNTHETIC, SEED)]
+    cat_rows = _category_rows(rows)
+    add_ratio(per_item, ("set", "item", "mode"))
+    overall = overall_rows(best)
+    verdicts = seed_verdicts(rows, fusion.available())
+    written = _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows, verdicts)
+
+    target_txt, verdict_txt = _target_text(best, agg, vqf_nominal), _verdict_text(verdicts)
+    overall_md = compare.markdown_table(overall, OVERALL_COLS, 2)
+    settings = f"{'quick' if quick else 'full'}; synthetic {duration:g} s at {FS:g} Hz, seed {args.seed}"
+    written.append(_report(out, settings, overall_md, target_txt, verdict_txt,
+                           methods + ([vqf_nominal] if vqf_nominal else []), ideal_rows, refused, agg, best, skipped,
+                           written))
 
     print("\nOverall (mean RMSE, deg):\n" + overall_md)
     print("TARGET COMPARISONS (VQF measured in this run):\n" + target_txt + "\n")
@@ -517,7 +536,6 @@ def main(argv=None):
     print(f"total {time.perf_counter() - t_start:.0f} s")
     return dict(rows=rows, agg=agg, overall=overall, ideal=ideal_rows, failed=failed,
                 verdicts=verdicts, skipped=skipped, written=written)
-
 
 if __name__ == "__main__":
     main()

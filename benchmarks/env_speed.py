@@ -26,14 +26,11 @@ import sys
 import time
 
 import numpy as np
+import pybullet as p
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-import pybullet as p  # noqa: E402
-
-from envs import convergence  # noqa: E402
-from envs.robot import DCMotor, RobotParams, Servo, build_robot  # noqa: E402
-from envs.sphere import SphereRobotEnv  # noqa: E402
+from envs import convergence
+from envs.robot import DCMotor, RobotParams, Servo, build_robot
+from envs.sphere import SphereRobotEnv
 
 
 def rss_mb():
@@ -79,14 +76,15 @@ class RawWorld:
         """(wall-clock, CPU-time) physics steps/s; ``reads``: also the two base-state reads
         (pose, velocity) the true IMU signals need."""
         b, c, motor, servo = self.b, self.c, self.motor, self.servo
-        joints = (0, 1)
+        joints, zero = (0, 1), (0.0, 0.0)
         cpu = time.thread_time()
         t = time.perf_counter()
         for _ in range(steps):
             js = p.getJointStates(b, joints, c)
             tau = motor.torque(3.0, js[0][1])
             ts = servo.torque(0.2, js[1][0], js[1][1])
-            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
+            # the env loop's call form (envs/_signals.pyx): positional, torque mode reads the forces only
+            p.setJointMotorControlArray(b, joints, p.TORQUE_CONTROL, zero, zero, (tau, ts), zero, zero, c)
             p.applyExternalTorque(b, 0, (0.0, 0.0, 0.0), p.WORLD_FRAME, physicsClientId=c)
             p.stepSimulation(c)
             if reads:
@@ -231,6 +229,51 @@ def breakdown(rounds=12, steps=250):
         print(f"| {k} | {m * 1e6:.1f} | {ref / m:.1%} |")
 
 
+def step_scaling(counts=(1, 2, 4, 8, 16), steps=2000, rounds=3):
+    """CPU time of one ``stepSimulation`` per robot with N robots in one client, rolling
+    (constant drive torque): side by side as envs/vector.py places them (every robot at the
+    same place, collisions between robots filtered out, one floor), and spread 3 m apart on
+    a grid (no filter needed: their shapes never overlap in the broadphase). Best of
+    ``rounds``; what bounds the batched vector env's speed per core."""
+    params = RobotParams()
+    print(f"stepSimulation CPU time per robot (us), N robots in one client, 400 Hz, best of {rounds} x {steps} steps:")
+    print("| N | same place, pairs filtered | 3 m apart | step per robot / one robot's (same place, apart) |")
+    print("|---|---|---|---|")
+    one = None
+    for n in counts:
+        res = []
+        for spread in (False, True):
+            c = p.connect(p.DIRECT)
+            p.setGravity(0, 0, -9.81, physicsClientId=c)
+            p.setPhysicsEngineParameter(fixedTimeStep=1 / 400.0, deterministicOverlappingPairs=1, physicsClientId=c)
+            floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+            p.changeDynamics(floor, -1, lateralFriction=1.0, physicsClientId=c)
+            side = int(np.ceil(np.sqrt(n)))
+            bodies = [build_robot(p, c, params, ((i % side) * 3.0, (i // side) * 3.0) if spread else (0, 0), 0.0)
+                      for i in range(n)]
+            if not spread:
+                for i, a in enumerate(bodies):
+                    for bb in bodies[i + 1:]:
+                        for la in (-1, 0, 1):
+                            for lb in (-1, 0, 1):
+                                p.setCollisionFilterPair(a, bb, la, lb, 0, physicsClientId=c)
+            for b in bodies:
+                p.setJointMotorControlArray(b, (0, 1), p.TORQUE_CONTROL, forces=(0.05, 0.0), physicsClientId=c)
+            for _ in range(200):
+                p.stepSimulation(c)
+            best = float("inf")
+            for _ in range(rounds):
+                t = time.thread_time()
+                for _ in range(steps):
+                    p.stepSimulation(c)
+                best = min(best, (time.thread_time() - t) / steps / n)
+            p.disconnect(c)
+            res.append(best * 1e6)
+        if one is None:
+            one = res
+        print(f"| {n} | {res[0]:.2f} | {res[1]:.2f} | {res[0] / one[0]:.2f}, {res[1] / one[1]:.2f} |", flush=True)
+
+
 def reset_times(n=300):
     env = SphereRobotEnv(estimator="ekf")
     env.reset(seed=0)
@@ -279,6 +322,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
     ap.add_argument("--steps", type=int, default=5000, help="env steps per timing repeat")
+    ap.add_argument("--scaling", action="store_true",
+                    help="only stepSimulation's time per robot with N robots in one client (the vector env's floor)")
     ap.add_argument("--breakdown", action="store_true",
                     help="only the CPU-time breakdown of an env step (PyBullet, physics loop, the rest)")
     args = ap.parse_args()
@@ -286,6 +331,9 @@ def main():
     print(f"one core: {'pinned' if pinned else 'not pinned'}; python {sys.version.split()[0]}")
     if args.breakdown:
         breakdown()
+        return
+    if args.scaling:
+        step_scaling()
         return
 
     raw = RawWorld()

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Leave-one-set-out choice of estimator parameters on every recorded set, VQF in the same run.
 
-Cells: every (set, mode) of ../shared/data (9-axis where the set has a magnetometer, 6-axis
+Cells: every (set, mode) of the recorded data (``fusion.datasets``; 9-axis where the set has a magnetometer, 6-axis
 on every set). A candidate's score in a cell is its mean total RMSE over the cell's 'ok'
 trials divided by VQF's (online, defaults, the same feeding as benchmarks/accuracy.py), so
 that sets of different difficulty weigh alike. For each held-out set, the grid point with the
@@ -19,23 +19,20 @@ parameters on every trial.
 import argparse
 import ast
 import itertools
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import fusion
+from fusion import datasets
+from benchmarks import compare, peers
 
-import fusion                                    # noqa: E402
-from fusion import compare, datasets             # noqa: E402
-from benchmarks import peers                     # noqa: E402
 
 ERRORS = ("total", "heading", "inclination")
-# cells whose reference heading is not magnetic north (../shared/data/README.md: diodem's
-# magnetometer is strongly disturbed, its earth frame is the optical one): there a candidate is
+# cells whose reference heading is not magnetic north (the data folder's README, "Recorded IMU
+# data with a reference orientation": diodem's magnetometer is strongly disturbed, its earth
+# frame is the optical one): there a candidate is
 # judged by inclination alone, which the magnetometer's disturbances must not spoil
 INCLINATION_ONLY = {("diodem", "9-axis")}
 
@@ -69,7 +66,7 @@ def categories(names):
 def load_cells(root=None, quick=False, seconds=None):
     root = Path(root) if root else datasets.default_data_dir()
     if root is None or not Path(root).is_dir():
-        raise SystemExit("recorded data not found (../shared/data or $FUSION_DATA_DIR)")
+        raise SystemExit(f"recorded data not found ({datasets.DATA_LOCATION})")
     by = {}
     for tr in datasets.load_folder(root, only_ok=True):
         if not np.isfinite(tr.quat).all(axis=1).any():
@@ -206,11 +203,9 @@ def loso(name, grid, cells, base=None, log=print):
 def ratio_chart(results, cells, path):
     """One bar per estimator: its mean ours / VQF figure (objective); one marker per cell on
     it (total ratio; inclination ratio for INCLINATION_ONLY cells). 1 = VQF."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     names = list(results)
-    fig, ax = plt.subplots(figsize=(1.3 * len(names) + 3, 4.5))
+    fig = compare.new_figure(figsize=(1.3 * len(names) + 3, 4.5))
+    ax = fig.subplots()
     x = np.arange(len(names))
     ax.bar(x, [objective(results[n], cells) for n in names], color="lightsteelblue",
            label="mean figure (total + inclination ratio) / 2")
@@ -227,11 +222,7 @@ def ratio_chart(results, cells, path):
     ax.set_title("Defaults on every recorded set: ratio to VQF (below the dashed line: better than VQF)")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return compare.save_figure(fig, path, dpi=100)
 
 
 def main(argv=None):

@@ -6,7 +6,8 @@ Peers (``pip install '.[bench]'``) and how they are fed:
 - ``vqf.VQF`` / ``vqf.BasicVQF``: rad/s, m/s^2 (specific force), magnetometer in uT; output
   body -> ENU. One constant sample time, set at construction (no per-sample dt): ``Data.ts``,
   the mean step of the time stamps (``1/fs`` when they are even). ``vqf_method(...,
-  nominal=True)`` takes ``1/fs`` instead, as ../shared/data/README.md's reference figures do
+  nominal=True)`` takes ``1/fs`` instead, as the reference figures of the data folder's README
+  ("Recorded IMU data with a reference orientation") do
   (on ese650 the nominal fs, ~104.4 Hz, is 4 % off the stamps' mean rate of 100 Hz).
 - ``imufusion.Ahrs`` (1.3): deg/s, g, uT, ``CONVENTION_ENU``; output body -> ENU. Sample
   period set with ``set_sample_period``: ``1/fs``, or before every sample from the time
@@ -181,27 +182,8 @@ def vqf_method(cls_name, nominal=False):
 
     def update(d, n, nine):
         v = cls(ts(d))
-        upd = v.update
-        g, a = d.gyr[:n], d.acc[:n]
-        if nine:
-            m, get = d.mag_ut[:n], v.getQuat9D
-
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    upd(gi, ai, mi)
-                    q = get()
-                return q
-        else:
-            get = v.getQuat6D
-
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    upd(gi, ai)
-                    q = get()
-                return q
-        return go
+        return _last_loop(v.update, v.getQuat9D if nine else v.getQuat6D, d.gyr[:n], d.acc[:n],
+                          d.mag_ut[:n] if nine else None)
 
     def run(d, n, nine):
         v = cls(ts(d))                  # sample time fixed at construction: no per-sample dt
@@ -215,6 +197,26 @@ def vqf_method(cls_name, nominal=False):
                   per_sample_dt=False,
                   feeding="rad/s, m/s^2, uT; ENU; constant Ts = "
                           + ("1/fs (nominal)" if nominal else "mean step of t") + " (no per-sample dt API)")
+
+
+def _last_loop(upd, get, g, a, m=None):
+    """The timed per-sample loop of a peer: ``upd`` then ``get`` on every sample, keeping the
+    last output; one closure per case (with or without ``m``), so that the loop holds no branch."""
+    if m is not None:
+        def go():
+            q = None
+            for gi, ai, mi in zip(g, a, m):
+                upd(gi, ai, mi)
+                q = get()
+            return q
+    else:
+        def go():
+            q = None
+            for gi, ai in zip(g, a):
+                upd(gi, ai)
+                q = get()
+            return q
+    return go
 
 
 def _imufusion_ahrs(d):
@@ -256,36 +258,21 @@ def _imufusion_uneven_loop(ahrs, g, a, m, dts, out):
 def _imufusion_even_loop(ahrs, g, a, m, out):
     """One closure per case, so that the timed loop holds no branch; out=None keeps only the last."""
     get = ahrs.get_quaternion
+    upd = ahrs.update if m is not None else ahrs.update_no_magnetometer
+    if out is None:
+        return _last_loop(upd, get, g, a, m)
     if m is not None:
-        upd = ahrs.update
-        if out is not None:
-            def go():
-                for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
-                    upd(gi, ai, mi)
-                    out[i] = get()
-                return out
-        else:
-            def go():
-                q = None
-                for gi, ai, mi in zip(g, a, m):
-                    upd(gi, ai, mi)
-                    q = get()
-                return q
+        def go():
+            for i, (gi, ai, mi) in enumerate(zip(g, a, m)):
+                upd(gi, ai, mi)
+                out[i] = get()
+            return out
     else:
-        upd = ahrs.update_no_magnetometer
-        if out is not None:
-            def go():
-                for i, (gi, ai) in enumerate(zip(g, a)):
-                    upd(gi, ai)
-                    out[i] = get()
-                return out
-        else:
-            def go():
-                q = None
-                for gi, ai in zip(g, a):
-                    upd(gi, ai)
-                    q = get()
-                return q
+        def go():
+            for i, (gi, ai) in enumerate(zip(g, a)):
+                upd(gi, ai)
+                out[i] = get()
+            return out
     return go
 
 

@@ -53,12 +53,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import fusion
+from benchmarks.peers import Data, all_methods, sanity
 
-import fusion                                    # noqa: E402
-from benchmarks.peers import Data, all_methods, sanity   # noqa: E402
 
 FS = 100.0
 BANK_COUNT = 64

@@ -16,14 +16,13 @@ on the realistic robot, on it without the drive vibration (its ``vib_*`` fields 
 realism kept) and on the ideal robot, mean over ``--seeds`` seeds. With ``--loop N``: the
 same estimators under the PID in both tasks (flat floor, seeds 0..N-1), the mean
 ``tilt_error`` and its paired difference against ``ekf``, with and without the vibration.
+With ``--bumps``: only each bump's peak |acc| - g at the IMU, 400 against 1600 Hz physics, for
+the ideal IMU and the MPU-9250 at each range setting (+-2, 4, 8, 16 g), straight at full and
+0.6 drive over bumps 1 m apart (``envs.convergence.bump_peaks``; docs/envs/robot.md).
 """
 import argparse
-import os
-import sys
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 
 def measure(drive, seconds, realism, seed=0):
@@ -87,6 +86,23 @@ def loop_tilt(episodes):
                 for k, v in res.items()), flush=True)
 
 
+def bump_table():
+    from envs import convergence as cv
+    print("| run | IMU | largest peak 400 / 1600 Hz (m/s^2) | its difference | bump by bump: mean | worst |")
+    print("|---|---|---|---|---|---|")
+    for drive in (1.0, 0.6):
+        for label, imu in (("ideal", "ideal"), ("MPU-9250 +-2 g", cv.mpu9250_16g(2)), ("+-4 g", cv.mpu9250_16g(4)),
+                           ("+-8 g", cv.mpu9250_16g(8)), ("+-16 g", cv.mpu9250_16g(16))):
+            a, b = cv.bump_peaks(400.0, drive, imu), cv.bump_peaks(1600.0, drive, imu)
+            n = min(len(a), len(b))
+            a, b = a[:n], b[:n]
+            crossed = (a > 5.0) & (b > 5.0)         # a bump not reached in the run reads about 1 m/s^2
+            a, b = a[crossed], b[crossed]
+            r = a / b - 1.0
+            print(f"| drive {drive:g}, {len(a)} bumps | {label} | {a.max():.1f} / {b.max():.1f} | "
+                  f"{a.max() / b.max() - 1:+.1%} | {r.mean():+.1%} | {r[np.argmax(np.abs(r))]:+.1%} |", flush=True)
+
+
 def main(argv=None):
     import fusion
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -95,7 +111,11 @@ def main(argv=None):
     ap.add_argument("--drive-est", type=float, default=0.6)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--loop", type=int, default=0, metavar="N", help="also the in-loop check, N episodes per cell")
+    ap.add_argument("--bumps", action="store_true", help="only each bump's peak at 400 and 1600 Hz, every range")
     a = ap.parse_args(argv)
+    if a.bumps:
+        bump_table()
+        return
     print(f"{'robot':9s} {'drive':>5s} {'speed':>6s} {'std|acc|':>8s} {'std x/y/z (m/s^2)':>20s} "
           f"{'<fc':>5s} {'>fc':>5s}  strongest lines (Hz: amplitude m/s^2)")
     for realism in ("real", "ideal"):

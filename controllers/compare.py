@@ -48,9 +48,11 @@ TASKS = ("track", "waypoints")
 #: environment arguments of each scenario (on top of the task's defaults)
 SCENARIOS = {
     "flat": {},
-    # magnetic dipoles in the floor (a steel plate, a motor) and bumps that shake the IMU,
-    # in a smaller arena so that the robot meets them
-    "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16},
+    # magnetic dipoles in the floor (a steel plate, a motor), bumps that shake the IMU and
+    # slippery patches where the drive slips (dead reckoning drifts), in a smaller arena so
+    # that the robot meets them
+    "disturbed": {"arena_size": 16.0, "mag_zones": "random", "n_mag_zones": 16, "bumps": 16,
+                  "slippery_patches": 8},
 }
 CONTROLLERS = ("pid", "ppo", "ppo-truth")
 #: the robot of the grid (``--robot``) and the environment's ``realism=`` it sets: realistic is
@@ -611,7 +613,7 @@ def _plot_headline(summary, path):
             return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
                     "estimator's paired difference against it (add `truth` to --estimators).")
         return "No headline figure: the grid has no estimator besides `truth` to compare with it."
-    from fusion.compare import new_figure
+    from benchmarks.compare import new_figure
     sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
     fig = new_figure(figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4))
     axes = fig.subplots(len(panels), 1,
@@ -629,7 +631,7 @@ def _plot_headline(summary, path):
 def _plot_paths(path_rows, path):
     from matplotlib.patches import Circle
 
-    from fusion.compare import new_figure
+    from benchmarks.compare import new_figure
     fig = new_figure(figsize=(7, 7))
     ax = fig.subplots()
     first = path_rows[0]
@@ -700,7 +702,8 @@ def _parser():
                     help=f"comma-separated tasks (default: all). Accepted: {', '.join(TASKS)}")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), metavar="LIST",
                     help=f"comma-separated floors (default: all). Accepted: {', '.join(SCENARIOS)}: flat = the "
-                         "environment's defaults; disturbed = 16 magnetic dipoles and 16 bumps in a 16 m arena")
+                         "environment's defaults; disturbed = 16 magnetic dipoles, 16 bumps and 8 slippery "
+                         "patches in a 16 m arena")
     ap.add_argument("--estimators", default=None, metavar="LIST",
                     help=f"comma-separated estimators; include truth for the differences and the figure "
                          f"(default: all; --quick: {QUICK['estimators']}). Accepted: {', '.join(all_est)}")

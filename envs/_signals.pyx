@@ -31,6 +31,7 @@ cdef extern from *:
 
 cdef double G = 9.81                 # envs.sphere.G
 cdef double TWO_PI = 6.283185307179586
+cdef tuple ZERO2 = (0.0, 0.0)        # the unused targets and gains of a torque command
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -55,6 +56,11 @@ cdef class Loop:
     cdef double s_stall, s_inv_band, s_kd, i_servo
     cdef int lat
     cdef double stiction, coulomb, spin, inv_eps, roll_c
+    # slippery patches (x, y, squared radius), their friction, the floor's, the spin torque on them
+    cdef double[:, ::1] patches
+    cdef Py_ssize_t npatch
+    cdef double patch_mu, lat_mu, spin_patch
+    cdef bint patch_on
     # true signals
     cdef bint has_offset, vib, self_field
     cdef double ox, oy, oz, k_phys, ex, ey, ez, mag_steer, mag_current
@@ -107,6 +113,9 @@ cdef class Loop:
         self.lat = env._lat_steps
         self.stiction, self.coulomb = rp.drive_stiction, rp.drive_coulomb
         self.spin, self.inv_eps, self.roll_c = robot.spin_torque(rp), 1.0 / robot.SPIN_EPS, rp.rolling_damping
+        self.patches = np.array(env._patches, dtype=np.float64).reshape(-1, 3)
+        self.npatch = self.patches.shape[0]
+        self.patch_mu, self.lat_mu, self.spin_patch = env.patch_friction, rp.lateral_friction, env._spin_patch
         self.has_offset = env._has_offset
         self.ox, self.oy, self.oz = env.imu_offset
         self.k_phys = env.physics_hz
@@ -140,6 +149,9 @@ cdef class Loop:
         m = self.motor
         self.i_prev, self.i_other, self.i_signed = m.i_prev, m.i_other, m.i_signed
         self.stuck_gear = getattr(env, "_stuck_gear", False)     # (reset sets it after the first sense)
+        self.patch_on = env._patch_on
+        if self.npatch and not first:
+            self.pos = env._true[0]             # the last sensed position (the Python path may have sensed)
         self._get_sums(env)
         return 0
 
@@ -160,6 +172,7 @@ cdef class Loop:
         m = self.motor
         m.i_prev, m.i_other, m.i_signed = self.i_prev, self.i_other, self.i_signed
         env._stuck_gear = self.stuck_gear
+        env._patch_on = self.patch_on
         self._put_sums(env)
         return 0
 
@@ -322,9 +335,11 @@ cdef class Loop:
     # -- the physics steps (SphereRobotEnv._advance) ----------------------------------------
     def advance(self, env, int n, double voltage, double target):
         """SphereRobotEnv._advance on the kernel."""
-        cdef double v_old, t_old, v, tgt, wd, t, lim, ts = 0.0, tau = 0.0, e, s0
+        cdef double v_old, t_old, v, tgt, wd, t, lim, ts = 0.0, tau = 0.0, e, s0, spin, px, py, dx, dy
         cdef int i
-        cdef bint stuck
+        cdef Py_ssize_t k
+        cdef bint stuck, on
+        cdef double[:, ::1] pt = self.patches
         self._get(env)
         v_old, t_old = env._cmd_prev
         b, c, joints = self.b, self.c, self.joints
@@ -363,12 +378,29 @@ cdef class Loop:
                 self.i_other = self.i_servo * (ts if ts >= 0 else -ts)
             elif i == self.lat:
                 self.set_steer(self.p, c, b, self.rp, target)
-            self.setm(b, joints, self.torque_mode, forces=(tau, ts), physicsClientId=c)
-            if self.spin or self.roll_c:
+            # positional (torque mode reads only the forces): PyBullet parses keywords 0.3 us slower
+            self.setm(b, joints, self.torque_mode, ZERO2, ZERO2, (tau, ts), ZERO2, ZERO2, c)
+            spin = self.spin
+            if self.npatch:
+                # SphereRobotBase._actuate: the friction under the shell's centre
+                px, py = self.pos[0], self.pos[1]
+                on = False
+                for k in range(self.npatch):
+                    dx, dy = px - pt[k, 0], py - pt[k, 1]
+                    if dx * dx + dy * dy < pt[k, 2]:
+                        on = True
+                        break
+                if on != self.patch_on:
+                    self.patch_on = on
+                    self.p.changeDynamics(b, 0, lateralFriction=self.patch_mu if on else self.lat_mu,
+                                          physicsClientId=c)
+                if on:
+                    spin = self.spin_patch
+            if spin or self.roll_c:
                 e = (self.wb[2] + wd * self.axle[2]) * self.inv_eps
                 self.ext(b, 0, (-self.roll_c * (self.wb[0] + wd * self.axle[0]),
                                 -self.roll_c * (self.wb[1] + wd * self.axle[1]),
-                                -self.spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
+                                -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
                          self.world, c)             # (physicsClientId: positional is cheaper)
             if self.stiction:
                 stuck = -0.05 < wd < 0.05

@@ -39,6 +39,7 @@ BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
 RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
 START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
+PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
 
 
@@ -145,6 +146,11 @@ class SphereRobotBase(gym.Env):
     arena_size: side of the square arena (m) centred on the origin; leaving it ends the episode.
     bumps: number of low cylindrical bumps (height ``bump_height``) laid on the floor.
     ramps: number of ramps (slope ``ramp_deg``, height ``ramp_height``) on the floor.
+    slippery_patches: number of low-friction discs on the floor (polished or wet tiles, dust:
+        radius U(0.5, 1.5) m, placed by the seed); while the shell's centre is over one, the
+        shell-floor friction coefficient is ``patch_friction`` (default 0.05) instead of
+        ``robot.lateral_friction``, and the spinning friction scales with it. The drive can
+        then slip, which the encoder's dead reckoning does not see. docs/envs/robot.md.
     mag_zones: None, "random" (``n_mag_zones`` dipoles placed by the seed) or a list of
         (x, y, field_uT): a magnetic dipole in the floor at (x, y) whose field at the
         IMU's height above it is field_uT (a steel plate, a motor).
@@ -171,7 +177,8 @@ class SphereRobotBase(gym.Env):
                  imu_calibrated=True, imu_hz=200.0, physics_hz=400.0, control_hz=50.0,
                  imu_offset=(0.02, 0.0, 0.03), episode_s=None, robot=None, arena_size=20.0,
                  bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
-                 mag_zones=None, n_mag_zones=3, earth_field=EARTH_FIELD, realism="real",
+                 slippery_patches=0, patch_friction=0.05, mag_zones=None, n_mag_zones=3,
+                 earth_field=EARTH_FIELD, realism="real",
                  render_mode=None, render_size=(320, 240), compiled=True):
         super().__init__()
         if estimator not in ESTIMATORS():
@@ -195,6 +202,8 @@ class SphereRobotBase(gym.Env):
         self.episode_s = _number("episode_s", eps, 0.0, 1e6, lo_open=True)
         self.max_steps = max(1, int(round(self.episode_s * self.control_hz)))
         self._check_world(imu_offset, bumps, bump_height, ramps, ramp_deg, ramp_height, n_mag_zones, earth_field)
+        self.slippery_patches = _count("slippery_patches", slippery_patches)
+        self.patch_friction = _number("patch_friction", patch_friction, 0.0, 1.0)
         self._mag_zone_spec = _mag_zone_spec(mag_zones)
         try:
             rw, rh = (int(v) for v in render_size)
@@ -292,6 +301,9 @@ class SphereRobotBase(gym.Env):
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
         self._spin = spin_torque(rp)
+        # the spinning friction is a friction (mu times a contact-patch radius): it scales with
+        # the friction coefficient on a slippery patch
+        self._spin_patch = self._spin * (self.patch_friction / rp.lateral_friction if rp.lateral_friction > 0 else 1.0)
         self._i_servo = SERVO_STALL_CURRENT / rp.steer_torque if self._servo is not None else 0.0
 
     def _make_spaces(self):
@@ -408,6 +420,10 @@ class SphereRobotBase(gym.Env):
 
     def _mag_markers(self):
         p, c = self._p, self._client
+        for (cx, cy, r2) in self._patches:
+            vis = p.createVisualShape(p.GEOM_CYLINDER, radius=math.sqrt(r2), length=0.002,
+                                      rgbaColor=[0.85, 0.95, 1.0, 1], physicsClientId=c)
+            p.createMultiBody(0, -1, vis, [cx, cy, 0.001], physicsClientId=c)
         for (cx, cy, _cz, _mx, _my, _mz, _r2) in self._zones:
             vis = p.createVisualShape(p.GEOM_CYLINDER, radius=0.15, length=0.004, rgbaColor=[0.8, 0.1, 0.1, 1],
                                       physicsClientId=c)
@@ -444,6 +460,17 @@ class SphereRobotBase(gym.Env):
         ramps = away(self.ramps, math.hypot(0.5 * RAMP_TOP + self._ramp_run(), 0.5 * RAMP_WIDTH))
         self._zones = self._draw_zones()
         return start_xy, start_yaw, bumps, ramps
+
+    def _draw_patches(self):
+        """The slippery patches: (x, y, squared radius), anywhere in the arena."""
+        rng = self.np_random
+        half = 0.5 * self.arena_size
+        out = []
+        for _ in range(self.slippery_patches):
+            xy = rng.uniform(-half + 1.0, half - 1.0, size=2)
+            r = float(rng.uniform(*PATCH_RADIUS))
+            out.append((float(xy[0]), float(xy[1]), r * r))
+        return out
 
     def _draw_zones(self):
         """The magnetic zones: (x, y, z, moment (A m^2, 3), squared radius of influence)."""
@@ -503,7 +530,7 @@ class SphereRobotBase(gym.Env):
         x, y, z, w = self._true[1]
         self._q_true_s = (w, x, y, z)
         if self._est is not None:
-            self._q_est = q
+            self._q_est = (float(q[0]), float(q[1]), float(q[2]), float(q[3]))    # as the compiled loop's
             g = s.gyr
         else:
             g = self._true[3]
@@ -669,6 +696,21 @@ class SphereRobotBase(gym.Env):
             set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
         p.setJointMotorControlArray(b, _JOINTS, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
         spin, roll_c = self._spin, rp.rolling_damping
+        if self._patches:
+            # the contact lies under the shell's centre: over a patch, its friction
+            pos = self._true[0]
+            on = False
+            for (cx, cy, r2) in self._patches:
+                dx, dy = pos[0] - cx, pos[1] - cy
+                if dx * dx + dy * dy < r2:
+                    on = True
+                    break
+            if on != self._patch_on:
+                self._patch_on = on
+                p.changeDynamics(b, DRIVE_JOINT, lateralFriction=self.patch_friction if on else rp.lateral_friction,
+                                 physicsClientId=c)
+            if on:
+                spin = self._spin_patch
         if spin or roll_c:
             # the floor's losses on the shell (its rate: the frame's + wd x axle): viscous
             # rolling damping about x and y, spinning friction about z
@@ -709,6 +751,10 @@ class SphereRobotBase(gym.Env):
                                  compiled=self._compiled)
         else:
             self._imu.reset(rng=self.np_random)
+        # drawn after everything else of the reset, so that with patches the episode's other
+        # draws (layout, task, IMU) are those of the flat floor
+        self._patches = self._draw_patches()
+        self._patch_on = False
         self._build_world(self._xy0, self._yaw0, bumps, ramps)
         if self._est is not None:
             self._est.reset()
@@ -737,7 +783,8 @@ class SphereRobotBase(gym.Env):
         self._gyr_sum_y, self._gyr_n = 0.0, 0
         self._reset_task()
         self._needs_reset = False
-        return self._observation(), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0))
+        psi = self._heading_est()
+        return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
 
     def _apply_options(self, options):
         bad = sorted(set(options) - {"start_xy", "start_yaw"})
@@ -773,7 +820,9 @@ class SphereRobotBase(gym.Env):
         """(obs, reward, terminated, truncated, info) of a step, after its physics."""
         self._steps += 1
         self._t = self._steps / self.control_hz
-        self._odometry()
+        # the estimated heading and bias, read once: the estimator does not move until the next step
+        psi, bias = self._heading_est(), self._est_bias()
+        self._odometry(psi, bias)
         # reward, termination (the referee uses the true state)
         terms, done = self._get_rew(a0, a1)
         reward = float(sum(terms.values()))
@@ -781,8 +830,8 @@ class SphereRobotBase(gym.Env):
         truncated = (not terminated) and self._steps >= self.max_steps
         if terminated or truncated:
             self._needs_reset = True
-        obs = self._observation()
-        info = self._info(terms)
+        obs = self._observation(psi, bias)
+        info = self._info(terms, psi)
         info["out_of_arena"] = out
         info["stuck"] = stuck
         self._task_step_info(info, terminated and not out and not stuck)
@@ -812,17 +861,17 @@ class SphereRobotBase(gym.Env):
         cpr = self.robot.encoder_cpr
         return math.floor(self._p.getJointState(self._body, DRIVE_JOINT, self._client)[0] * cpr / (2 * math.pi))
 
-    def _odometry(self):
+    def _odometry(self, psi, bias):
         """The robot's own estimates after a control period: the Hall encoder's speed over it,
-        and the dead-reckoned position (with the optional position fix)."""
+        and the dead-reckoned position (with the optional position fix) along the estimated
+        heading ``psi``, with the gyro's ``bias`` (3 floats or None) removed from its rate."""
         rp = self.robot
         counts = self._encoder_counts()
         self._enc_speed = (counts - self._enc_counts) * (2 * math.pi / rp.encoder_cpr) * self.control_hz
         self._enc_counts = counts
-        psi = self._heading_est()
         rate_y = self._gyr_sum_y / self._gyr_n if self._gyr_n else 0.0
-        if self._est is not None and self._est.bias is not None:
-            rate_y -= float(self._est.bias[1])
+        if bias is not None:
+            rate_y -= bias[1]
         v_est = rp.shell_radius * (self._enc_speed + rate_y)
         step_len = v_est / self.control_hz
         self._pos_est[0] += step_len * math.cos(psi)
@@ -919,10 +968,15 @@ class SphereRobotBase(gym.Env):
                 "rotation": R}
 
     def _q_est_wxyz(self):
+        """The estimated attitude (4 floats, the true one for "truth" or before a sample)."""
         if self._est is None or self._q_est is None:
             return self._q_true_s
-        q = self._q_est
-        return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        return self._q_est
+
+    def _est_bias(self):
+        """The estimator's gyro bias (3 floats), or None."""
+        b = self._est.bias if self._est is not None else None
+        return None if b is None else tuple(b.tolist())
 
     # Heading: the rolling direction, perpendicular to the axle (body y) in the horizontal
     # plane: atan2(-R01, R11). Unlike the yaw of the body x axis it does not flip when the
@@ -935,23 +989,22 @@ class SphereRobotBase(gym.Env):
         x, y, z, w = self._true[1]
         return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
 
-    def _observation(self):
+    def _observation(self, psi, bias):
+        """The observation, given the estimated heading ``psi`` and gyro ``bias`` (or None)."""
         w, x, y, z = self._q_est_wxyz()
         if w < 0:
             w, x, y, z = -w, -x, -y, -z
         g = self._gyr_last
-        if self._est is not None:
-            b = self._est.bias
-            if b is not None:
-                g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
-        task = self._task_obs(self._heading_est())
+        if bias is not None:
+            g = (g[0] - bias[0], g[1] - bias[1], g[2] - bias[2])
+        task = self._task_obs(psi)
         obs = np.array((w, x, y, z, g[0], g[1], g[2], self._enc_speed, self._action[0], self._action[1]) + task,
                        dtype=np.float32)
         np.maximum(obs, self._obs_low, out=obs)       # np.clip's numbers, without its Python wrapper
         np.minimum(obs, self._obs_high, out=obs)
         return obs
 
-    def _info(self, terms):
+    def _info(self, terms, psi):
         pos, orn, lin = self._true[0], self._true[1], self._true[2]
         qt = self._q_true_s
         qe = self._q_est_wxyz()
@@ -960,7 +1013,7 @@ class SphereRobotBase(gym.Env):
         info = {
             "q_true": np.array(qt), "q_est": np.array(qe), "attitude_error_deg": err,
             "position": np.array(pos), "velocity": np.array(lin),
-            "heading_true": self._heading_true(), "heading_est": self._heading_est(),
+            "heading_true": self._heading_true(), "heading_est": psi,
             "encoder_speed": self._enc_speed, "motor_torque": self._tau,
             "reward_terms": terms, "action_clipped": self._clipped,
             "estimator_skipped": dict(self._est.skipped) if self._est is not None else {"gyr": 0, "acc": 0, "mag": 0},

@@ -33,14 +33,34 @@ class _Env(SphereBotTrackEnv):
         return xy, yaw, [(1.0 + i, 0.0, 0.0) for i in range(len(bumps))], ramps
 
 
-def mpu9250_16g():
-    """The calibrated MPU-9250 preset at its +-16 g range (ACCEL_FS_SEL = 3): its 2 g
-    default saturates on a bump. Its DLPF (218.1 Hz accelerometer, 250 Hz gyro) smooths
-    the impact before the output register."""
+def mpu9250_16g(g_range=16):
+    """The calibrated MPU-9250 preset at its +-``g_range`` g range (2, 4, 8 or 16: ACCEL_FS_SEL
+    0-3, 16384 / g_range LSB per g): its 2 g default saturates on a bump. Its DLPF (218.1 Hz
+    accelerometer, 250 Hz gyro) smooths the impact before the output register."""
     from dataclasses import replace
     from fusion import imu as fimu
     spec = fimu.preset("mpu9250", calibrated=True)
-    return spec.replace(acc=replace(spec.acc, range=16 * fimu.G0, lsb=fimu.G0 / 2048.0))
+    return spec.replace(acc=replace(spec.acc, range=g_range * fimu.G0, lsb=fimu.G0 * g_range / 32768.0))
+
+
+def bump_peaks(physics_hz, drive=1.0, imu="ideal", seed=0, bumps=8):
+    """Each bump's peak |acc| - g (m/s^2) at the IMU, straight over ``bumps`` bumps at x = 1, 2,
+    ... m (the samples within 0.5 m of each), at ``drive`` of full voltage."""
+    env = _Env(estimator="truth", imu=imu, physics_hz=physics_hz, episode_s=DURATION_S + 1.0, arena_size=60.0,
+               bumps=bumps)
+    env.reset(seed=seed, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
+    log = env.enable_signal_log()
+    for _ in range(int(DURATION_S * env.control_hz)):
+        env.step((drive, 0.0))
+    env.close()
+    x = np.array([pos[0] for pos, *_, s in log if s is not None])
+    an = np.abs(np.linalg.norm(np.array([s.acc for *_, s in log if s is not None]), axis=1) - GRAVITY)
+    out = []
+    for k in range(1, bumps + 1):
+        near = np.abs(x - k) < 0.5
+        if near.any():
+            out.append(float(an[near].max()))
+    return np.array(out)
 
 
 def run(name, physics_hz, seed=0, imu="ideal"):

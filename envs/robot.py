@@ -69,10 +69,21 @@ class RobotParams:
     takes m g L sin 30 deg = 0.15 N m; the margin covers the dynamic loads of a turn),
     ``steer_speed`` 6.2 rad/s.
 
-    Contact: ``lateral_friction`` 0.6 (acrylic on wood or vinyl); ``rolling_resistance`` 0.004
-    (the dimensionless coefficient Crr of a hard plastic ball on a hard floor: resisting
-    torque Crr N r); ``spinning_friction`` 1e-3 m (torsional friction of the small contact
-    patch, mu times a patch radius of about 2 mm).
+    Contact: ``lateral_friction`` 0.6 (acrylic on wood or vinyl), never reached by the drive:
+    the largest traction it can ask for is tau / r * m / (m + I / r^2) = 0.97 N against
+    mu N = 6.8 N (the environments' ``slippery_patches`` lower it where the drive slips);
+    ``rolling_resistance`` 0.004 (the dimensionless coefficient Crr of a hard plastic ball on a
+    hard floor: resisting torque Crr N r; an assumption among the handbook values of hard
+    rolling contacts, 0.001-0.005, "Rolling Resistance", The Engineering ToolBox: no figure
+    for a plastic shell was found); ``spinning_friction`` 2e-4 m (torsional friction of the
+    small contact patch, mu times a patch radius; docs/envs/robot.md).
+
+    Drive vibration (``vib_*``, m/s^2 at top speed): assumptions of the right order, not
+    measurements (no published acceleration at the IMU of such a robot was found); the tones
+    are those of the sources measured on small DC motors (imbalance, commutation, gear mesh:
+    "Characterizing Sources of Small DC Motor Noise and Vibration", Micromachines 2018), the
+    level set to give a few tenths of m/s^2 of |acc| std in steady rolling (docs/envs/robot.md).
+    ``rolling_damping`` is an assumption too (the decay time of the sideways rocking).
     """
 
     shell_radius: float = 0.125

@@ -22,12 +22,16 @@ robot's filter is updated alone (the same numbers: tested). The IMU model's samp
 have per-device jitter and error, so the robots' samples seldom coincide (3 robots, 40
 steps: 51 bank calls against about 160 samples each). Not done: one IMU-model kernel for
 all robots (each still has its own ``fusion.imu.IMU``). Speed: 16 robots ran
-0.71-0.93x the robot steps/s per core of one environment, same run (target 3x; measured by
-benchmarks/env_speed.py): PyBullet's world step costs more per robot with 16 than with one
-(about 27-33 us per robot against about 15 us: the robots' shapes overlap in the
-broadphase before the filter drops the pairs; the robots share one floor), and the
-per-robot Python of each physics step (the IMU model's ``step``, the true signals, sensing,
-actuation: about 60 % of the time, profiled) is not shared by batching.
+0.5-0.9x the robot steps/s per core of one environment, same run (target 3x; measured by
+benchmarks/env_speed.py). The limit is PyBullet's: its world step costs each robot at least
+one robot's step (5.4 us at 400 Hz; 9.5 us per robot with 16 robots at the same place, whose
+shapes overlap in the broadphase before the filter drops the pairs; 6.0 us with 16 robots
+3 m apart: ``env_speed.py --scaling``), and the per-robot PyBullet calls (about 3.3 us per
+physics step) have no batched form, so a robot step costs at least about 100 us (one
+place) or 75 us (apart) against about 90-100 us for a whole step of one environment: about
+1x per core is the ceiling here, 1.3x spread apart (docs/envs/vector.md). The per-robot
+Python of each physics step (the IMU model's ``step``, the true signals, sensing, actuation:
+about half of the time, profiled) is not shared by batching.
 """
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`aekf`: seed 001's adaptive EKF from predicted measurements, on the 7-state `ekf`
-(docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of fusion/_wahba.pxd."""
+"""`aekf`: the adaptive EKF of "Adaptive EKF from predicted measurements, for arm attitude",
+on the 7-state `ekf` (docs/aekf.md). Also `quest()`, a Python entry to the inline QUEST of
+fusion/_wahba.pxd."""
 import numbers
 
 import numpy as np
@@ -69,14 +70,15 @@ def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
 
 
 cdef class AEKF(EKF):
-    """Seed 001's adaptive EKF: the `ekf` whose accelerometer / magnetometer variances switch
-    to reject_factor times their values when the readings disagree with what the predicted
+    """The adaptive EKF of "Adaptive EKF from predicted measurements, for arm attitude": the
+    `ekf` whose accelerometer / magnetometer variances switch to reject_factor times their
+    values when the readings disagree with what the predicted
     attitude expects (linear acceleration, magnetic disturbance); with measurement="quest" a
     QUEST quaternion is the measurement while both sensors are accepted."""
     name = "aekf"
     # the ekf's parameters but acc_lowpass (its tests judge the raw accelerometer); the
     # accelerometer corrects the inclination only (docs/aekf.md, "Rest and tilt")
-    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
+    PARAMS = dict({k: v for k, v in EKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0, bias_init_std=0.02, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 

@@ -1,5 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`cf-ekf`: seed 004's fusion (docs/cfekf.md): sliding-mean prefilter, an explicit
+"""`cf-ekf`: the fusion of "Attitude-angle solution for a mobile robot" (Chinese patent, 2019)
+(docs/cfekf.md): sliding-mean prefilter, an explicit
 complementary filter (Mahony) whose quaternion is the measurement of the 7-state EKF."""
 
 import numpy as np
@@ -32,7 +33,8 @@ def default_window(fs):
 
 
 cdef class CFEKF(EKF):
-    """Seed 004: gyro, accelerometer and magnetometer through a sliding mean; Mahony's
+    """The fusion of "Attitude-angle solution for a mobile robot": gyro, accelerometer and
+    magnetometer through a sliding mean; Mahony's
     complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
     4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
     whose prediction integrates the averaged gyro. bias_feedback: the complementary filter

@@ -25,8 +25,9 @@ def check_recovery_params(p):
     return check_gyro_range(p["gyro_range"]), check_positive("motion_rate", p["motion_rate"], upper=MOTION_RATE_MAX, allow_zero=True)
 
 
-# the vector updates' gains: "vector" the Kalman gain (seed 003 as written), "heading" the
-# magnetometer's projected onto a turn about the vertical, "tilt" the accelerometer's off it
+# the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
+# error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
+# "tilt" the accelerometer's off it
 MAG_UPDATES = ("heading", "vector")
 ACC_UPDATES = ("tilt", "vector")
 cdef enum:
@@ -311,7 +312,8 @@ cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double*
 
 cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
-    # Seed 003 eqs. 11-16: the measured field in the navigation frame, its horizontal part
+    # "IIR-EKF, IMU dynamic error suppression", eqs. 11-16: the measured field in the navigation
+    # frame, its horizontal part
     # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
     # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
     # heading residuals tilt the estimate and drag the gyro bias with them.
@@ -406,8 +408,8 @@ cdef class EKF(Estimator):
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
+              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, "acc_update": "vector",
               **REST_PARAMS, **MAGDIST_PARAMS}
 
@@ -523,12 +525,12 @@ cdef class EKF(Estimator):
 
     @property
     def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (seed 003)."""
+        """"heading" (the magnetometer corrects the heading only) or "vector" (the IIR-EKF paper's)."""
         return "heading" if self.mag_gain == GAIN_HEADING else "vector"
 
     @property
     def acc_update(self):
-        """"tilt" (the accelerometer corrects the inclination only) or "vector" (seed 003)."""
+        """"tilt" (the accelerometer corrects the inclination only) or "vector" (the IIR-EKF paper's)."""
         return "tilt" if self.acc_gain == GAIN_TILT else "vector"
 
     @property
@@ -545,7 +547,8 @@ cdef class EKF(Estimator):
 
 
 cdef class IIREKF(EKF):
-    """Seed 003's IIR-EKF: the `ekf` with a second-order Butterworth low-pass in front of the
+    """The IIR-EKF of "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023):
+    the `ekf` with a second-order Butterworth low-pass in front of the
     accelerometer (and optionally the magnetometer) to suppress vibration before it reaches
     the measurement update. cutoff_hz defaults to 40 Hz (the paper's, at 200 Hz sampling),
     lowered to 0.45 fs when the sample rate is too low for it."""

@@ -4,3 +4,8 @@ cdef class Madgwick(Estimator):
     cdef readonly double beta, zeta
     cdef double bw[3]         # gyro bias learned with the zeta gain, rad/s
     cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
+    cdef bint mag_heading     # mag_update="heading": the field's gradient turns the heading only
+    cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
+    cdef double acc_lp[3]
+    cdef double acc_qg[4]
+    cdef bint acc_lp_started

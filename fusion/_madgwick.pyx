@@ -4,10 +4,15 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import check_positive, check_param, check_gyro_range, BIAS, RECOVERY
+from fusion._core import (check_positive, check_param, check_gyro_range, check_magdist_params,
+                          MAGDIST_PARAMS, BIAS, RECOVERY, FLAG)
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
+from fusion._magdist cimport magd_set, magd_check
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
+
+MAG_UPDATES = ("heading", "vector")
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -26,9 +31,13 @@ cdef class Madgwick(Estimator):
     """Madgwick's gradient-descent filter: a fixed-rate step (beta, rad/s) along the
     normalised gradient of the gravity and north-folded field residuals; optional gyro-bias
     learning with gain zeta (rad/s^2). With gyro_range (rad/s) a saturated sample raises
-    beta and holds the bias learning for 3 s (recovery_gain)."""
+    beta and holds the bias learning for 3 s (recovery_gain). mag_update="heading": the
+    field's gradient projected onto a turn about the vertical; magdist_*: disturbed fields
+    skipped (fusion/_magdist.pxd); acc_lowpass (s): the gradient's accelerometer low-passed
+    in a gyro-integrated frame (fusion/_acclp.pxd)."""
     name = "madgwick"
-    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None}
+    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None, "mag_update": "heading",
+              "acc_lowpass": 0.0, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -36,18 +45,29 @@ cdef class Madgwick(Estimator):
         self.beta = check_param("beta", p["beta"])
         self.zeta = check_param("zeta", p["zeta"], allow_zero=True)
         self.gyro_range_ = check_gyro_range(p["gyro_range"])
+        mu = p["mag_update"]
+        if not isinstance(mu, str) or mu not in MAG_UPDATES:
+            raise ValueError(f"mag_update must be one of {MAG_UPDATES}, got {mu!r}")
+        self.mag_heading = mu == "heading"
+        self.acc_lowpass = check_param("acc_lowpass", p["acc_lowpass"], allow_zero=True)
+        magd_set(&self.magd, check_magdist_params(p))
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+        return (Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
+                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
+                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0
         self.bw[1] = 0.0
         self.bw[2] = 0.0
         self.t_recover = 0.0
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -57,9 +77,20 @@ cdef class Madgwick(Estimator):
         cdef double h[3]
         cdef double H[12]
         cdef double g[4]
+        cdef double gm[4]
+        cdef double u[4]
+        cdef double af[3]
         cdef double n2, k
-        cdef double f = recovery_gain(&self.t_recover,
-                                      gyr != NULL and saturated(gyr, self.gyro_range_), dt)
+        cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
+        cdef double f = recovery_gain(&self.t_recover, sat, dt)
+        if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
+            mag = NULL
+        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        if acc != NULL and self.acc_lowpass > 0.0:
+            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+                             gyr, self.bw, acc, dt, af)
+            acc = af
         if gyr != NULL:
             quat_propagate(q, gyr[0] - self.bw[0], gyr[1] - self.bw[1], gyr[2] - self.bw[2], dt)
         g[0] = 0.0
@@ -78,7 +109,26 @@ cdef class Madgwick(Estimator):
             h[0] = 0.0
             rot_to_body(q, h, v)
             jac_rot_to_body(q, h, H)                   # reference direction held fixed
-            add_gradient(H, v, s, g)
+            if not self.mag_heading:
+                add_gradient(H, v, s, g)
+            else:
+                # only its component along a turn about the vertical, u = e_z ⊗ q: the
+                # field corrects the heading, never the tilt (as in VQF and x-io Fusion)
+                gm[0] = 0.0
+                gm[1] = 0.0
+                gm[2] = 0.0
+                gm[3] = 0.0
+                add_gradient(H, v, s, gm)
+                u[0] = -q[3]
+                u[1] = -q[2]
+                u[2] = q[1]
+                u[3] = q[0]
+                k = (u[0] * gm[0] + u[1] * gm[1] + u[2] * gm[2] + u[3] * gm[3]) / (
+                    u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + u[3] * u[3])
+                g[0] += k * u[0]
+                g[1] += k * u[1]
+                g[2] += k * u[2]
+                g[3] += k * u[3]
         n2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2] + g[3] * g[3]
         if n2 > DEAD_ZONE2:
             k = 1.0 / sqrt(n2)
@@ -102,3 +152,8 @@ cdef class Madgwick(Estimator):
     def bias(self):
         """The gyro bias learned with the zeta gain, rad/s (body frame; zero when zeta = 0)."""
         return np.array([self.bw[0], self.bw[1], self.bw[2]])
+
+    @property
+    def mag_update(self):
+        """"heading" (the magnetometer corrects the heading only) or "vector" (Madgwick's)."""
+        return "heading" if self.mag_heading else "vector"

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """Prefilter kernels that estimators compose (DESIGN.md): a second-order Butterworth low-pass
-(seed 003) and a sliding-window mean (seed 004), each on one 3-axis sensor stream."""
+("IIR-EKF, IMU dynamic error suppression") and a sliding-window mean ("Attitude-angle solution
+for a mobile robot"), each on one 3-axis sensor stream."""
 import numbers
 
 import numpy as np
@@ -55,7 +56,8 @@ def _reset(Prefilter f):
 
 cdef class Butterworth(Prefilter):
     """Second-order Butterworth low-pass by the bilinear transform with pre-warping
-    (seed 003): analogue prototype 1 / (s^2 + sqrt(2) s + 1) at w_a = 2 fs tan(pi fc / fs).
+    ("IIR-EKF, IMU dynamic error suppression"): analogue prototype 1 / (s^2 + sqrt(2) s + 1) at
+    w_a = 2 fs tan(pi fc / fs).
     The state starts at steady state on the first sample (no start-up transient), as
     scipy.signal.lfilter with zi = lfilter_zi(b, a) * x[0]."""
 
@@ -117,7 +119,8 @@ cdef class Butterworth(Prefilter):
 
 
 cdef class SlidingMean(Prefilter):
-    """Mean of the last `window` samples, step 1 (seed 004's preprocessing). Until the window
+    """Mean of the last `window` samples, step 1 (the preprocessing of
+    "Attitude-angle solution for a mobile robot"). Until the window
     has filled, the mean of the samples so far."""
 
     def __cinit__(self, window):

@@ -232,11 +232,14 @@ cdef inline double unobserved_variance(double* t_run, double dt, double dt_nomin
                                        bint measured, double motion_rate) noexcept nogil:
     """Attitude variance (rad², about every axis) to add for motion the gyro did not measure
     (docs/robustness.md, "Recovery"): the whole step when the rate was not measured (sample
-    dropped, gyro saturated), the part of a step beyond the nominal period (a gap in time).
-    t_run (s) is the length of the current run of unmeasured time; over a run the rate is
-    taken as an unknown constant of standard deviation motion_rate, so the added variances
-    sum to (motion_rate t_run)², capped at π² (no attitude is further off than π)."""
-    cdef double t = dt if not measured else dt - dt_nominal
+    dropped, gyro saturated), the part of a step beyond the nominal period when the step is a
+    gap (longer than 1.5 nominal periods: a sample missing). A shorter step is stamp
+    jitter or a rate off the nominal: the gyro measured it, and counting it would inflate the
+    variance on every late stamp. t_run (s) is the length of the current run of unmeasured
+    time; over a run the rate is taken as an unknown constant of standard deviation
+    motion_rate, so the added variances sum to (motion_rate t_run)², capped at π² (no
+    attitude is further off than π)."""
+    cdef double t = dt if not measured else (dt - dt_nominal if dt > 1.5 * dt_nominal else 0.0)
     cdef double v0, v1
     if t <= 0.0:
         t_run[0] = 0.0

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`ukf`: unscented Kalman filter on the attitude error + gyro bias (docs/ukf.md), the UKF
-seed 003 compares against, with the process and measurement models of `ekf`."""
+that "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023)
+compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
 
@@ -80,7 +81,7 @@ cdef class UKF(Estimator):
     name = "ukf"
     # acc_noise and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md)
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, **REST_PARAMS, **MAGDIST_PARAMS}
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):

@@ -63,6 +63,16 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     return Bank._own(filters)
 
 
+def _shared(attr, doc):
+    """A read-only property every filter of a bank has alike (read from the first)."""
+    return property(lambda self: getattr(self._filters[0], attr), doc=doc)
+
+
+def _stacked(attr, doc):
+    """A read-only property: every filter's ``attr`` stacked into one array (``Bank._stack``)."""
+    return property(lambda self: self._stack(attr), doc=doc)
+
+
 class Bank(BankCore):
     """count estimators of one kind, same fs, frame and on_invalid, each with its own
     parameters and state. Build with fusion.make_bank, Bank(estimators) (copies them) or
@@ -195,30 +205,11 @@ class Bank(BankCore):
         """(count, 4) attitudes [w, x, y, z] in the bank's frame."""
         return self._read(self._quaternions)
 
-    @property
-    def euler(self):
-        """(count, 3) ZYX Euler angles [yaw, pitch, roll], rad."""
-        return self._stack("euler")
-
-    @property
-    def bias(self):
-        """(count, 3) gyro biases (rad/s), or None for an estimator without one."""
-        return self._stack("bias")
-
-    @property
-    def covariance(self):
-        """(count, k, k) state covariances, or None for an estimator without one."""
-        return self._stack("covariance")
-
-    @property
-    def initialised(self):
-        """(count,) bool: start attitude set."""
-        return self._stack("initialised")
-
-    @property
-    def at_rest(self):
-        """(count,) bool: the rest detector holds."""
-        return self._stack("at_rest")
+    euler = _stacked("euler", "(count, 3) ZYX Euler angles [yaw, pitch, roll], rad.")
+    bias = _stacked("bias", "(count, 3) gyro biases (rad/s), or None for an estimator without one.")
+    covariance = _stacked("covariance", "(count, k, k) state covariances, or None for an estimator without one.")
+    initialised = _stacked("initialised", "(count,) bool: start attitude set.")
+    at_rest = _stacked("at_rest", "(count,) bool: the rest detector holds.")
 
     @property
     def skipped(self):
@@ -226,21 +217,10 @@ class Bank(BankCore):
         s = self._read(lambda: [e.skipped for e in self._filters])
         return {k: np.array([d[k] for d in s], dtype=np.int64) for k in ("gyr", "acc", "mag")}
 
-    @property
-    def name(self):
-        return self._filters[0].name
-
-    @property
-    def fs(self):
-        return self._filters[0].fs
-
-    @property
-    def frame(self):
-        return self._filters[0].frame
-
-    @property
-    def on_invalid(self):
-        return self._filters[0].on_invalid
+    name = _shared("name", "The estimator's name (fusion.available()).")
+    fs = _shared("fs", "Sample rate (Hz).")
+    frame = _shared("frame", '"ENU" or "NED", the frame of the quaternions in and out.')
+    on_invalid = _shared("on_invalid", '"raise" or "skip", what a non-finite or all-zero sample does.')
 
     @property
     def params(self):

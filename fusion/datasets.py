@@ -1,8 +1,10 @@
 """Readers for recorded IMU data with a reference orientation (numpy only).
 
-The recorded sets live in ``../shared/data/<set>/<trial>.npz`` (format in that folder's
-README.md): ``t``, ``gyr``, ``acc``, optional ``mag``, reference ``quat`` (Hamilton
-``[w, x, y, z]``, IMU -> earth, z up, NaN rows where the reference was lost), ``fs``,
+The recorded sets live in ``<data folder>/<set>/<trial>.npz``, the folder given by
+``$FUSION_DATA_DIR`` or else ``DEFAULT_DATA_DIR`` (declared once, below); the format is in the
+folder's README, "Recorded IMU data with a reference orientation": ``t``, ``gyr``, ``acc``,
+optional ``mag``, reference ``quat`` (Hamilton ``[w, x, y, z]``, IMU -> earth, z up, NaN
+rows where the reference was lost), ``fs``,
 ``quality`` (``'ok'`` or a reason not to score the trial) and ``notes``. Any other arrays in
 the file (e.g. ``q_align``, ``q_earth_fix``) are kept in ``Trial.extra``.
 
@@ -19,9 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR", "EXPECTED", "REQUIRED"]
+__all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR", "DEFAULT_DATA_DIR", "DATA_LOCATION",
+           "EXPECTED", "REQUIRED"]
 
+# where the recorded data is: the one declaration, used by the scripts, benchmarks and tests
 ENV_VAR = "FUSION_DATA_DIR"
+#: the folder when $FUSION_DATA_DIR is not set: ``shared/data`` beside the repository's folder
+DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data"
+#: how messages and --help name it
+DATA_LOCATION = f"${ENV_VAR}, else {DEFAULT_DATA_DIR}"
 _KNOWN = ("t", "gyr", "acc", "mag", "quat", "fs", "quality", "notes")
 # what each array key must hold: the error messages quote it
 EXPECTED = {"t": "(N,) time in s, increasing", "gyr": "(N, 3) angular rate in rad/s",
@@ -195,9 +203,8 @@ def load_folder(folder: str | os.PathLike, only_ok: bool = False,
 
 
 def default_data_dir() -> Path | None:
-    """The recorded-data folder: ``$FUSION_DATA_DIR`` if set, else ``../shared/data`` beside the
-    repository root (``Path(__file__).resolve().parents[2] / "shared" / "data"``). None when
-    that folder does not exist (e.g. for an installed package without the data)."""
+    """The recorded-data folder: ``$FUSION_DATA_DIR`` if set, else ``DEFAULT_DATA_DIR``. None
+    when that folder does not exist (e.g. for an installed package without the data)."""
     env = os.environ.get(ENV_VAR)
-    path = Path(env).expanduser() if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+    path = Path(env).expanduser() if env else DEFAULT_DATA_DIR
     return path if path.is_dir() else None

@@ -300,8 +300,8 @@ class Vibration:
             raise ValueError(f"{own}.n_tones must be an integer >= 1, got {n!r}")
 
 
-#: Motor vibration of seed 003's platform: its spectra show the noise in 130-200 Hz. The
-#: amplitudes are not in the paper; these (0.2 g, 3 deg/s rms per axis) are assumed, of the
+#: Motor vibration of the platform of "IIR-EKF, IMU dynamic error suppression" (seed 003): its
+#: spectra show the noise in 130-200 Hz. The amplitudes are not in the paper; these (0.2 g, 3 deg/s rms per axis) are assumed, of the
 #: order of small brushed/brushless drives on a light frame.
 VIBRATION_SEED003 = Vibration(130.0, 200.0, acc_rms=0.2 * G0, gyr_rms=3.0 * DEG)
 
@@ -396,29 +396,40 @@ _INV_ACC_NBW = 235.0
 _CAL_ACC = dict(scale_error_calibrated=0.003, misalignment_calibrated=0.002)
 _CAL_GYRO = dict(scale_error_calibrated=0.005, misalignment_calibrated=0.003)
 
+def _invensense_gyro(**kw):
+    """An InvenSense MEMS gyro of the presets: the family's bias instability and its random walk
+    (300 s correlation), a 16-bit ADC, the calibration residuals; ``kw`` the part's own values."""
+    return SensorSpec(bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0, bias_random_walk=_rrw(_INV_GYRO_BI, 300.0),
+                      adc_bits=16, **_CAL_GYRO, **kw)
+
+
+def _invensense_acc(**kw):
+    """An InvenSense MEMS accelerometer of the presets, as ``_invensense_gyro``."""
+    return SensorSpec(bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0, bias_random_walk=_rrw(_INV_ACC_BI, 300.0),
+                      adc_bits=16, **_CAL_ACC, **kw)
+
+
 PRESETS = {
     # A perfect sensor: returns the true signals sampled at the IMU rate.
     "ideal": IMUSpec("ideal", gyro=SensorSpec(), acc=SensorSpec(), mag=MagSpec(), rate_hz=100.0),
 
-    # Seed 000: MPU6050 + MAG3110, the robot's 10 Hz experiment. MPU-6000/6050 PS rev 3.4,
-    # register defaults FS_SEL = AFS_SEL = 0; DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
+    # "EKF attitude estimation for a spherical robot" (seed 000): MPU6050 + MAG3110, the robot's
+    # 10 Hz experiment. MPU-6000/6050 PS rev 3.4, register defaults FS_SEL = AFS_SEL = 0;
+    # DLPF_CFG = 6 (5 Hz) assumed for 10 Hz output.
     "mpu6050+mag3110": IMUSpec(
         "mpu6050+mag3110",
-        gyro=SensorSpec(noise_density=0.005 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=20.0 * DEG,
-                        bias_turn_on_calibrated=0.8 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=5.0, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=400.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
-                       bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
-                       misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=5.0,
-                       **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.005 * DEG, bias_turn_on=20.0 * DEG, bias_turn_on_calibrated=0.8 * DEG,
+                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=5.0),
+        acc=_invensense_acc(noise_density=400.0 * UG, bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
+                            bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
+                            misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=5.0),
         mag=MagSpec(noise_rms=0.25, range=1000.0, lsb=0.1, adc_bits=16, rate_hz=80.0, hard_iron=100.0,
                     soft_iron=0.02, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=10.0, jitter_s=20e-6),
 
-    # Seed 001: Xsens MTi-10 at 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the
-    # same generation for bandwidths and magnetometer). Outputs are floats (no ADC words);
+    # "Adaptive EKF from predicted measurements, for arm attitude" (seed 001): Xsens MTi-10 at
+    # 256 Hz (MTi 10-series datasheet; MTi-300 datasheet of the same generation for bandwidths
+    # and magnetometer). Outputs are floats (no ADC words);
     # strapdown integration inside: "average" sampling.
     "mti10": IMUSpec(
         "mti10",
@@ -434,40 +445,33 @@ PRESETS = {
                     hard_iron_calibrated=0.5, soft_iron_calibrated=0.005),
         rate_hz=256.0, jitter_s=10e-6, sampling="average"),
 
-    # Seed 003: ICM20602 (4096 LSB/g, +-8 g; 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's
-    # table 1) + QMC5883L, 200 Hz. ICM-20602 DS-000176 v1.0; DLPF register defaults
-    # (gyro 250 Hz, accelerometer 218.1 Hz): the paper gives no setting.
+    # "IIR-EKF, IMU dynamic error suppression" (seed 003): ICM20602 (4096 LSB/g, +-8 g;
+    # 16.4 LSB/(deg/s), +-2000 deg/s, as the paper's table 1) + QMC5883L, 200 Hz. ICM-20602
+    # DS-000176 v1.0; DLPF register defaults (gyro 250 Hz, accelerometer 218.1 Hz): the paper
+    # gives no setting.
     "icm20602+qmc5883l": IMUSpec(
         "icm20602+qmc5883l",
-        gyro=SensorSpec(noise_density=0.004 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=1.0 * DEG,
-                        bias_turn_on_calibrated=0.05 * DEG, scale_error=0.01, misalignment=0.02,
-                        range=2000.0 * DEG, lsb=DEG / 16.4, adc_bits=16, lpf_hz=250.0,
-                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=100.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=40.0 * MG,
-                       bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
-                       misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, adc_bits=16, lpf_hz=218.1,
-                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.004 * DEG, bias_turn_on=1.0 * DEG, bias_turn_on_calibrated=0.05 * DEG,
+                              scale_error=0.01, misalignment=0.02, range=2000.0 * DEG, lsb=DEG / 16.4, lpf_hz=250.0,
+                              noise_bw_hz=_INV_GYRO_NBW),
+        acc=_invensense_acc(noise_density=100.0 * UG, bias_turn_on=40.0 * MG,
+                            bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 5.0 * MG), scale_error=0.01,
+                            misalignment=0.02, range=8.0 * G0, lsb=G0 / 4096.0, lpf_hz=218.1, noise_bw_hz=_INV_ACC_NBW),
         mag=MagSpec(noise_rms=0.2, range=8.0 * GAUSS, lsb=GAUSS / 3000.0, adc_bits=16, rate_hz=200.0,
                     hard_iron=10.0, soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=200.0, jitter_s=20e-6),
 
-    # Seed 004: MPU9250 (with its AK8963), 500 Hz. MPU-9250 PS rev 1.0/1.1, register
-    # defaults: +-250 deg/s, +-2 g, DLPF gyro 250 Hz / accelerometer 218.1 Hz, AK8963
-    # 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
+    # "Attitude-angle solution for a mobile robot" (seed 004): MPU9250 (with its AK8963), 500 Hz.
+    # MPU-9250 PS rev 1.0/1.1, register defaults: +-250 deg/s, +-2 g, DLPF gyro 250 Hz /
+    # accelerometer 218.1 Hz, AK8963 14-bit (0.6 uT/LSB) at its 100 Hz continuous mode.
     "mpu9250": IMUSpec(
         "mpu9250",
-        gyro=SensorSpec(noise_density=0.01 * DEG, bias_instability=_INV_GYRO_BI, bias_corr_time_s=300.0,
-                        bias_random_walk=_rrw(_INV_GYRO_BI, 300.0), bias_turn_on=5.0 * DEG,
-                        bias_turn_on_calibrated=0.3 * DEG, scale_error=0.03, misalignment=0.02,
-                        range=250.0 * DEG, lsb=DEG / 131.0, adc_bits=16, lpf_hz=250.0,
-                        noise_bw_hz=_INV_GYRO_NBW, **_CAL_GYRO),
-        acc=SensorSpec(noise_density=300.0 * UG, bias_instability=_INV_ACC_BI, bias_corr_time_s=300.0,
-                       bias_random_walk=_rrw(_INV_ACC_BI, 300.0), bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
-                       bias_turn_on_calibrated=3.0 * MG, scale_error=0.03, misalignment=0.02,
-                       range=2.0 * G0, lsb=G0 / 16384.0, adc_bits=16, lpf_hz=218.1,
-                       noise_bw_hz=_INV_ACC_NBW, **_CAL_ACC),
+        gyro=_invensense_gyro(noise_density=0.01 * DEG, bias_turn_on=5.0 * DEG, bias_turn_on_calibrated=0.3 * DEG,
+                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=250.0,
+                              noise_bw_hz=_INV_GYRO_NBW),
+        acc=_invensense_acc(noise_density=300.0 * UG, bias_turn_on=(60.0 * MG, 60.0 * MG, 80.0 * MG),
+                            bias_turn_on_calibrated=3.0 * MG, scale_error=0.03, misalignment=0.02,
+                            range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=218.1, noise_bw_hz=_INV_ACC_NBW),
         mag=MagSpec(noise_rms=0.6, range=4800.0, lsb=0.6, adc_bits=14, rate_hz=100.0, hard_iron=75.0,
                     soft_iron=0.03, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=500.0, jitter_s=20e-6),
@@ -734,7 +738,16 @@ class IMU:
         if self._kernel is not None:
             self._kernel.live = False       # reloaded from the state below at the next step
         c = self._gen.standard_normal(61)
-        jitter0 = c[0]
+        self._draw_constants(c)
+        self._buf = np.empty((0, self._ncols))
+        self._pos = 0
+        if self._vib is not None:
+            self._draw_vibration()
+        self._reset_clock(c[0])
+
+    def _draw_constants(self, c):
+        """The record's constants from the normal draws c (61,): gain matrices, turn-on biases,
+        the bias processes' stationary start, hard and soft iron."""
         self._M, self._ident = [], []
         for i, sp in enumerate((self._spec.gyro, self._spec.acc)):
             z = c[1 + 9 * i:10 + 9 * i].reshape(3, 3)
@@ -758,19 +771,21 @@ class IMU:
             self._mag_ident = ms.soft_iron == 0.0
             self._mag_Sl = self._mag_S.tolist()
             self._mag_hl = self._mag_h.tolist()
-        self._buf = np.empty((0, self._ncols))
-        self._pos = 0
-        if self._vib is not None:
-            v = self._vib
-            n = 1 if v.f_high_hz == v.f_low_hz else v.n_tones
-            u = self._gen_vib.random((2, 6, n))
-            self._vib_w = 2 * math.pi * (v.f_low_hz + (v.f_high_hz - v.f_low_hz) * u[0])   # (6, n) rad/s
-            self._vib_phi = 2 * math.pi * u[1]
-            amp = math.sqrt(2.0 / n)
-            self._vib_amp = np.array([v.gyr_rms * amp] * 3 + [v.acc_rms * amp] * 3)
-            self._vib_buf = np.empty((6, n))
-            self._vib_out = np.empty(6)
-        # sampling state
+
+    def _draw_vibration(self):
+        """The vibration tones' frequencies, phases and amplitudes (rows gyro x y z, acc x y z)."""
+        v = self._vib
+        n = 1 if v.f_high_hz == v.f_low_hz else v.n_tones
+        u = self._gen_vib.random((2, 6, n))
+        self._vib_w = 2 * math.pi * (v.f_low_hz + (v.f_high_hz - v.f_low_hz) * u[0])   # (6, n) rad/s
+        self._vib_phi = 2 * math.pi * u[1]
+        amp = math.sqrt(2.0 / n)
+        self._vib_amp = np.array([v.gyr_rms * amp] * 3 + [v.acc_rms * amp] * 3)
+        self._vib_buf = np.empty((6, n))
+        self._vib_out = np.empty(6)
+
+    def _reset_clock(self, jitter0):
+        """The sampling and filter state of a new record (its first sample's jitter draw)."""
         self._k = 0                                  # index of the next sample
         self._T_next = self._jitter(0, jitter0)      # its instant (s, since origin)
         self._T_prev = None                          # instant of the last sample
@@ -1023,8 +1038,31 @@ class IMU:
             step_dt = np.concatenate([[tau[0] - self._tau_last], dts])
         else:
             step_dt = np.concatenate([[dts[0] if n > 1 else 1.0 / self._fs], dts])
+        y = self._physics_signal(tau, arrays, has_mag, step_dt, first)
+        T, idx, rows, rows_all, M = self._sample_instants(tau)
+        vals = self._sample_values(y, tau, T, idx, M, first)
 
-        # physics-rate signal: true motion + vibration, low-passed
+        if M:
+            gyr, acc, mag = self._emit(T, vals, rows)
+            self._pos += M
+            Tprev = self._T_prev if self._T_prev is not None else T[0] - 1.0 / self._fs
+            dt_out = np.diff(np.concatenate([[Tprev], T]))
+            self._T_prev = float(T[-1])
+            self._k += M
+            self._T_next = self._jitter(self._k, rows_all[M - 1, 0])
+        else:
+            gyr = acc = np.zeros((0, 3))
+            mag = np.zeros((0, 3)) if (has_mag and self._spec.mag is not None) else None
+            dt_out = np.zeros(0)
+        self._steps += n
+        self._tau_last = float(tau[-1])
+        self._y_last = y[-1].copy()
+        return IMURecord(t=T + self._origin, gyr=gyr, acc=acc, mag=mag, dt=dt_out, index=idx.astype(np.int64),
+                         fs=self._fs)
+
+    def _physics_signal(self, tau, arrays, has_mag, step_dt, first):
+        """The physics-rate signal (n, 9) of one chunk: true motion + vibration, low-passed."""
+        n = tau.shape[0]
         x = np.zeros((n, 9))
         x[:, 0:3] = arrays[0]
         x[:, 3:6] = arrays[1]
@@ -1057,8 +1095,12 @@ class IMU:
                     y[:, c0:c0 + 3] = _ar1_var(a, x[:, c0:c0 + 3] * (1.0 - a)[:, None], y0[c0:c0 + 3])
         if first:   # the filter starts settled on the first input
             y[0] = x[0]
+        return y
 
-        # which samples fall in this stretch, and at which step
+    def _sample_instants(self, tau):
+        """Which samples fall in this stretch of physics steps, and at which step: (instants T,
+        step indices, their noise rows, the rows peeked, the number of samples M)."""
+        n = tau.shape[0]
         span = float(tau[-1] - self._T_next)
         cand = max(0, int(span * self._fs) + 2) if span >= -_TOL else 0
         rows_all = self._peek(cand) if cand else np.empty((0, self._ncols))
@@ -1071,8 +1113,12 @@ class IMU:
         ar = np.arange(cand + 1)
         idx = np.maximum.accumulate(s - ar) + ar
         M = int(np.count_nonzero(idx < n))
-        T, idx, rows = T[:M], idx[:M], rows_all[:M]
+        return T[:M], idx[:M], rows_all[:M], rows_all, M
 
+    def _sample_values(self, y, tau, T, idx, M, first):
+        """The sampled values (M, 9) of the low-passed signal y: interpolated at the instants
+        ("hold") or averaged since the last sample ("average", whose running sum carries over)."""
+        n = tau.shape[0]
         if self._hold:
             ip = idx - 1
             at0 = ip < 0
@@ -1104,24 +1150,7 @@ class IMU:
                 vals = np.zeros((0, 9))
                 self._sum = self._sum + y.sum(axis=0)
                 self._cnt += n
-
-        if M:
-            gyr, acc, mag = self._emit(T, vals, rows)
-            self._pos += M
-            Tprev = self._T_prev if self._T_prev is not None else T[0] - 1.0 / self._fs
-            dt_out = np.diff(np.concatenate([[Tprev], T]))
-            self._T_prev = float(T[-1])
-            self._k += M
-            self._T_next = self._jitter(self._k, rows_all[M - 1, 0])
-        else:
-            gyr = acc = np.zeros((0, 3))
-            mag = np.zeros((0, 3)) if (has_mag and self._spec.mag is not None) else None
-            dt_out = np.zeros(0)
-        self._steps += n
-        self._tau_last = float(tau[-1])
-        self._y_last = y[-1].copy()
-        return IMURecord(t=T + self._origin, gyr=gyr, acc=acc, mag=mag, dt=dt_out, index=idx.astype(np.int64),
-                         fs=self._fs)
+        return vals
 
     @staticmethod
     def _samples(x, name, n):
@@ -1159,6 +1188,20 @@ class IMU:
             if not k.live:
                 k.load(self)
             return k.step(gyr_true, acc_true, mag_true, dt, IMUSample)
+        x = self._step_input(gyr_true, acc_true, mag_true)
+        y, tau, tau_prev, first = self._step_filter(x, dt)
+        step_index = self._steps
+        self._steps += 1
+        if not self._hold:
+            self._sum += y
+            self._cnt += 1
+        T = self._T_next
+        if tau < T - _TOL:
+            return None
+        return self._step_sample(y, T, tau, tau_prev, first, step_index)
+
+    def _step_input(self, gyr_true, acc_true, mag_true):
+        """One step's true motion, checked, into the scratch row x (9,)."""
         x = self._x
         try:
             x[0:3] = gyr_true
@@ -1178,7 +1221,11 @@ class IMU:
             self._mag_on = has_mag
         elif self._mag_on != has_mag:
             raise ValueError("mag_true must be given in every step of a record or in none")
+        return x
 
+    def _step_filter(self, x, dt):
+        """Advance the physics clock by dt and low-pass x (vibration added): (the filtered
+        signal, its time, the previous step's time, whether this is the record's first step)."""
         if self._steps == 0:
             if self._origin is None:
                 self._origin = 0.0
@@ -1210,16 +1257,10 @@ class IMU:
             first = False
         tau_prev = self._tau_last
         self._tau_last = tau
-        step_index = self._steps
-        self._steps += 1
-        if not self._hold:
-            self._sum += y
-            self._cnt += 1
-        T = self._T_next
-        if tau < T - _TOL:
-            return None
+        return y, tau, tau_prev, first
 
-        # a sample is due
+    def _step_sample(self, y, T, tau, tau_prev, first, step_index):
+        """The sample due at instant T (within the last physics step): an ``IMUSample``."""
         if self._hold:
             if first or T >= tau - _TOL or tau == tau_prev:
                 vals = y

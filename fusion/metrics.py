@@ -1,11 +1,14 @@
 """Attitude errors, the way the source documents and the field report them (numpy only).
 
 - ``euler_table``: mean, std, MAE and RMSE of the ZYX Euler-angle errors in degrees, per angle
-  (yaw, pitch, roll): the tables of the seed papers (see ../shared/seeds/README.md).
+  (yaw, pitch, roll): the tables of the source documents ("The four source
+  documents, in short").
 - ``attitude_errors`` / ``score``: total, heading and inclination error in degrees from the
-  earth-frame error quaternion, as ../shared/data/README.md scores recorded data; with
+  earth-frame error quaternion, as the data folder's README ("Recorded IMU data with a
+  reference orientation") scores recorded data; with
   ``remove_heading_offset`` for 6-axis estimators, whose heading has no absolute reference.
-- ``spectrum``: one-sided amplitude spectrum (the vibration analysis of seed 003).
+- ``spectrum``: one-sided amplitude spectrum (the vibration analysis of
+  "IIR-EKF, IMU dynamic error suppression").
 
 Rows whose reference quaternion is not finite (a lost reference) are ignored everywhere.
 """
@@ -79,7 +82,7 @@ def _error_quaternion(q_est, q_ref):
 
 
 def attitude_errors(q_est: ArrayLike, q_ref: ArrayLike) -> dict[str, Array]:
-    """Per-sample errors in degrees, as ../shared/data/README.md scores: with the earth-frame
+    """Per-sample errors in degrees, as the data folder's README scores: with the earth-frame
     error ``e = q_est ⊗ conj(q_ref)`` (both normalised),
 
     - total ``2 acos(|e_w|)``, heading ``2 atan(|e_z / e_w|)``,
@@ -152,7 +155,7 @@ def score(q_est: ArrayLike, q_ref: ArrayLike, six_axis: bool = False) -> dict[st
     """RMSE in degrees of the total, heading and inclination errors over the rows with a
     finite reference: ``{"total", "heading", "inclination"}``. With ``six_axis=True`` one
     constant heading offset is removed first (``remove_heading_offset``), as
-    ../shared/data/README.md asks for estimators without a magnetometer."""
+    the data folder's README asks for estimators without a magnetometer."""
     err = attitude_errors(remove_heading_offset(q_est, q_ref) if six_axis else q_est, q_ref)
     if not np.isfinite(err["total"]).any():
         raise ValueError("no rows with a finite reference quaternion to score")

@@ -243,6 +243,10 @@ def _field_ut(norm_ut, dip_deg):
     return norm_ut * np.array([0.0, np.cos(d), -np.sin(d)])
 
 
+# The source documents by seed number: 000 "EKF attitude estimation for a spherical robot"
+# (Software Engineering, 2022), 001 "Adaptive EKF from predicted measurements, for arm
+# attitude", 003 "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 2023),
+# 004 "Attitude-angle solution for a mobile robot" (Chinese patent, 2019).
 # Per scenario: IMU preset, output rate fs (Hz), physics rate = ratio * fs, length (samples or
 # s), motion (turn, tilt in deg, freq in Hz, as SCENARIOS), window (s: still before and after,
 # seed 001's experiment B), lever (m: IMU on an arm this far from the pivot, along body x: the
@@ -377,6 +381,34 @@ def _seed_spec(imu, default, calibrated, fs, vibration):
     return spec
 
 
+def _seed_samples(cfg, duration):
+    """The sample count of a seed scenario: its documented one, or ``round(duration * fs)``."""
+    fs = cfg["fs"]
+    if duration is None:
+        return cfg["samples"] if "samples" in cfg else int(round(cfg["duration"] * fs))
+    if isinstance(duration, bool) or not isinstance(duration, numbers.Real) \
+            or not np.isfinite(duration) or duration <= 0:
+        raise ValueError(f"duration must be None or a finite number of seconds > 0, got {duration!r}")
+    n = int(round(duration * fs))
+    if n < 2:
+        raise ValueError(f"duration must give at least 2 samples at {fs:g} Hz "
+                         f"(>= {1.5 / fs:g} s), got {duration!r}")
+    return n
+
+
+def _seed_disturbances(cfg, rng, path, tau):
+    """A seed scenario's linear acceleration (lever arm, bursts, sustained), earth field and
+    magnet field at the physics instants ``tau``: ``(a_lin, field, b_dist)``."""
+    a_lin = _lever_arm_acc(path, tau, cfg["lever"]) if cfg.get("lever") else np.zeros((tau.shape[0], 3))
+    if "bursts" in cfg:
+        a_lin = a_lin + _bursts(rng, tau, *cfg["bursts"])
+    if "sustained" in cfg:
+        a_lin = a_lin + _sustained(rng, tau, **cfg["sustained"])
+    field = _field_ut(*cfg["field"]) if "field" in cfg else EARTH_FIELD_UT.copy()
+    b_dist = _magnet_pass(rng, tau, **cfg["magnet"]) if "magnet" in cfg else np.zeros_like(a_lin)
+    return a_lin, field, b_dist
+
+
 def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
     """The experiment ``name`` (one of ``SEED_SCENARIOS``) through the IMU model: a ``Scenario``.
 
@@ -393,16 +425,7 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     cfg = _SEED[name]
     fs = cfg["fs"]
-    if duration is None:
-        n = cfg["samples"] if "samples" in cfg else int(round(cfg["duration"] * fs))
-    else:
-        if isinstance(duration, bool) or not isinstance(duration, numbers.Real) \
-                or not np.isfinite(duration) or duration <= 0:
-            raise ValueError(f"duration must be None or a finite number of seconds > 0, got {duration!r}")
-        n = int(round(duration * fs))
-        if n < 2:
-            raise ValueError(f"duration must give at least 2 samples at {fs:g} Hz "
-                             f"(>= {1.5 / fs:g} s), got {duration!r}")
+    n = _seed_samples(cfg, duration)
     spec = _seed_spec(imu, cfg["preset"], calibrated, fs, cfg.get("vibration", False))
     physics = fs * cfg["ratio"]
     motion_rng, dist_rng, imu_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
@@ -417,13 +440,7 @@ def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
         return _euler_path(tt, e0, sines, envelope)
     e, de = path(tau)
     q_phys = quat.from_euler(e)
-    a_lin = _lever_arm_acc(path, tau, cfg["lever"]) if cfg.get("lever") else np.zeros((tau.shape[0], 3))
-    if "bursts" in cfg:
-        a_lin = a_lin + _bursts(dist_rng, tau, *cfg["bursts"])
-    if "sustained" in cfg:
-        a_lin = a_lin + _sustained(dist_rng, tau, **cfg["sustained"])
-    field = _field_ut(*cfg["field"]) if "field" in cfg else EARTH_FIELD_UT.copy()
-    b_dist = _magnet_pass(dist_rng, tau, **cfg["magnet"]) if "magnet" in cfg else np.zeros_like(a_lin)
+    a_lin, field, b_dist = _seed_disturbances(cfg, dist_rng, path, tau)
 
     sensor = imu_model.IMU(spec, imu_rng, physics_rate_hz=physics)
     rec = sensor.simulate(tau, _body_rate(e, de), quat.rotate_inverse(q_phys, a_lin + [0.0, 0.0, G]),

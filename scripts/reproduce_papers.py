@@ -1,13 +1,8 @@
 #!/usr/bin/env python
-"""Thin wrapper of ``fusion.papers_cli`` (installed as a command: see its --help)."""
+"""Thin wrapper of ``benchmarks.papers_cli`` (installed as ``spherebot-papers``: see its --help)."""
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-from fusion.papers_cli import main  # noqa: E402
+from benchmarks.papers_cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,13 +1,8 @@
 #!/usr/bin/env python
 """Thin wrapper of ``controllers.train_cli`` (installed as ``spherebot-train``: see its --help)."""
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-from controllers.train_cli import main  # noqa: E402
+from controllers.train_cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

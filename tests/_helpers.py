@@ -118,6 +118,40 @@ def count_invalid(gyr, acc, mag):
     return {"gyr": int(bad_g.sum()), "acc": int(bad_a.sum()), "mag": int(bad_m.sum())}
 
 
+def check_uneven_dt(est, r, gyr, acc, mag, compare=compare_state):
+    """A kernel against its reference over uneven steps (2-30 ms, a fixed draw)."""
+    dt = np.random.default_rng(5).uniform(0.002, 0.03, len(gyr))
+    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
+    compare(est, r)
+
+
+def check_ned_and_given_start(est, r, gyr, acc, mag, n6, compare=compare_state):
+    """A NED kernel ``est`` against its NED reference ``r``: the run, then a start attitude
+    given in NED and ``n6`` samples 6-axis."""
+    assert qdiff(est.run(gyr, acc, mag), r.run(gyr, acc, mag)) < TOL
+    compare(est, r)
+    q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))
+    est.reset(q0)
+    r.reset(q0)
+    assert np.abs(est.quaternion - q0).max() < 1e-15
+    assert qdiff(est.run(gyr[:n6], acc[:n6]), r.run(gyr[:n6], acc[:n6])) < TOL
+    compare(est, r)
+
+
+def check_skipped(est, r, gyr, acc, mag, frame, compare=compare_state):
+    """A kernel and its reference, both on_invalid="skip", over samples with invalid rows: the
+    same output, the same counts of skipped updates, the identity (in ``frame``) until the
+    first valid sample. Returns the kernel's output."""
+    expected = count_invalid(gyr, acc, mag)
+    q, qr = est.run(gyr, acc, mag), r.run(gyr, acc, mag)
+    assert qdiff(q, qr) < TOL
+    compare(est, r)
+    assert est.skipped == r.skipped == expected
+    identity = ref.C_NED if frame == "NED" else ref.IDENTITY
+    assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
+    return q
+
+
 def bad_message(exc):
     assert isinstance(exc, ValueError) and len(str(exc)) > 10, repr(exc)
 

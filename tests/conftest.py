@@ -23,7 +23,7 @@ def data_dir():
     """The recorded IMU data folder, or a skip when it is not there."""
     root = datasets.default_data_dir()
     if root is None:
-        pytest.skip("recorded data folder not found (../shared/data or $FUSION_DATA_DIR)")
+        pytest.skip(f"recorded data folder not found ({datasets.DATA_LOCATION})")
     return root
 
 

@@ -3,7 +3,8 @@
 ``python tests/env_golden.py`` rewrites tests/data/env_golden.npz from the code on the path:
 it was recorded from the single-class environment before the split into one class per task
 (issue 14), and is rewritten only when an episode is deliberately changed: rewritten once
-since, for issue 19's new estimator defaults (the "truth" case, which no estimator touches,
+since, for issue 19's new estimator defaults, and again for its second pass (ekf gyro_noise,
+bias_init_std; the "truth" case, which no estimator touches,
 still equalled the pre-split recording bit for bit before that)."""
 import os
 

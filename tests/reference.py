@@ -494,11 +494,13 @@ def mag_model(q, z):
 def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
     """docs/robustness.md, "Recovery": (new t_run, attitude variance in rad² to add) for a step
     whose gyro sample is gyr (None: dropped). Unmeasured time: the whole step without a
-    trustworthy rate (dropped, or saturated: sat), else the part beyond 1 / fs; over a run of
+    trustworthy rate (dropped, or saturated: sat), else the part beyond 1 / fs of a step longer
+    than 1.5 / fs; over a run of
     it the rate is an unknown constant of std motion_rate: total (motion_rate t_run)², capped
     at pi²."""
     measured = gyr is not None and not sat
-    t = dt - 1.0 / fs if measured else dt
+    # a measured step is a gap only beyond 1.5 nominal periods (shorter: stamp jitter)
+    t = (dt - 1.0 / fs if dt > 1.5 / fs else 0.0) if measured else dt
     if t <= 0:
         return 0.0, 0.0
     def total(tr):
@@ -537,9 +539,22 @@ class RefRest:
         return False
 
 
-class RefEKF(RefEstimator):
-    PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
-              "q_init_std": 0.05, "bias_init_std": 0.02, "gyro_range": None, "motion_rate": 1.0,
+class RestAndMagCounts:
+    """The counts of a filter that holds a rest detector (``rest``) and a magnetic disturbance
+    detector (``magd``)."""
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
+
+    @property
+    def mag_rejected(self):
+        return self.magd.n
+
+
+class RefEKF(RestAndMagCounts, RefEstimator):
+    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
+              "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
               "acc_update": "vector", **MAGDIST_PARAMS}
@@ -599,14 +614,6 @@ class RefEKF(RefEstimator):
             H = np.zeros((3, 7))
             H[:, 4:] = I3
             self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
 
     def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)

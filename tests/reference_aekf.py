@@ -53,7 +53,7 @@ def wahba_svd(b, r, w):
 
 class RefAEKF(ref.RefEKF):
     PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0,
-                  acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
+                  bias_init_std=0.02, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
                   mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
@@ -126,67 +126,15 @@ class RefAEKF(ref.RefEKF):
         self._rest(gyr, acc, dt)
         if self.rest.n > n_rest:        # at rest: this sensor's g, the low-passed norm
             self.g_ref = float(np.linalg.norm(self.rest.lp[1]))
-        g = self.g_ref
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
-        acc_rej = mag_rej = mag_tested = False
-        if acc is not None:
-            na = math.sqrt(acc @ acc)
-            self.tested["acc"] += 1
-            if abs(na - g) > self.acc_norm_tol:
-                acc_rej = True
-                self.t_dir = 0.0
-            elif np.linalg.norm(acc - g * u) > self.acc_pred_tol:
-                self.t_dir += dt
-                acc_rej = self.t_dir <= self.acc_pred_timeout
-            else:
-                self.t_dir = 0.0
-            if acc_rej:
-                self.rejected["acc"] += 1
-                self.code |= 1
-        if mag is not None:
-            nm = math.sqrt(mag @ mag)
-            if acc is not None and len(self.norms) < self.n_learn:
-                self.norms.append(nm)
-                c = -(mag @ acc) / (nm * math.sqrt(acc @ acc))
-                self.dips.append(math.asin(min(1.0, max(-1.0, c))))
-                if self.mag_norm is None:
-                    self.norm_ref = sum(self.norms) / len(self.norms)
-                if self.mag_dip is None:
-                    self.dip_ref = sum(self.dips) / len(self.dips)
-            if self.norm_ref is not None and self.dip_ref is not None:
-                mag_tested = True
-                self.tested["mag"] += 1
-                dip = math.asin(min(1.0, max(-1.0, -(mag @ u) / nm)))
-                mag_rej = (abs(nm / self.norm_ref - 1.0) > self.mag_norm_tol
-                           or abs(dip - self.dip_ref) > self.mag_dip_tol * DEG)
-                if mag_rej:
-                    self.rejected["mag"] += 1
-                    self.code |= 2
+        acc_rej = self._acc_test(acc, u, dt) if acc is not None else False
+        mag_rej, mag_tested = self._mag_test(mag, acc, u) if mag is not None else (False, False)
         # 3a. QUEST measurement when the body is quiet
         if (self.measurement == "quest" and acc is not None and mag_tested and not acc_rej
-                and not mag_rej):
-            a, m = normalise(acc), normalise(mag)
-            rf = np.array([0.0, math.cos(self.dip_ref), -math.sin(self.dip_ref)])
-            if (np.linalg.norm(ref.cross(u, m)) > 1e-9 and np.linalg.norm(ref.cross(a, m)) > 1e-9
-                    and abs(math.cos(self.dip_ref)) > 1e-9):       # |UP × rf| = cos(dip)
-                qm = wahba_davenport([a, m], [UP, rf],
-                                     [1.0 - self.quest_mag_weight, self.quest_mag_weight])
-                if qm @ self.q < 0:
-                    qm = -qm
-                # body-frame angle covariance: tilt as the accelerometer's, heading (about the
-                # predicted up axis u) as the magnetometer's horizontal part; mapped to the
-                # quaternion by δq = Ξ(q) δθ / 2, plus σa²/4 along q itself
-                sa = (self.acc_noise / G) ** 2 / dt
-                sh = self.mag_noise ** 2 / dt / (np.linalg.norm(ref.cross(u, m)) ** 2)
-                P_theta = sa * (I3 - np.outer(u, u)) + sh * np.outer(u, u)
-                Xi = ref.xi_matrix(self.q)
-                Rm = 0.25 * (Xi @ P_theta @ Xi.T) + 0.25 * sa * np.outer(self.q, self.q)
-                self._quat_correct(qm, Rm)
-                self.quest_updates += 1
-                self.code |= 4
-                self.P = (self.P + self.P.T) / 2
-                return
+                and not mag_rej and self._quest_update(acc, mag, u, dt)):
+            self.P = (self.P + self.P.T) / 2
+            return
         # 3b. the ekf's vector updates, variances times reject_factor when rejected
         if acc is not None:
             f = self.reject_factor if acc_rej else 1.0
@@ -200,3 +148,68 @@ class RefAEKF(ref.RefEKF):
                 self._correct(z, lambda q: ref.mag_model(q, z), self.mag_noise ** 2 / dt * f * I3,
                               "heading" if self.mag_update == "heading" else "full")
         self.P = (self.P + self.P.T) / 2
+
+    def _acc_test(self, acc, u, dt):
+        """Whether the accelerometer is rejected: its norm off g, or its direction off the
+        predicted up axis u for at most acc_pred_timeout."""
+        g = self.g_ref
+        na = math.sqrt(acc @ acc)
+        self.tested["acc"] += 1
+        if abs(na - g) > self.acc_norm_tol:
+            rej = True
+            self.t_dir = 0.0
+        elif np.linalg.norm(acc - g * u) > self.acc_pred_tol:
+            self.t_dir += dt
+            rej = self.t_dir <= self.acc_pred_timeout
+        else:
+            rej = False
+            self.t_dir = 0.0
+        if rej:
+            self.rejected["acc"] += 1
+            self.code |= 1
+        return rej
+
+    def _mag_test(self, mag, acc, u):
+        """(rejected, tested): the field's norm and dip against the learned (or given) ones."""
+        nm = math.sqrt(mag @ mag)
+        if acc is not None and len(self.norms) < self.n_learn:
+            self.norms.append(nm)
+            c = -(mag @ acc) / (nm * math.sqrt(acc @ acc))
+            self.dips.append(math.asin(min(1.0, max(-1.0, c))))
+            if self.mag_norm is None:
+                self.norm_ref = sum(self.norms) / len(self.norms)
+            if self.mag_dip is None:
+                self.dip_ref = sum(self.dips) / len(self.dips)
+        if self.norm_ref is None or self.dip_ref is None:
+            return False, False
+        self.tested["mag"] += 1
+        dip = math.asin(min(1.0, max(-1.0, -(mag @ u) / nm)))
+        rej = (abs(nm / self.norm_ref - 1.0) > self.mag_norm_tol
+               or abs(dip - self.dip_ref) > self.mag_dip_tol * DEG)
+        if rej:
+            self.rejected["mag"] += 1
+            self.code |= 2
+        return rej, True
+
+    def _quest_update(self, acc, mag, u, dt):
+        """The QUEST quaternion as the measurement, where its geometry is defined: applied?"""
+        a, m = normalise(acc), normalise(mag)
+        rf = np.array([0.0, math.cos(self.dip_ref), -math.sin(self.dip_ref)])
+        if not (np.linalg.norm(ref.cross(u, m)) > 1e-9 and np.linalg.norm(ref.cross(a, m)) > 1e-9
+                and abs(math.cos(self.dip_ref)) > 1e-9):       # |UP × rf| = cos(dip)
+            return False
+        qm = wahba_davenport([a, m], [UP, rf], [1.0 - self.quest_mag_weight, self.quest_mag_weight])
+        if qm @ self.q < 0:
+            qm = -qm
+        # body-frame angle covariance: tilt as the accelerometer's, heading (about the
+        # predicted up axis u) as the magnetometer's horizontal part; mapped to the
+        # quaternion by δq = Ξ(q) δθ / 2, plus σa²/4 along q itself
+        sa = (self.acc_noise / G) ** 2 / dt
+        sh = self.mag_noise ** 2 / dt / (np.linalg.norm(ref.cross(u, m)) ** 2)
+        P_theta = sa * (I3 - np.outer(u, u)) + sh * np.outer(u, u)
+        Xi = ref.xi_matrix(self.q)
+        Rm = 0.25 * (Xi @ P_theta @ Xi.T) + 0.25 * sa * np.outer(self.q, self.q)
+        self._quat_correct(qm, Rm)
+        self.quest_updates += 1
+        self.code |= 4
+        return True

@@ -20,10 +20,10 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost, measured_gyr,
-                       RefEKF, RefEstimator, RefRest, RefMahony, complex_step_jacobian, gyro_valid,
-                       unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi, qconj, qmul,
-                       rotmat, vector_valid)
+from reference import (G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
+                       measured_gyr, RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian,
+                       gyro_valid, unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi,
+                       qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -40,7 +40,8 @@ def rotmat_unit_form(q):
 
 
 class RefMadgwick(RefEstimator):
-    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None}
+    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None, "mag_update": "heading",
+              "acc_lowpass": 0.0, **MAGDIST_PARAMS}
     DEAD_ZONE = 1e-10
 
     def __init__(self, *args, written_form=False, **kwargs):
@@ -53,14 +54,26 @@ class RefMadgwick(RefEstimator):
     def _reset_state(self):
         self.bw = np.zeros(3)
         self.t_recover = 0.0
+        self.magd = make_magdist(self)
+        self.acc_lp, self.acc_qg = None, IDENTITY.copy()
 
     @property
     def bias(self):
         return self.bw.copy()
 
+    @property
+    def mag_rejected(self):
+        return self.magd.n
+
     def _step(self, gyr, acc, mag, dt):
-        boost, self.t_recover = recovery_factor(self.t_recover, is_saturated(gyr, self.gyro_range), dt)
+        sat = is_saturated(gyr, self.gyro_range)
+        boost, self.t_recover = recovery_factor(self.t_recover, sat, dt)
         q = self.q
+        if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
+            mag = None
+        acc_lowpass_lost(self, gyr, sat, dt)
+        if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
+            acc = acc_lowpass_step(self, gyr, self.bw, acc, dt)
         if gyr is not None:                                              # 1.
             q = phi(gyr - self.bw, dt) @ q
         grad = np.zeros(4)                                               # 2.
@@ -73,7 +86,11 @@ class RefMadgwick(RefEstimator):
             h = rotmat(q) @ m
             b = np.array([0.0, math.hypot(h[0], h[1]), h[2]])           # held fixed in J
             f, J = complex_step_jacobian(lambda x: self.rot(x).T @ b, q)
-            grad += J.T @ (f - m)
+            gm = J.T @ (f - m)
+            if self.mag_update == "heading":     # onto a turn about the vertical, e_z ⊗ q
+                u = qmul(np.array([0.0, 0.0, 0.0, 1.0]), q)
+                gm = (u @ gm) / (u @ u) * u
+            grad += gm
         n = math.sqrt(grad @ grad)                                       # 4.
         if n > self.DEAD_ZONE:
             g = grad / n
@@ -155,8 +172,9 @@ def mag_model_rows(q, z):
     return np.einsum("kji,kj->ki", R, v)
 
 
-class RefUKF(RefEstimator):
-    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=0.5, acc_lowpass=1.0)
+class RefUKF(RestAndMagCounts, RefEstimator):
+    PARAMS = dict({k: v for k, v in RefEKF.PARAMS.items() if k not in ("acc_update",)}, acc_noise=0.5, acc_lowpass=1.0,
+                  gyro_noise=0.01)
     N_ERR = 6
     ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
 
@@ -180,14 +198,6 @@ class RefUKF(RefEstimator):
         self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
 
     @property
     def bias(self):

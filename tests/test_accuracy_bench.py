@@ -1,26 +1,13 @@
 """benchmarks/accuracy.py end to end on a tiny subset (skipped without the peer libraries)."""
 import csv
-import importlib.util
 import math
-from pathlib import Path
 
 import pytest
 
 for _peer in ("vqf", "imufusion", "ahrs"):
     pytest.importorskip(_peer)
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load(name):
-    spec = importlib.util.spec_from_file_location(f"_bench_{name}", ROOT / "benchmarks" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-accuracy = _load("accuracy")
-from benchmarks import peers  # noqa: E402  (accuracy.py put the repository root on sys.path)
+from benchmarks import accuracy, peers  # noqa: E402  (after the peers' importorskip)
 
 
 def test_ideal_check_refuses_a_peer_fed_in_the_wrong_frame():

@@ -15,8 +15,20 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(fusion.__file__)))    # t
 KALMAN = ["ekf", "iir-ekf", "aekf", "ukf"]
 
 
+# what every script starts with: the imports, the refusal message, noisy samples
+PREAMBLE = """import threading
+import numpy as np
+import fusion
+MSG = "estimator in use by another thread"
+def noisy(n, seed, sd_gyr=0.3, sd_acc=0.2, sd_mag=0.5):
+    rng = np.random.default_rng(seed)
+    return (sd_gyr * rng.standard_normal((n, 3)), np.array([0.0, 0.0, 9.81]) + sd_acc * rng.standard_normal((n, 3)),
+            np.array([0.0, 20.0, -40.0]) + sd_mag * rng.standard_normal((n, 3)))
+"""
+
+
 def run_script(body, timeout=120):
-    code = "import numpy as np\nimport fusion\n" + textwrap.dedent(body) + "\nprint('OK')\n"
+    code = PREAMBLE + textwrap.dedent(body) + "\nprint('OK')\n"
     env = dict(os.environ, PYTHONPATH=ROOT)
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout,
                        cwd=ROOT, env=env)
@@ -51,13 +63,8 @@ def test_window_out_of_range_is_a_value_error(window):
 # --- 2. threads -------------------------------------------------------------------------------
 
 THREAD_SCRIPT = """
-    import threading
-    MSG = "estimator in use by another thread"
-    rng = np.random.default_rng(0)
     n = {n}
-    gyr = 0.3 * rng.standard_normal((n, 3))
-    acc = np.array([0.0, 0.0, 9.81]) + 0.2 * rng.standard_normal((n, 3))
-    mag = np.array([0.0, 20.0, -40.0]) + 0.5 * rng.standard_normal((n, 3))
+    gyr, acc, mag = noisy(n, 0)
     est = fusion.make("{name}", 100.0)
     serial = fusion.make("{name}", 100.0)
     s0 = est.state()
@@ -111,12 +118,8 @@ def test_refused_calls_leave_no_trace():
     """While one run holds the estimator, update, run, reset, state and load_state from another
     thread are refused, and the run's result and final state are those of the run alone."""
     run_script("""
-        import threading
-        MSG = "estimator in use by another thread"
         n = 1_000_000
-        rng = np.random.default_rng(1)
-        gyr = 0.3 * rng.standard_normal((n, 3))
-        acc = np.array([0.0, 0.0, 9.81]) + 0.2 * rng.standard_normal((n, 3))
+        gyr, acc, _ = noisy(n, 1)
         alone = fusion.make("cf-ekf", 100.0)
         q_alone = alone.run(gyr, acc)
         est = fusion.make("cf-ekf", 100.0)
@@ -161,12 +164,8 @@ def test_aekf_decision_log_counts_every_sample_of_concurrent_runs():
     loop). Now one run at a time: the log holds one code per sample of every run that
     completed, and reading it during a run is refused rather than racing the realloc."""
     run_script("""
-        import threading
-        MSG = "estimator in use by another thread"
         n = 60_000
-        rng = np.random.default_rng(2)
-        gyr = 0.3 * rng.standard_normal((n, 3))
-        acc = np.array([0.0, 0.0, 9.81]) + 0.5 * rng.standard_normal((n, 3))
+        gyr, acc, _ = noisy(n, 2, sd_acc=0.5)
         est = fusion.make("aekf", 100.0)
         est.record_decisions()
         done = []
@@ -304,11 +303,7 @@ def test_tampered_state_is_refused_naming_the_field(name):
             P = np.array(v, dtype=float); k = int(round(len(P) ** 0.5)); P = P.reshape(k, k)
             P[0, 1] = P[1, 0] = 2 * np.sqrt(P[0, 0] * P[1, 1])
             return P.ravel().tolist()
-        rng = np.random.default_rng(0)
-        n = 300
-        gyr = 0.1 * rng.standard_normal((n, 3))
-        acc = np.array([0.0, 0.0, 9.81]) + 0.1 * rng.standard_normal((n, 3))
-        mag = np.array([0.0, 20.0, -40.0]) + 0.1 * rng.standard_normal((n, 3))
+        gyr, acc, mag = noisy(300, 0, 0.1, 0.1, 0.1)
         est = fusion.make("{name}", 100.0, gyro_range=5.0)
         est.run(gyr, acc, mag)
         for field, how in {cases!r}:
@@ -333,7 +328,9 @@ def test_one_out_of_range_gyro_sample_does_not_derail(name):
     iir-ekf 8.5, aekf 24.5). The sample is now not a measurement, held as a dropped one:
     mean error over the last 30 s 0.13 deg (ekf; undisturbed 0.067), 0.10 (aekf; 0.068),
     final 0.12 deg, bias within 0.01 deg/s of the truth, and the same as dropping it.
-    The 0.05 deg left is the heading's slow return from the 0.9 deg turn the sample missed."""
+    The 0.05 deg left is the heading's slow return from the 0.9 deg turn the sample missed.
+    Since issue 19's bias_init_std 0.0087 rad/s the bias is learned more slowly (undisturbed:
+    0.023 deg/s off after 90 s, was within 0.01): the glitch is held to add at most 0.005."""
     run_script(f"""
         from fusion import quat
         from fusion.scenarios import make_scenario
@@ -355,7 +352,7 @@ def test_one_out_of_range_gyro_sample_does_not_derail(name):
         assert np.abs(q1 - q2).max() < 1e-12     # as a dropped sample (to the rounding of the
                                                  # ekf's inlined batch step)
         assert m1 < m0 + 0.1 and f1 < 0.25, (m0, m1, f1)
-        assert b1 < 0.01, b1
+        assert b1 < b0 + 0.005, (b0, b1)
     """)
 
 

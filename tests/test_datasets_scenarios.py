@@ -1,15 +1,15 @@
 """fusion.datasets (skipped without the recorded data), fusion.scenarios and the comparison
-loops of fusion.compare."""
+loops of benchmarks.compare."""
 
 import numpy as np
 import pytest
 
 import fusion
-from fusion import compare, datasets, metrics, quat, scenarios
+from fusion import datasets, metrics, quat, scenarios
+from benchmarks import compare
 
 DATA = datasets.default_data_dir()
-needs_data = pytest.mark.skipif(DATA is None, reason="recorded data folder (../shared/data or "
-                                                      "$FUSION_DATA_DIR) not found")
+needs_data = pytest.mark.skipif(DATA is None, reason=f"recorded data folder ({datasets.DATA_LOCATION}) not found")
 
 
 # --- datasets ----------------------------------------------------------------------------

@@ -14,17 +14,10 @@ import pytest
 
 pytest.importorskip("pybullet")
 
+from benchmarks.env_speed import rss_mb
 from envs.sphere import SphereRobotEnv
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _rss_mb():
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs /proc")
@@ -36,7 +29,7 @@ def test_create_close_cycles_reuse_clients_and_memory():
         e.reset(seed=i)
         e.close()
     gc.collect()
-    before = _rss_mb()
+    before = rss_mb()
     for i in range(200):
         e = SphereRobotEnv(estimator="ekf")
         e.reset(seed=i)
@@ -45,7 +38,7 @@ def test_create_close_cycles_reuse_clients_and_memory():
         e.close()
         assert not p.getConnectionInfo(ids[-1])["isConnected"]
     gc.collect()
-    growth = _rss_mb() - before
+    growth = rss_mb() - before
     assert len(set(ids)) <= 2, "closed physics clients are not reused: a client leaks"
     assert growth < 20.0, f"memory grew by {growth:.1f} MB over 200 create/close cycles"
 

@@ -40,6 +40,8 @@ CASES = {
     # the default robot with every realism effect, magnetic zones, bumps and ramps
     "real-ekf-zones": dict(task="track", estimator="ekf", mag_zones="random", n_mag_zones=6, arena_size=6.0,
                            bumps=3, ramps=2, episode_s=3.0),
+    # slippery patches: the shell's friction switched as it enters and leaves them (4 times here)
+    "real-ekf-patches": dict(task="track", estimator="ekf", slippery_patches=10, arena_size=6.0, episode_s=3.0),
     "real-mahony-waypoints": dict(task="waypoints", estimator="mahony", position_fix_hz=2.0, episode_s=3.0),
     "ideal-truth": dict(task="track", estimator="truth", realism="ideal", imu_offset=(0.0, 0.0, 0.0),
                         episode_s=2.0),

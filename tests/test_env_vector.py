@@ -29,6 +29,8 @@ def _single_runs(env_id, n, seed, acts, extra=None, **kw):
 
 @pytest.mark.parametrize("env_id, kw", [
     ("SphereBotWaypoints-v1", {"estimator": "ekf"}),
+    # slippery patches under the robots: each robot's own shell friction switched in the shared world
+    ("SphereBotWaypoints-v1", {"estimator": "ekf", "slippery_patches": 10, "arena_size": 6.0}),
     # short episodes: auto-resets while the other robots sleep through the settling
     ("SphereBotTrack-v0", {"estimator": "mahony", "episode_s": 0.3, "bumps": 2}),
 ])

@@ -62,14 +62,20 @@ def test_import_creates_no_physics_client():
 # physics checks
 
 
+def _logged_steps(env, actions):
+    """The signal log of ``env`` over one step per action (the log switched off after)."""
+    log = env.enable_signal_log()
+    try:
+        for a in actions:
+            env.step(a)
+    finally:
+        env.disable_signal_log()
+    return log
+
+
 def test_at_rest_accelerometer_reads_gravity_gyro_zero(ideal):
     ideal.reset(seed=3)
-    log = ideal.enable_signal_log()
-    try:
-        for _ in range(50):
-            ideal.step([0.0, 0.0])
-    finally:
-        ideal.disable_signal_log()
+    log = _logged_steps(ideal, [[0.0, 0.0]] * 50)
     samples = [s for *_, s in log if s is not None]
     assert len(samples) == 200                       # 1 s at 200 Hz
     acc = np.array([s.acc for s in samples])
@@ -97,12 +103,7 @@ def test_gyro_equals_rate_from_orientation_differences(ideal):
     ideal.reset(seed=5)
     for _ in range(50):
         ideal.step([0.8, 0.0])
-    log = ideal.enable_signal_log()
-    try:
-        for i in range(100):
-            ideal.step([0.8, 0.7 if i < 50 else -0.7])
-    finally:
-        ideal.disable_signal_log()
+    log = _logged_steps(ideal, [[0.8, 0.7 if i < 50 else -0.7] for i in range(100)])
     dt = 1.0 / ideal.physics_hz
     rates, errs = [], []
     for a, b in zip(log[:-1], log[1:]):
@@ -121,12 +122,7 @@ def test_gyro_equals_rate_from_orientation_differences(ideal):
 
 def test_specific_force_from_velocity_differences(ideal):
     ideal.reset(seed=6)
-    log = ideal.enable_signal_log()
-    try:
-        for _ in range(60):
-            ideal.step([1.0, 0.5])
-    finally:
-        ideal.disable_signal_log()
+    log = _logged_steps(ideal, [[1.0, 0.5]] * 60)
     off = np.array(ideal.imu_offset)
     worst = 0.0
     for a, b in zip(log[:-1], log[1:]):

@@ -410,53 +410,57 @@ def test_dipole_field():
 # bad input
 
 
-def test_bad_input_names_the_argument():
-    rng = np.random.default_rng(0)
-    with pytest.raises(ValueError, match="unknown IMU preset 'bmi088'; available: ideal, mpu6050"):
-        imu.preset("bmi088")
-    with pytest.raises(ValueError, match="unknown IMU preset"):
-        imu.IMU("bmi088", rng)
-    with pytest.raises(ValueError, match="spec_or_preset_name must be an IMUSpec or one of"):
-        imu.IMU(3, rng)
-    with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
-        imu.IMU("ideal", 0)
-    with pytest.raises(ValueError, match="physics_rate_hz must be a number > 0"):
-        imu.IMU("ideal", rng, physics_rate_hz=-1.0)
-    with pytest.raises(ValueError, match="physics_rate_hz must be >= the IMU rate"):
-        imu.IMU("mpu9250", rng, physics_rate_hz=100.0)
-    with pytest.raises(ValueError, match="mag_unit must be one of uT, nT"):
-        imu.IMU("ideal", rng, mag_unit="tesla")
-    with pytest.raises(ValueError, match="IMUSpec.rate_hz must be a number > 0"):
-        imu.preset("ideal").replace(rate_hz=0.0)
-    with pytest.raises(ValueError, match="SensorSpec.lpf_hz must be .* > 0"):
-        imu.SensorSpec(lpf_hz=0.0)
-    with pytest.raises(ValueError, match="SensorSpec.noise_density must be a number >= 0"):
-        imu.SensorSpec(noise_density=-1.0)
-    with pytest.raises(ValueError, match=r"SensorSpec.bias_turn_on must be a number >= 0 or 3 such numbers"):
-        imu.SensorSpec(bias_turn_on=(1.0, 2.0))
-    with pytest.raises(ValueError, match="Vibration.f_high_hz must be >= f_low_hz"):
-        imu.Vibration(200.0, 100.0)
-    with pytest.raises(ValueError, match="IMUSpec.sampling must be one of hold, average"):
-        imu.preset("ideal").replace(sampling="mean")
-    a = imu.IMU("ideal", rng)
-    t = np.arange(10) / 1000.0
-    gyr, acc, mag = static_inputs(10)
-    with pytest.raises(ValueError, match=r"gyr_true must have shape \(N, 3\) with N = len\(t\) = 10, got \(10, 2\)"):
-        a.simulate(t, gyr[:, :2], acc)
-    with pytest.raises(ValueError, match=r"acc_true must have shape \(N, 3\)"):
-        a.simulate(t, gyr, acc[:5])
-    with pytest.raises(ValueError, match=r"mag_true must have shape \(N, 3\)"):
-        a.simulate(t, gyr, acc, mag.T)
-    with pytest.raises(ValueError, match="t must be a 1-D array of times"):
-        a.simulate(t[:, None], gyr, acc)
-    with pytest.raises(ValueError, match="t must be strictly increasing"):
-        a.simulate(t[::-1], gyr, acc)
-    with pytest.raises(ValueError, match="gyr_true must be finite; row 3"):
-        bad = gyr.copy()
-        bad[3, 1] = np.nan
-        a.simulate(t, bad, acc)
-    with pytest.raises(ValueError, match="the physics step must not exceed the IMU period"):
-        a.simulate(np.arange(10) * 0.05, gyr, acc)
+_RNG = np.random.default_rng(0)
+
+
+@pytest.mark.parametrize("build, match", [
+    (lambda: imu.preset("bmi088"), "unknown IMU preset 'bmi088'; available: ideal, mpu6050"),
+    (lambda: imu.IMU("bmi088", _RNG), "unknown IMU preset"),
+    (lambda: imu.IMU(3, _RNG), "spec_or_preset_name must be an IMUSpec or one of"),
+    (lambda: imu.IMU("ideal", 0), "rng must be a numpy.random.Generator"),
+    (lambda: imu.IMU("ideal", _RNG, physics_rate_hz=-1.0), "physics_rate_hz must be a number > 0"),
+    (lambda: imu.IMU("mpu9250", _RNG, physics_rate_hz=100.0), "physics_rate_hz must be >= the IMU rate"),
+    (lambda: imu.IMU("ideal", _RNG, mag_unit="tesla"), "mag_unit must be one of uT, nT"),
+    (lambda: imu.preset("ideal").replace(rate_hz=0.0), "IMUSpec.rate_hz must be a number > 0"),
+    (lambda: imu.SensorSpec(lpf_hz=0.0), "SensorSpec.lpf_hz must be .* > 0"),
+    (lambda: imu.SensorSpec(noise_density=-1.0), "SensorSpec.noise_density must be a number >= 0"),
+    (lambda: imu.SensorSpec(bias_turn_on=(1.0, 2.0)), "SensorSpec.bias_turn_on must be a number >= 0 or 3 such"),
+    (lambda: imu.Vibration(200.0, 100.0), "Vibration.f_high_hz must be >= f_low_hz"),
+    (lambda: imu.preset("ideal").replace(sampling="mean"), "IMUSpec.sampling must be one of hold, average"),
+    (lambda: imu.allan_deviation(np.zeros(100), 10.0, taus=[100.0]), "taus must lie between"),
+    (lambda: imu.dipole_field([0, 0, 0], [0, 0], [0, 0, 1]), "center must have shape"),
+])
+def test_bad_spec_names_the_argument(build, match):
+    with pytest.raises(ValueError, match=match):
+        build()
+
+
+def _bad_row(x, row, col):
+    bad = x.copy()
+    bad[row, col] = np.nan
+    return bad
+
+
+_T = np.arange(10) / 1000.0
+_GYR, _ACC, _MAG = static_inputs(10)
+
+
+@pytest.mark.parametrize("args, match", [
+    ((_T, _GYR[:, :2], _ACC), r"gyr_true must have shape \(N, 3\) with N = len\(t\) = 10, got \(10, 2\)"),
+    ((_T, _GYR, _ACC[:5]), r"acc_true must have shape \(N, 3\)"),
+    ((_T, _GYR, _ACC, _MAG.T), r"mag_true must have shape \(N, 3\)"),
+    ((_T[:, None], _GYR, _ACC), "t must be a 1-D array of times"),
+    ((_T[::-1], _GYR, _ACC), "t must be strictly increasing"),
+    ((_T, _bad_row(_GYR, 3, 1), _ACC), "gyr_true must be finite; row 3"),
+    ((np.arange(10) * 0.05, _GYR, _ACC), "the physics step must not exceed the IMU period"),
+])
+def test_bad_simulate_input_names_the_argument(args, match):
+    with pytest.raises(ValueError, match=match):
+        imu.IMU("ideal", np.random.default_rng(0)).simulate(*args)
+
+
+def test_bad_step_input_names_the_argument():
+    a = imu.IMU("ideal", np.random.default_rng(0))
     with pytest.raises(ValueError, match=r"gyr_true must be 3 real numbers"):
         a.step([0.0, 1.0], [0.0, 0.0, G])
     with pytest.raises(ValueError, match=r"acc_true must be 3 real numbers"):
@@ -466,14 +470,10 @@ def test_bad_input_names_the_argument():
         a.step([0.0, 0.0, 0.0], [0.0, 0.0, G])
     with pytest.raises(ValueError, match="dt must be > 0"):
         a.step([0.0, 0.0, 0.0], [0.0, 0.0, G], dt=0.0)
+    b = imu.IMU("ideal", np.random.default_rng(0))
+    b.simulate(_T, _GYR, _ACC)
     with pytest.raises(ValueError, match="t must continue the current record"):
-        b = imu.IMU("ideal", rng)
-        b.simulate(t, gyr, acc)
-        b.simulate(t, gyr, acc)
-    with pytest.raises(ValueError, match="taus must lie between"):
-        imu.allan_deviation(np.zeros(100), 10.0, taus=[100.0])
-    with pytest.raises(ValueError, match="center must have shape"):
-        imu.dipole_field([0, 0, 0], [0, 0], [0, 0, 1])
+        b.simulate(_T, _GYR, _ACC)
 
 
 def test_per_sample_noise_from_the_dlpf_noise_bandwidth():

@@ -76,7 +76,7 @@ def test_one_version_source():
 def test_plotting_keeps_the_users_backend(tmp_path):
     pytest.importorskip("matplotlib")
     code = ("import sys, matplotlib, numpy as np; matplotlib.use('svg'); "
-            "from fusion import compare; "
+            "from benchmarks import compare; "
             f"p = compare.plot_errors({{'a': {{'x': np.ones(50)}}}}, {str(tmp_path / 'e.png')!r}, 't', fs=10.0); "
             "assert p.stat().st_size > 1000; "
             "assert matplotlib.get_backend() == 'svg', matplotlib.get_backend(); "
@@ -132,3 +132,46 @@ def test_isa_checker_on_compiled_code(tmp_path, flags, bad):
     strip = [] if "-g" in flags else ["-s"]
     subprocess.run(["gcc", "-shared", "-fPIC", *flags, *strip, str(tmp_path / "k.c"), "-o", str(so)], check=True)
     assert _checker().main(["--so", "x86_64", str(so)]) == (1 if bad else 0)
+
+
+HEAVY = ("matplotlib", "tqdm", "scipy", "torch", "pybullet", "gymnasium")
+
+
+@pytest.mark.parametrize("module, allowed", [
+    ("fusion", ()),                                        # numpy and the kernels only
+    ("fusion.metrics, fusion.quat, fusion.datasets, fusion.scenarios, fusion.imu", ()),
+    ("envs", ("gymnasium",)),                              # registration; no torch, no physics client
+])
+def test_imports_stay_light(module, allowed):
+    """What a package pulls in at import (DESIGN: `import fusion` needs numpy and the kernels;
+    the simulator needs no torch), in a fresh interpreter."""
+    code = (f"import sys, {module}; "
+            f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=120)
+    assert out.returncode == 0, out.stderr
+    pulled = set(out.stdout.split()) - set(allowed)
+    assert not pulled, f"import {module} pulled in {sorted(pulled)}"
+
+
+def test_the_import_check_sees_a_heavy_module():
+    code = f"import sys, fractions, json; print(' '.join(m for m in {HEAVY + ('json',)!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["json"]
+
+
+def test_console_scripts_resolve_into_the_wheels_packages():
+    """Every console script names a `main` in a package the wheel ships (the experiments'
+    commands in `benchmarks`, none in the library `fusion`)."""
+    if tomllib is None:
+        pytest.skip("tomllib: Python 3.11+")
+    import importlib
+    py = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    packages = py["tool"]["setuptools"]["packages"]
+    scripts = py["project"]["scripts"]
+    for name, target in scripts.items():
+        module, func = target.split(":")
+        assert module.split(".")[0] in packages, (name, target)
+        assert callable(getattr(importlib.import_module(module), func)), (name, target)
+    assert not [t for t in scripts.values() if t.startswith("fusion.")], "commands belong to the experiments"
+    assert not [p.name for p in (ROOT / "fusion").glob("*.py") if p.stem in ("compare", "papers", "papers_cli",
+                                                                              "estimators_cli")]

@@ -27,7 +27,7 @@ import matplotlib
 matplotlib.use("svg")
 import matplotlib.pyplot as plt
 import numpy as np
-from fusion.compare import plot_errors
+from benchmarks.compare import plot_errors
 from controllers.compare import _plot_paths
 plot_errors({{"p": {{"a": np.ones(50)}}}}, {str(tmp_path / 'e.png')!r}, "t", fs=10.0)
 row = dict(path=np.zeros((3, 2)), start=np.zeros(2), waypoints=np.ones((1, 2)), waypoint_radius=0.5,

@@ -86,13 +86,25 @@ def _serialized(obj):
     return {":type:": "<class 'x'>", ":serialized:": base64.b64encode(pickle.dumps(obj)).decode()}
 
 
+def _crafted(tmp_path, key=None, pth=None):
+    """A copy of the shipped policy at ``tmp_path/crafted`` with code that would create
+    ``tmp_path/marker`` if it ran: in the model's entry ``key``, or in the weights ``pth(marker)``
+    returns. Returns (marker, stem)."""
+    marker, stem = tmp_path / "marker", tmp_path / "crafted"
+    edit = (lambda d: d.__setitem__(key, _serialized(Evil(marker)))) if key else None
+    _copy_policy(stem, data_edit=edit, pth=pth(marker) if pth else None)
+    return marker, stem
+
+
+def _refused(stem, match):
+    with pytest.raises(rl.PolicyError, match=match):
+        rl.load_policy(stem, trusted=True)
+
+
 @pytest.mark.parametrize("key", ["observation_space", "action_space", "lr_schedule", "clip_range", "evil_entry"])
 def test_crafted_serialized_entry_refused(tmp_path, key):
-    marker = tmp_path / "marker"
-    stem = tmp_path / "crafted"
-    _copy_policy(stem, data_edit=lambda d: d.__setitem__(key, _serialized(Evil(marker))))
-    with pytest.raises(rl.PolicyError, match="refused"):
-        rl.load_policy(stem, trusted=True)
+    marker, stem = _crafted(tmp_path, key)
+    _refused(stem, "refused")
     assert not marker.exists()
 
 
@@ -101,9 +113,7 @@ def test_crafted_entry_never_read(tmp_path, key):
     """Entries SB3 recreates (run-time buffers) or that the algorithm fixes (its policy class)
     are replaced without reading them: the policy loads, acts as the shipped one, and the
     pickled code never runs."""
-    marker = tmp_path / "marker"
-    stem = tmp_path / "crafted"
-    _copy_policy(stem, data_edit=lambda d: d.__setitem__(key, _serialized(Evil(marker))))
+    marker, stem = _crafted(tmp_path, key)
     obs = np.random.default_rng(1).uniform(-1, 1, (10, 14)).astype(np.float32)
     np.testing.assert_array_equal(rl.load_policy(stem, trusted=True).act(obs), rl.load_policy(SHIPPED).act(obs))
     assert not marker.exists()
@@ -112,39 +122,33 @@ def test_crafted_entry_never_read(tmp_path, key):
 def test_crafted_weights_refused(tmp_path):
     import io
     import torch
-    marker = tmp_path / "marker"
-    buf = io.BytesIO()
-    torch.save({"w": Evil(marker)}, buf)
-    stem = tmp_path / "crafted"
-    _copy_policy(stem, pth=buf.getvalue())
-    with pytest.raises(rl.PolicyError, match="not a plain SB3 model"):
-        rl.load_policy(stem, trusted=True)
+
+    def weights(marker):
+        buf = io.BytesIO()
+        torch.save({"w": Evil(marker)}, buf)
+        return buf.getvalue()
+    marker, stem = _crafted(tmp_path, pth=weights)
+    _refused(stem, "not a plain SB3 model")
     assert not marker.exists()
 
 
 def test_crafted_statistics_refused(tmp_path):
-    marker = tmp_path / "marker"
-    stem = tmp_path / "crafted"
-    _copy_policy(stem)
+    marker, stem = _crafted(tmp_path)
     stats = dict(np.load(rl.POLICY_DIR / f"{SHIPPED}{rl.NORM_SUFFIX}"))
     stats["obs_mean"] = np.array([Evil(marker)], dtype=object)
     with open(str(stem) + rl.NORM_SUFFIX, "wb") as f:
         np.savez(f, **stats)
-    with pytest.raises(rl.PolicyError, match="not plain arrays"):
-        rl.load_policy(stem, trusted=True)
+    _refused(stem, "not plain arrays")
     # a legacy pickle beside the zip is never opened
     os.remove(str(stem) + rl.NORM_SUFFIX)
     with open(str(stem) + ".vecnormalize.pkl", "wb") as f:
         pickle.dump(Evil(marker), f)
-    with pytest.raises(rl.PolicyError, match="is missing"):
-        rl.load_policy(stem, trusted=True)
+    _refused(stem, "is missing")
     assert not marker.exists()
 
 
 def test_crafted_init_from_and_resume_refused(tmp_path):
-    marker = tmp_path / "marker"
-    stem = tmp_path / "crafted"
-    _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
+    marker, stem = _crafted(tmp_path, "observation_space")
     kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None)
     with pytest.warns(rl.UntrustedPolicyWarning, match="init_from"), pytest.raises(rl.PolicyError, match="refused"):
         rl.train("ppo", "waypoints", "truth", out=tmp_path / "ft", init_from=stem, **kw)
@@ -267,9 +271,7 @@ def test_refused_start_policy_writes_nothing(tmp_path):
     (the run folder and its Monitor logs were created, and training environments started,
     before the policy was read); a --resume whose checkpoints are all unreadable leaves the
     run folder as it was (its Monitor logs were opened for appending and cut first)."""
-    marker = tmp_path / "marker"
-    stem = tmp_path / "crafted"
-    _copy_policy(stem, data_edit=lambda d: d.__setitem__("observation_space", _serialized(Evil(marker))))
+    marker, stem = _crafted(tmp_path, "observation_space")
     kw = dict(timesteps=64, n_envs=1, progress=False, env_kwargs={"episode_s": 1.0}, log=lambda *a: None,
               trusted=True)
     with pytest.raises(rl.PolicyError, match="refused"):

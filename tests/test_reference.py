@@ -11,8 +11,8 @@ import pytest
 
 import fusion
 import reference as ref
-from _helpers import (FIELD, FS, GYRO_BIAS, N, TOL, compare_state, count_invalid, inject_invalid, qdiff, recovery_data,
-                      rest_data)
+from _helpers import (FIELD, FS, GYRO_BIAS, N, TOL, check_ned_and_given_start, check_skipped, check_uneven_dt,
+                      compare_state, count_invalid, inject_invalid, qdiff, recovery_data, rest_data)
 
 N_SHORT = 2_000     # dt / NED / skip variants (the reference is slow: ~0.1-0.4 ms per sample)
 
@@ -64,10 +64,7 @@ def test_the_run_is_demanding(data):
 def test_uneven_dt(data, name):
     _, gyr, acc, mag = data
     gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
-    dt = np.random.default_rng(5).uniform(0.002, 0.03, N_SHORT)
-    est, r = fusion.make(name, FS), ref.make(name, FS)
-    assert qdiff(est.run(gyr, acc, mag, dt=dt), r.run(gyr, acc, mag, dt=dt)) < TOL
-    compare_state(est, r)
+    check_uneven_dt(fusion.make(name, FS), ref.make(name, FS), gyr, acc, mag)
     # a scalar dt is every sample's step
     est, r = fusion.make(name, FS), ref.make(name, FS)
     assert qdiff(est.run(gyr[:300], acc[:300], mag[:300], dt=0.013),
@@ -79,16 +76,7 @@ def test_uneven_dt(data, name):
 def test_ned(data, name):
     _, gyr, acc, mag = data
     gyr, acc, mag = gyr[:N_SHORT], acc[:N_SHORT], mag[:N_SHORT]
-    est, r = fusion.make(name, FS, frame="NED"), ref.make(name, FS, frame="NED")
-    assert qdiff(est.run(gyr, acc, mag), r.run(gyr, acc, mag)) < TOL
-    compare_state(est, r)
-    # a start attitude given in NED, 6-axis
-    q0 = ref.normalise(np.array([0.3, -0.5, 0.2, 0.7]))
-    est.reset(q0)
-    r.reset(q0)
-    assert np.abs(est.quaternion - q0).max() < 1e-15
-    assert qdiff(est.run(gyr[:500], acc[:500]), r.run(gyr[:500], acc[:500])) < TOL
-    compare_state(est, r)
+    check_ned_and_given_start(fusion.make(name, FS, frame="NED"), ref.make(name, FS, frame="NED"), gyr, acc, mag, 500)
 
 
 @pytest.mark.parametrize("frame", ["ENU", "NED"])
@@ -98,16 +86,8 @@ def test_skip_invalid_samples(data, name, frame):
     gyr, acc, mag = inject_invalid(gyr, acc, mag)
     if frame == "NED":      # the frame change is at the boundary: a shorter run suffices
         gyr, acc, mag = gyr[:600], acc[:600], mag[:600]
-    expected = count_invalid(gyr, acc, mag)
-    est = fusion.make(name, FS, frame=frame, on_invalid="skip")
-    r = ref.make(name, FS, frame=frame, on_invalid="skip")
-    q, qr = est.run(gyr, acc, mag), r.run(gyr, acc, mag)
-    assert qdiff(q, qr) < TOL
-    compare_state(est, r)
-    assert est.skipped == r.skipped == expected
-    # before initialisation: the identity (in the output frame)
-    identity = ref.C_NED if frame == "NED" else ref.IDENTITY
-    assert np.array_equal(q[:4], np.tile(identity, (4, 1)))
+    check_skipped(fusion.make(name, FS, frame=frame, on_invalid="skip"),
+                  ref.make(name, FS, frame=frame, on_invalid="skip"), gyr, acc, mag, frame)
     # 6-axis too
     est = fusion.make(name, FS, frame=frame, on_invalid="skip")
     r = ref.make(name, FS, frame=frame, on_invalid="skip")

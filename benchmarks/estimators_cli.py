@@ -9,7 +9,7 @@ seed papers' Euler table and total / heading / inclination RMSE. Recorded: 9-axi
 trial has a magnetometer, 6-axis (one heading offset per trial removed) on every trial,
 trials whose quality is not 'ok' skipped; per-trial rows and the mean RMSE over trials per
 set and mode; a trial file that cannot be read is reported and skipped. The loops live in
-fusion.compare (matplotlib is imported only to draw).
+benchmarks.compare (matplotlib is imported only to draw).
 """
 import argparse
 import sys
@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 
 import fusion
-from fusion import compare, datasets, scenarios
+from fusion import datasets, scenarios
+from benchmarks import compare
 
 ERR_COLS = ["total", "heading", "inclination"]
 
@@ -48,7 +49,7 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="spherebot-estimators", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="results/compare", help="output folder (default: %(default)s)")
     p.add_argument("--data", default=None,
-                   help="recorded-data folder (default: $FUSION_DATA_DIR or ../shared/data)")
+                   help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
     p.add_argument("--estimators", nargs="+", default=None, metavar="NAME",
                    help=f"estimators to score, names or comma-separated lists (default: all of {fusion.available()})")
     p.add_argument("--quick", action="store_true",
@@ -93,7 +94,7 @@ def _recorded(names, args, out):
     data_dir = Path(args.data) if args.data else datasets.default_data_dir()
     trial_rows, agg_rows, skipped = [], [], []
     if data_dir is None or not data_dir.is_dir():
-        where = args.data or f"${datasets.ENV_VAR} or ../shared/data"
+        where = args.data or datasets.DATA_LOCATION
         print(f"recorded data: folder not found ({where}); skipping the recorded-trial comparison")
     else:
         unreadable = []
@@ -145,16 +146,12 @@ def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
                                     ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
              "## Recorded trials: mean RMSE over trials\n", agg_md]
     if agg_rows:
-        parts += ["Reference (../shared/data/README.md, VQF online, default parameters; VQF takes one "
+        parts += ["Reference (the data folder's README, \"Recorded IMU data with a reference orientation\"; VQF "
+                  "online, default parameters; VQF takes one "
                   "constant sample time 1/fs, while the rows above use the trials' time stamps, which "
                   "matters on ese650's uneven stamps):\n",
                   compare.markdown_table(compare.REFERENCE_VQF, ["set", "mode"] + ERR_COLS, 2)]
-    if skipped:
-        parts += ["## Skipped\n", compare.markdown_table([dict(what=k, reason=r) for k, r in skipped])]
-    parts += ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
-    report = out / "report.md"
-    report.write_text("\n".join(parts))
-    written.append(report)
+    written.append(compare.write_report(out / "report.md", parts, skipped, written, skipped_title="Skipped"))
     return syn_md, agg_md
 
 
@@ -179,10 +176,7 @@ def main(argv=None):
 
     print("\nSynthetic scenarios, RMSE (deg):\n" + syn_md)
     print("Recorded trials, mean RMSE over trials (deg):\n" + agg_md)
-    print(f"wrote {len(written)} files to {out.resolve()}/:")
-    for p in written:
-        print(f"  {p}")
-    print(f"done in {time.perf_counter() - t_start:.1f} s")
+    compare.print_written(written, out, time.perf_counter() - t_start)
     return 0
 
 

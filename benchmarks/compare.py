@@ -5,9 +5,10 @@ Numpy only at import; tqdm and matplotlib are imported where they are used.
 
 Modes: ``"9-axis"`` runs with the magnetometer and scores total / heading / inclination
 against the reference as it is; ``"6-axis"`` runs without it and scores after removing one
-constant heading offset per run (``metrics.remove_heading_offset``), as
-../shared/data/README.md asks. Estimators start as users run them: from the first sample
-(accelerometer, plus magnetometer in 9-axis mode), default parameters unless given.
+constant heading offset per run (``metrics.remove_heading_offset``), as the data folder's
+README ("Recorded IMU data with a reference orientation") asks. Estimators start as users run
+them: from the first sample (accelerometer, plus magnetometer in 9-axis mode), default
+parameters unless given.
 """
 import csv
 import math
@@ -18,13 +19,15 @@ import numpy as np
 import fusion
 from fusion import metrics
 
-__all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials",
-           "aggregate", "markdown_table", "write_table", "plot_errors", "REFERENCE_VQF"]
+__all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
+           "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
+           "REFERENCE_VQF"]
 
 MODES = ("9-axis", "6-axis")
 ERRORS = ("total", "heading", "inclination")
 
-# ../shared/data/README.md: VQF (online, default parameters) on all 'ok' trials, degrees
+# the data folder's README ("Recorded IMU data with a reference orientation"): VQF (online, default
+# parameters) on all 'ok' trials, degrees
 REFERENCE_VQF = [
     dict(set="repoimu_tstick", mode="9-axis", total=1.92, heading=1.67, inclination=0.70),
     dict(set="repoimu_tstick", mode="6-axis", total=0.99, heading=0.60, inclination=0.70),
@@ -176,6 +179,25 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     return csv_path, md_path
 
 
+def write_report(path, parts, skipped, written, skipped_title="Not scored"):
+    """A Markdown report: ``parts`` (joined by newlines), then the skipped ``(what, reason)``
+    pairs and the list of ``written`` files; returns ``path``."""
+    path = Path(path)
+    if skipped:
+        parts = parts + [f"## {skipped_title}\n", markdown_table([dict(what=k, reason=r) for k, r in skipped])]
+    parts = parts + ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
+    path.write_text("\n".join(parts))
+    return path
+
+
+def print_written(files, out, seconds):
+    """The closing lines of a command: the files written into ``out`` and the time taken."""
+    print(f"wrote {len(files)} files to {Path(out).resolve()}/:")
+    for f in files:
+        print(f"  {f}")
+    print(f"done in {seconds:.1f} s")
+
+
 def new_figure(**kwargs):
     """A matplotlib ``Figure`` (``kwargs``: its arguments) on its own Agg canvas, apart from
     pyplot: drawing it neither switches the user's backend nor opens a window, and it is
@@ -204,8 +226,14 @@ def plot_errors(panels, path, title, t=None, fs=None):
         ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle(title)
-    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def save_figure(fig, path, dpi=110, rect=None):
+    """Lay ``fig`` out (tight, within ``rect`` if given) and write it as PNG to ``path`` (its
+    folder made); returns the path."""
+    fig.tight_layout(**({} if rect is None else dict(rect=rect)))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=dpi)
     return path

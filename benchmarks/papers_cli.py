@@ -4,14 +4,14 @@ tables (beside the documents' own numbers) and PNG figures.
 
     spherebot-papers [--out results/papers] [--sections 000 001 003 004] [--seeds N] [--quick]
 
-The sections and what did not reproduce: docs/papers.md. The work lives in fusion.papers.
+The sections and what did not reproduce: docs/papers.md. The measurements are
+benchmarks.papers, the report benchmarks.papers_report.
 """
 import argparse
 import sys
 import time
-from pathlib import Path
 
-from fusion import papers
+from benchmarks import compare, papers, papers_report
 
 
 def parse_args(argv=None):
@@ -32,12 +32,9 @@ def main(argv=None):
         sys.exit(f"error: --seeds must be >= 1, got {args.seeds}")
     t0 = time.perf_counter()
     seeds = range(args.seeds) if args.seeds is not None else None
-    files = papers.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
+    files = papers_report.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
     print(files[0].read_text())
-    print(f"wrote {len(files)} files to {Path(args.out).resolve()}/:")
-    for f in files:
-        print(f"  {f}")
-    print(f"done in {time.perf_counter() - t0:.1f} s")
+    compare.print_written(files, args.out, time.perf_counter() - t0)
     return 0
 
 
