@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from controllers import rl
+from fusion.checks import choice
 
 
 def _value(text):
@@ -208,7 +209,7 @@ def main(argv=None):
         override = _pairs(a.hyperparams, "--hyperparams")
         timesteps = _timesteps(a.timesteps, tasks)
         for est in a.estimator:
-            rl._check_choice("estimator", est, tuple(fusion.available()) + ("truth",))
+            choice("estimator", est, tuple(fusion.available()) + ("truth",))
     except (ValueError, argparse.ArgumentTypeError) as e:
         ap.error(str(e))
     if a.backend is not None or len(tasks) * len(a.estimator) * len(a.seed) > 1:
