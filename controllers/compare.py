@@ -590,7 +590,8 @@ def _headline_panel(ax, summary, task, sc):
     ref_txt = ", ".join(f"{c} {_fmt(truth[c][main], pct=main in BINARY_METRICS)}{unit}"
                         for c in ctrls if c in truth)
     worse = "left" if higher else "right"
-    ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}   ({worse} = worse; labels: the cell's own value)",
+    # two lines, so that the title fits the axes at any width
+    ax.set_title(f"{task}, {sc} floor — under truth: {ref_txt}\n({worse} = worse; labels: the cell's own value)",
                  fontsize=9)
     ax.margins(x=0.12)
     ax.set_xlabel(_LABEL.get(main, f"Δ {main} vs truth"))
