@@ -48,6 +48,15 @@ cdef EKF _core(CFEKF e):
     return e.core
 
 
+def _core_attr(CFEKF e, name):
+    return getattr(_core(e), name)
+
+
+def _of_core(*names):
+    """Read-only properties that read the EKF core's attributes of the same names."""
+    return tuple(property(lambda e, n=n: _core_attr(e, n), doc=f"The EKF core's {n}.") for n in names)
+
+
 cdef class CFEKF(Estimator):
     """The fusion of "Attitude-angle solution for a mobile robot": gyro, accelerometer and
     magnetometer through a sliding mean; Mahony's
@@ -75,6 +84,10 @@ cdef class CFEKF(Estimator):
         MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
     # the rest parameters and counts, read from the core's detector (fusion._rest)
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
+    # bias] are the core's
+    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of_core(
+        "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -184,36 +197,6 @@ cdef class CFEKF(Estimator):
                                     self.cf_noise * self.cf_noise / dt, NULL, 0.0, learn)
         quat_normalise(self.core.q)
         memcpy(self.q, self.core.q, 4 * sizeof(double))
-
-    @property
-    def gyro_noise(self):
-        return _core(self).gyro_noise
-
-    @property
-    def bias_noise(self):
-        return _core(self).bias_noise
-
-    @property
-    def q_init_std(self):
-        return _core(self).q_init_std
-
-    @property
-    def bias_init_std(self):
-        return _core(self).bias_init_std
-
-    @property
-    def motion_rate(self):
-        return _core(self).motion_rate
-
-    @property
-    def bias(self):
-        """Estimated gyro bias, rad/s (body frame): the EKF's."""
-        return _core(self).bias
-
-    @property
-    def covariance(self):
-        """7x7 covariance of the EKF's [q (in the estimator's frame), gyro bias]."""
-        return _core(self).covariance
 
     @property
     def window(self):
