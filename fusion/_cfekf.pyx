@@ -57,6 +57,59 @@ def _of_core(*names):
     return tuple(property(lambda e, n=n: _core_attr(e, n), doc=f"The EKF core's {n}.") for n in names)
 
 
+cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* acc,
+                             const double* mag, double dt) noexcept nogil:
+    """CFEKF._step on its EKF core k (an argument: held in a register, not reloaded from
+    e after every store)."""
+    cdef double z[4]
+    cdef double g[3]
+    cdef int i
+    cdef bint sat = gyr != NULL and e.sat_left > 0
+    cdef bint learn
+    cdef double na, c
+    if not e.cf_started:         # the complementary filter starts where the EKF does
+        e.cf._reset_state()
+        for i in range(4):
+            e.cf.q[i] = e.q[i]
+        e.cf_started = True
+    # the EKF's attitude is this estimator's (set by reset, the first sample, load_state)
+    memcpy(k.q, e.q, 4 * sizeof(double))
+    if gyr != NULL and e.bias_feedback:
+        # the complementary filter integrates the gyro corrected by the EKF's bias (from
+        # before this sample's update)
+        for i in range(3):
+            g[i] = gyr[i] - k.b[i]
+        e.cf.step_flagged(g, acc, mag, dt, sat)
+    else:
+        e.cf.step_flagged(gyr, acc, mag, dt, sat)
+    k.propagate(gyr, dt, sat)
+    k.rest_update(gyr, acc, dt)
+    if acc != NULL or mag != NULL:
+        if e.cf.q[0] * k.q[0] + e.cf.q[1] * k.q[1] + e.cf.q[2] * k.q[2] + e.cf.q[3] * k.q[3] < 0.0:
+            for i in range(4):
+                z[i] = -e.cf.q[i]
+        else:
+            for i in range(4):
+                z[i] = e.cf.q[i]
+        learn = True
+        if e.bias_feedback:
+            # the bias is learned from the filter only while it is quiet (docs/cfekf.md):
+            # not under linear acceleration (its correction then turns the wrong way),
+            # nor while it corrects a large error (a start, a glitch), which would be
+            # read as bias and, fed back, integrated
+            na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+            c = fabs(z[0] * k.q[0] + z[1] * k.q[1] + z[2] * k.q[2] + z[3] * k.q[3])
+            if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
+                e.t_quiet = 0.0
+                learn = False
+            else:
+                e.t_quiet += dt
+                learn = e.t_quiet >= LEARN_HOLD
+        quat_measurement_update(k.q, k.b, k.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
+    quat_normalise(k.q)
+    memcpy(e.q, k.q, 4 * sizeof(double))
+
+
 cdef class CFEKF(Estimator):
     """The fusion of "Attitude-angle solution for a mobile robot": gyro, accelerometer and
     magnetometer through a sliding mean; Mahony's
@@ -147,56 +200,7 @@ cdef class CFEKF(Estimator):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        cdef double z[4]
-        cdef double g[3]
-        cdef int i
-        cdef bint sat = gyr != NULL and self.sat_left > 0
-        cdef bint learn
-        cdef double na, c
-        if not self.cf_started:         # the complementary filter starts where the EKF does
-            self.cf._reset_state()
-            for i in range(4):
-                self.cf.q[i] = self.q[i]
-            self.cf_started = True
-        # the EKF's attitude is this estimator's (set by reset, the first sample, load_state)
-        memcpy(self.core.q, self.q, 4 * sizeof(double))
-        if gyr != NULL and self.bias_feedback:
-            # the complementary filter integrates the gyro corrected by the EKF's bias (from
-            # before this sample's update)
-            for i in range(3):
-                g[i] = gyr[i] - self.core.b[i]
-            self.cf.step_flagged(g, acc, mag, dt, sat)
-        else:
-            self.cf.step_flagged(gyr, acc, mag, dt, sat)
-        self.core.propagate(gyr, dt, sat)
-        self.core.rest_update(gyr, acc, dt)
-        if acc != NULL or mag != NULL:
-            if (self.cf.q[0] * self.core.q[0] + self.cf.q[1] * self.core.q[1]
-                    + self.cf.q[2] * self.core.q[2] + self.cf.q[3] * self.core.q[3]) < 0.0:
-                for i in range(4):
-                    z[i] = -self.cf.q[i]
-            else:
-                for i in range(4):
-                    z[i] = self.cf.q[i]
-            learn = True
-            if self.bias_feedback:
-                # the bias is learned from the filter only while it is quiet (docs/cfekf.md):
-                # not under linear acceleration (its correction then turns the wrong way),
-                # nor while it corrects a large error (a start, a glitch), which would be
-                # read as bias and, fed back, integrated
-                na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-                c = fabs(z[0] * self.core.q[0] + z[1] * self.core.q[1] + z[2] * self.core.q[2]
-                         + z[3] * self.core.q[3])
-                if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
-                    self.t_quiet = 0.0
-                    learn = False
-                else:
-                    self.t_quiet += dt
-                    learn = self.t_quiet >= LEARN_HOLD
-            quat_measurement_update(self.core.q, self.core.b, self.core.P, z,
-                                    self.cf_noise * self.cf_noise / dt, NULL, 0.0, learn)
-        quat_normalise(self.core.q)
-        memcpy(self.q, self.core.q, 4 * sizeof(double))
+        cf_ekf_step(self, self.core, gyr, acc, mag, dt)
 
     @property
     def window(self):
