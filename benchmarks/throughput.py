@@ -22,8 +22,9 @@ The feeding of each library lives in benchmarks/peers.py, shared with accuracy.p
 
 Method: N is scaled per cell so one call takes about ``--target`` seconds (0.3 s), capped at
 the 200,000 generated samples; one warm-up call per cell at that N, then 5 timed rounds
-(time.perf_counter), each round timing every cell once (interleaved, so a slow spell of a
-shared machine hits every method alike), each call on a freshly built estimator (construction
+(time.perf_counter; ``--clock cpu``: the thread's CPU time, for a machine other jobs load),
+each round timing every cell once (interleaved, so a slow spell of a shared machine hits every
+method alike), each call on a freshly built estimator (construction
 is not timed, except for the ahrs batch constructors, which are the batch call); the median of
 the 5. Speed only: a quick sanity check (finite, unit-norm, moving quaternions that track the
 true tilt) is printed first, not scored.
@@ -40,6 +41,8 @@ rates in filter-samples/s, the same interleaved rounds.
     .venv/bin/python benchmarks/throughput.py --quick    # under a minute
     .venv/bin/python benchmarks/throughput.py --out DIR  # default results/benchmarks/
     .venv/bin/python benchmarks/throughput.py --bank-only   # the bank section alone
+    .venv/bin/python benchmarks/throughput.py --only fusion.ekf,vqf.VQF,vqf.BasicVQF --no-bank
+                                                            # a few methods (ratios as in the full table)
 """
 import argparse
 import csv
@@ -62,6 +65,10 @@ BANK_COUNT = 64
 BANK_NAME = "ekf"
 MODES = ("update 6-axis", "update 9-axis", "run 6-axis", "run 9-axis")
 DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
+# the clock of every timed call: wall time, or (--clock cpu) this thread's CPU time, which a
+# machine shared with other jobs does not inflate while the benchmark waits for a core
+CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
+clock = CLOCKS["wall"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -70,9 +77,9 @@ DAGGER = "†"                 # imufusion "run": its Python loop (no batch API)
 def _time_once(build, *args):
     """Seconds of one call of build(*args)'s returned closure (the build is not timed)."""
     go = build(*args)
-    t0 = time.perf_counter()
+    t0 = clock()
     go()
-    return time.perf_counter() - t0
+    return clock() - t0
 
 
 def _nice(n):
@@ -356,7 +363,18 @@ def write_outputs(out, md, csv_header, csv_rows, detail):
     print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
 
 
-def main(argv=None):
+def select_methods(methods, only):
+    """The methods named in ``only`` (comma-separated; None: all)."""
+    if not only:
+        return methods
+    keep = set(only.split(","))
+    unknown = keep - {m.name for m in methods}
+    if unknown:
+        raise ValueError(f"--only: unknown method(s) {sorted(unknown)}; known: {[m.name for m in methods]}")
+    return [m for m in methods if m.name in keep]
+
+
+def parse_args(argv=None):
     ap = argparse.ArgumentParser(prog="spherebot-bench", description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true",
                     help="fewer samples and repeats (whole script under about a minute)")
@@ -365,7 +383,18 @@ def main(argv=None):
     ap.add_argument("--target", type=float, default=None,
                     help="seconds per measurement used to scale N (default 0.3, quick 0.06)")
     ap.add_argument("--bank-only", action="store_true", help="only the bank section")
-    args = ap.parse_args(argv)
+    ap.add_argument("--only", default=None,
+                    help="comma-separated method names to time (e.g. fusion.ekf,vqf.VQF); default: all")
+    ap.add_argument("--no-bank", action="store_true", help="skip the bank section")
+    ap.add_argument("--clock", choices=tuple(CLOCKS), default="wall",
+                    help="wall time (default) or this thread's CPU time (for a loaded machine)")
+    return ap.parse_args(argv)
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    global clock
+    clock = CLOCKS[args.clock]
 
     n_run, n_upd, repeats, target, n_min, n_sanity = ((50_000, 50_000, 3, 0.06, 200, 1500) if args.quick
                                                       else (200_000, 200_000, 5, 0.3, 500, 3000))
@@ -380,7 +409,7 @@ def main(argv=None):
     print("versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()))
     print(f"settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; N <= {n_run:,} (run), "
           f"<= {n_upd:,} (update), scaled to ~{target:g} s per measurement; "
-          f"median of {repeats} after 1 warm-up\n", flush=True)
+          f"median of {repeats} after 1 warm-up; {args.clock} clock\n", flush=True)
 
     d = Data.mixed(max(n_run, n_upd, n_sanity), fs=FS)
     n_bank = n_run if not args.quick else 48_000
@@ -389,7 +418,7 @@ def main(argv=None):
         print("\n" + text)
         print(f"total {time.perf_counter() - t_start:.0f} s")
         return
-    methods = all_methods(print)
+    methods = select_methods(all_methods(print), args.only)
 
     sane = sanity_all(methods, d, n_sanity)         # first: also imports and warms every code path
     cells = size_all(methods, d, n_run, n_upd, target, n_min)
@@ -404,14 +433,17 @@ def main(argv=None):
              "the quaternion each sample); run = one batch call. Ratios: ours / fastest peer in that column. "
              "Median of %d repeats; N per cell in throughput_detail.csv." % repeats)
     print("\n" + table + "\n\n" + notes + "\n")
-    bank_text, _ = bank_section(d, n_bank, repeats)
-    print("\n" + bank_text + "\n")
+    bank_text = "(skipped: --no-bank)"
+    if not args.no_bank:
+        bank_text, _ = bank_section(d, n_bank, repeats)
+        print("\n" + bank_text + "\n")
 
     head = (f"- machine: {info['platform']}, Python {info['python']}; cpu: {info['cpu']}; "
             f"{info['cpu_count']} CPUs ({info['usable_cpus']} usable)\n"
             "- versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()) + "\n"
             f"- settings: {'quick' if args.quick else 'default'}; fs {FS:g} Hz; "
-            f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement\n\n")
+            f"N <= {n_run:,} (run), <= {n_upd:,} (update), ~{target:g} s per measurement; "
+            f"{args.clock} clock\n\n")
     md = head + table + "\n\n" + notes + "\n" + "\n## Bank\n\n" + bank_text + "\n"
     write_outputs(Path(args.out), md, csv_header, csv_rows, detail)
     print(f"total {time.perf_counter() - t_start:.0f} s")

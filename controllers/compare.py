@@ -719,7 +719,7 @@ def _parser():
     ap.add_argument("--robot", choices=tuple(ROBOTS), default="realistic",
                     help="realistic: the v1 robot (SphereBot*-v1: drive vibration, its own magnetic field, "
                          "latency, deadband, stiction, battery sag, compliant servo); ideal: the v0 robot "
-                         "(SphereBot*-v0, none of them; what the shipped PPO policies were trained on) "
+                         "(SphereBot*-v0, none of them; the shipped PPO policies were trained on v1) "
                          "(default realistic, the environment's default)")
     ap.add_argument("--quick", action="store_true",
                     help=f"the demo: {QUICK['episodes']} episodes per cell, estimators {QUICK['estimators']}, "

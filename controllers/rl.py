@@ -57,9 +57,29 @@ def available_policies() -> list[str]:
     return sorted(p.stem for p in POLICY_DIR.glob("*.zip"))
 
 
-def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR) -> Path:
-    """The policy of (algo, task, estimator) in ``directory`` (default: the package's)."""
-    return Path(directory) / f"{algo}-{task}-{estimator}"
+def policy_stem(algo: str, task: str, estimator: str, directory: str | os.PathLike = POLICY_DIR,
+                seed: int = 0) -> Path:
+    """The policy of (algo, task, estimator) in ``directory`` (default: the package's): of
+    training seed 0 ``<algo>-<task>-<estimator>`` (the one the comparison runs), of other
+    seeds ``<algo>-<task>-<estimator>-seed<seed>``."""
+    return Path(directory) / (f"{algo}-{task}-{estimator}" + (f"-seed{seed}" if seed else ""))
+
+
+FINAL_EVAL_SEED = 1_000_000     # the final evaluation's episodes: seeds neither training nor the comparison use
+
+
+def final_evaluation(stem, task, estimator, env_kwargs=None, episodes=10, seed=FINAL_EVAL_SEED) -> dict:
+    """Evaluate the policy ``stem`` (``controllers.evaluate``, ``episodes`` from ``seed``) and
+    write the means into its JSON as ``final_evaluation``; returns them."""
+    from controllers.evaluation import evaluate
+    ctrl = load_policy(stem, trusted=True)      # written by this run
+    res = evaluate(ctrl, dict(env_kwargs or {}, task=task, estimator=estimator), episodes=episodes, seed=seed)
+    summary = {k: v["mean"] for k, v in res["summary"].items()}
+    meta_path = Path(str(stem) + ".json")
+    meta = json.loads(meta_path.read_text())
+    meta["final_evaluation"] = {"episodes": episodes, "seed": seed, "mean": summary}
+    atomic_write(meta_path, lambda f: f.write(json.dumps(meta, indent=2).encode()))
+    return summary
 
 
 def new_run_stem(algo: str, task: str, estimator: str, log_folder: str | os.PathLike = "logs") -> Path:
@@ -535,10 +555,44 @@ def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):
     model: training must beat it."""
     from stable_baselines3.common.evaluation import evaluate_policy
     eval_env.obs_rms = venv.obs_rms
-    mean_reward, _ = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True)
-    saver.save_best(float(mean_reward))
-    ev.best_mean_reward = float(mean_reward)
+    rewards, lengths = evaluate_policy(saver.model, eval_env, n_eval_episodes=eval_episodes, deterministic=True,
+                                       return_episode_rewards=True)
+    mean_reward = float(np.mean(rewards))
+    saver.save_best(mean_reward)
+    ev.best_mean_reward = mean_reward
+    # the first point of the run's evaluation log (evaluations.npz: its learning curve)
+    ev.evaluations_timesteps.append(int(saver.model.num_timesteps))
+    ev.evaluations_results.append(list(rewards))
+    ev.evaluations_length.append(list(lengths))
+    _save_evaluations(ev)
     log(f"the starting policy's evaluation: mean reward {mean_reward:.2f}")
+
+
+def _save_evaluations(ev):
+    """The evaluation log as EvalCallback writes it (``<run>/evaluations.npz``), atomically."""
+    def write(f):
+        np.savez(f, timesteps=np.asarray(ev.evaluations_timesteps), results=np.asarray(ev.evaluations_results),
+                 ep_lengths=np.asarray(ev.evaluations_length))
+    atomic_write(ev.log_path + ".npz", write)
+
+
+def _resume_evaluations(ev, run_dir, timesteps):
+    """A resumed run continues its evaluation log (EvalCallback would start it over): the
+    rows up to the checkpoint's ``timesteps`` (later ones were of the lost part of the run)."""
+    path = Path(run_dir) / "evaluations.npz"
+    if not path.is_file():
+        return
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            keep = d["timesteps"] <= timesteps
+            rows = d["timesteps"][keep], d["results"][keep], d["ep_lengths"][keep]
+    except (OSError, ValueError, KeyError) as e:
+        warnings.warn(f"{path} cannot be read ({e}); the resumed run starts a new evaluation log",
+                      RuntimeWarning, stacklevel=3)
+        return
+    ev.evaluations_timesteps = [int(t) for t in rows[0]]
+    ev.evaluations_results = [list(r) for r in rows[1]]
+    ev.evaluations_length = [list(n) for n in rows[2]]
 
 
 def _write_run_json(stem, best_json, meta):
@@ -648,6 +702,106 @@ def _history(stem):
         return []
 
 
+def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_episodes, eval_freq,
+          checkpoint_freq, n_envs, init_from, bc_steps, hyperparams_override, vec_env):
+    """Every setting of a run, checked (a ValueError names the one at fault) before any work."""
+    import fusion
+    from types import SimpleNamespace
+    choice("algorithm", algo, ALGOS)
+    choice("task", task, tuple(TASK_IDS))
+    choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
+    hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
+    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
+    timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
+                                        default_envs if n_envs is None else n_envs,
+                                        eval_freq, checkpoint_freq, eval_episodes)
+    if vec_env not in VEC_ENVS:
+        raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
+    clone = init_from == TEACHER and not resume
+    if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
+        raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
+    stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
+    run_dir = Path(str(stem) + ".run")
+    return SimpleNamespace(
+        algo=algo, task=task, estimator=estimator, seed=seed, timesteps=timesteps, n_envs=n_envs, hp=hp,
+        used_hp=used_hp, normalize=hp.pop("normalize", True), policy=hp.pop("policy", "MlpPolicy"),
+        env_kwargs=_checked_env_kwargs(task, estimator, env_kwargs), stem=stem, run_dir=run_dir,
+        ckpt_dir=run_dir / "checkpoints", resume=resume, clone=clone, bc_steps=bc_steps, vec_env=vec_env,
+        eval_episodes=eval_episodes,
+        # the callbacks count calls, one per step of all n_envs environments
+        eval_freq=max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs)),
+        checkpoint_freq=max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs)),
+        extra={"train_freq": hp["train_freq"]} if "train_freq" in hp else {})
+
+
+def _run_envs(p):
+    """(training venv, evaluation env) of the plan ``p``, unwrapped by VecNormalize."""
+    venv = make_vec_env(p.task, p.estimator, p.n_envs, p.seed, p.env_kwargs, monitor_dir=str(p.run_dir / "monitor"),
+                        append=p.resume, subprocess=p.vec_env == "subproc", batched=p.vec_env == "batched")
+    return venv, make_vec_env(p.task, p.estimator, 1, p.seed + 10_000, p.env_kwargs, subprocess=False)
+
+
+def _start_model(p, venv, eval_env, init, start_ckpt, progress, log):
+    """(venv, eval_env, model, PID steps cloned) of a run: resumed from ``start_ckpt``, started
+    from ``init`` or fresh, then cloned from the PID if the plan says so."""
+    from stable_baselines3.common.vec_env import VecNormalize
+    if p.resume:
+        if p.normalize:
+            venv = vec_normalize(load_normalization(_checkpoint_stats(start_ckpt)), venv, True)
+        model = load_model(start_ckpt, env=venv, algo=p.algo, extra=p.extra)
+        log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
+    else:
+        venv, model = _new_model(venv, init, p.algo, p.policy, p.hp, p.normalize, p.extra, p.seed, log)
+    if p.normalize:
+        eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
+    bc_collected = 0
+    if p.clone:
+        if not p.normalize:
+            raise ValueError(f"init_from={TEACHER!r} needs normalize: true in the hyperparameters")
+        bc_collected = _clone_pid(model, venv, eval_env, p.bc_steps, p.seed, progress, log)
+        if "learning_starts" in p.used_hp:
+            p.used_hp["learning_starts"] = model.learning_starts     # the JSON says what ran
+    return venv, eval_env, model, bc_collected
+
+
+def _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log):
+    """Evaluate the start, learn to ``p.timesteps``, save the last checkpoint and make sure
+    there is a best model; returns (wall s, steps/s, training steps/s, evaluation s)."""
+    from stable_baselines3.common.callbacks import CallbackList
+    saver = _RunFiles(model, p.run_dir, p.ckpt_dir, p.normalize)
+    ckpt, ev = _callbacks(saver, eval_env, p.eval_freq, p.checkpoint_freq, p.eval_episodes)
+    best_json = p.run_dir / "best.json"
+    if start_ckpt is not None and best_json.is_file() and (p.run_dir / "best_model.zip").is_file():
+        ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
+    if start_ckpt is not None:
+        _resume_evaluations(ev, p.run_dir, model.num_timesteps)
+    if p.clone or init is not None:
+        _evaluate_start(saver, venv, eval_env, ev, p.eval_episodes, log)
+    wall, rate, train_rate = _learn(saver, p.timesteps, CallbackList([ckpt, ev]), ev,
+                                    start_ckpt is None and init is None, progress, p.n_envs, log)
+    saver.save_checkpoint()
+    saver.ensure_best()
+    return wall, rate, train_rate, ev.eval_time
+
+
+def _publish(p, command, init, start_ckpt, bc_collected, times):
+    """Copy the best model (and its statistics) to the stem and write its JSON."""
+    wall, rate, train_rate, eval_time = times
+    p.stem.parent.mkdir(parents=True, exist_ok=True)
+    _copy(p.run_dir / "best_model.zip", str(p.stem) + ".zip")
+    if p.normalize:
+        _copy(p.run_dir / "best_vecnormalize.npz", str(p.stem) + NORM_SUFFIX)
+    history = _history(p.stem) if start_ckpt is not None else []
+    _write_run_json(p.stem, p.run_dir / "best.json", {
+        "command": command, "history": history + [command], "algo": p.algo, "task": p.task,
+        "estimator": p.estimator, "env_id": TASK_IDS[p.task], "env_kwargs": p.env_kwargs, "timesteps": p.timesteps,
+        "seed": p.seed, "n_envs": p.n_envs, "hyperparams": p.used_hp, "normalize": p.normalize,
+        "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if p.clone
+                      else None if init is None else str(Path(init[0]).name)),
+        "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
+        "eval_time_s": round(eval_time, 1)})
+
+
 def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
           eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
           command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
@@ -674,91 +828,23 @@ def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=No
     """
     import torch
     torch.set_num_threads(1)
-    import fusion
-    from stable_baselines3.common.callbacks import CallbackList
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    choice("algorithm", algo, ALGOS)
-    choice("task", task, tuple(TASK_IDS))
-    choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
-    hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
-    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
-    timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
-                                        default_envs if n_envs is None else n_envs,
-                                        eval_freq, checkpoint_freq, eval_episodes)
-    normalize = hp.pop("normalize", True)
-    policy = hp.pop("policy", "MlpPolicy")
-    env_kwargs = _checked_env_kwargs(task, estimator, env_kwargs)
-    stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
-    run_dir = Path(str(stem) + ".run")
-    ckpt_dir = run_dir / "checkpoints"
-    eval_freq = max(1, int((eval_freq or max(10_000, timesteps // 10)) // n_envs))
-    checkpoint_freq = max(1, int((checkpoint_freq or max(20_000, timesteps // 10)) // n_envs))
-
-    _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log)
+    p = _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_episodes, eval_freq,
+              checkpoint_freq, n_envs, init_from, bc_steps, hyperparams_override, vec_env)
+    _prepare_run_dir(p.run_dir, p.ckpt_dir, resume, overwrite, log)
     init = None
-    clone = init_from == TEACHER and not resume
-    if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
-        raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
     if init_from is not None and init_from != TEACHER and not resume:
         init = _init_source(init_from, algo, task, trusted, log)
-    extra = {"train_freq": hp["train_freq"]} if "train_freq" in hp else {}
-    start_ckpt = _readable_start(init, resume, ckpt_dir, normalize, algo, extra, log)
-    run_dir.mkdir(parents=True, exist_ok=True)
-
-    if vec_env not in VEC_ENVS:
-        raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
-    venv = make_vec_env(task, estimator, n_envs, seed, env_kwargs, monitor_dir=str(run_dir / "monitor"),
-                        append=resume, subprocess=vec_env == "subproc", batched=vec_env == "batched")
-    eval_env = make_vec_env(task, estimator, 1, seed + 10_000, env_kwargs, subprocess=False)
+    start_ckpt = _readable_start(init, resume, p.ckpt_dir, p.normalize, algo, p.extra, log)
+    p.run_dir.mkdir(parents=True, exist_ok=True)
+    venv, eval_env = _run_envs(p)
     try:
-        if resume:
-            if normalize:
-                venv = vec_normalize(load_normalization(_checkpoint_stats(start_ckpt)), venv, True)
-            model = load_model(start_ckpt, env=venv, algo=algo, extra=extra)
-            log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
-        else:
-            venv, model = _new_model(venv, init, algo, policy, hp, normalize, extra, seed, log)
-        if normalize:
-            eval_env = VecNormalize(eval_env, norm_obs=True, norm_reward=False, training=False)
-        bc_collected = 0
-        if clone:
-            if not normalize:
-                raise ValueError(f"init_from={TEACHER!r} needs normalize: true in the hyperparameters")
-            bc_collected = _clone_pid(model, venv, eval_env, bc_steps, seed, progress, log)
-            if "learning_starts" in used_hp:
-                used_hp["learning_starts"] = model.learning_starts     # the JSON says what ran
-
-        saver = _RunFiles(model, run_dir, ckpt_dir, normalize)
-        ckpt, ev = _callbacks(saver, eval_env, eval_freq, checkpoint_freq, eval_episodes)
-        best_json = run_dir / "best.json"
-        if start_ckpt is not None and best_json.is_file() and (run_dir / "best_model.zip").is_file():
-            ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
-        if clone or init is not None:
-            _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log)
-
-        wall, rate, train_rate = _learn(saver, timesteps, CallbackList([ckpt, ev]), ev,
-                                        start_ckpt is None and init is None, progress, n_envs, log)
-        saver.save_checkpoint()
-        saver.ensure_best()
+        venv, eval_env, model, bc_collected = _start_model(p, venv, eval_env, init, start_ckpt, progress, log)
+        times = _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log)
     finally:
         venv.close()
         eval_env.close()
-
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    _copy(run_dir / "best_model.zip", str(stem) + ".zip")
-    if normalize:
-        _copy(run_dir / "best_vecnormalize.npz", str(stem) + NORM_SUFFIX)
-    history = _history(stem) if start_ckpt is not None else []
-    _write_run_json(stem, best_json, {
-        "command": command, "history": history + [command], "algo": algo, "task": task, "estimator": estimator,
-        "env_id": TASK_IDS[task], "env_kwargs": env_kwargs, "timesteps": timesteps, "seed": seed, "n_envs": n_envs,
-        "hyperparams": used_hp, "normalize": normalize,
-        "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if clone
-                      else None if init is None else str(Path(init[0]).name)),
-        "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
-        "eval_time_s": round(ev.eval_time, 1)})
-    return stem
+    _publish(p, command, init, start_ckpt, bc_collected, times)
+    return p.stem
 
 
 def _copy(src, dst):

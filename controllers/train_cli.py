@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from controllers import rl
+from fusion.checks import choice
 
 
 def _value(text):
@@ -92,16 +93,17 @@ def parser():
     ap = argparse.ArgumentParser(prog="spherebot-train", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", required=True, choices=rl.ALGOS, help="the RL algorithm")
-    ap.add_argument("--env", "--task", dest="env", required=True, metavar="ENV",
+    ap.add_argument("--env", "--task", dest="env", required=True, nargs="+", metavar="ENV",
                     help=f"environment id ({', '.join(rl.TASK_IDS.values())}) or its task name "
-                         f"({', '.join(rl.TASK_IDS)}); --task is an alias")
-    ap.add_argument("--estimator", default="ekf",
+                         f"({', '.join(rl.TASK_IDS)}); --task is an alias; several: a grid")
+    ap.add_argument("--estimator", default=["ekf"], nargs="+",
                     help=f"the attitude estimator in the loop: one of {', '.join(fusion.available())} or "
-                         f"'truth' (default: %(default)s)")
-    ap.add_argument("-n", "--n-timesteps", "--timesteps", dest="timesteps", type=_int(1), default=None,
-                    metavar="N", help="total environment steps (default: the YAML file's n_timesteps); "
-                                      "--timesteps is an alias")
-    ap.add_argument("--seed", type=_int(0), default=0, help="random seed, an integer >= 0 (default: %(default)s)")
+                         f"'truth' (default: ekf); several: a grid")
+    ap.add_argument("-n", "--n-timesteps", "--timesteps", dest="timesteps", nargs="+", default=None,
+                    metavar="N", help="total environment steps, or TASK:N items (one per task of a grid); "
+                                      "alias: --timesteps (default: the YAML file's n_timesteps)")
+    ap.add_argument("--seed", type=_int(0), default=[0], nargs="+",
+                    help="random seed, an integer >= 0 (default: 0); several: a grid")
     ap.add_argument("--n-envs", type=_int(1), default=None, metavar="N",
                     help="parallel environments, >= 1 (default: the YAML file's n_envs)")
     ap.add_argument("--vec-env", choices=rl.VEC_ENVS, default="subproc",
@@ -141,30 +143,98 @@ def parser():
                     help="after training and the final evaluation, copy the policy into the package's "
                          "controllers/policies/ (replacing the shipped one of that name)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _grid_options(ap)
     return ap
 
 
+def _grid_options(ap):
+    ap.add_argument("--backend", choices=("local", "ray"), default=None,
+                    help="run the grid (--env x --estimator x --seed; also a single job) on a local process "
+                         "pool or on Ray; each job writes LOG_FOLDER/<algo>-<task>-<estimator>[-seed<S>], "
+                         "--resume skips the finished ones (default: local when there are several jobs)")
+    ap.add_argument("--workers", type=_int(1), default=None, metavar="N",
+                    help="grid: jobs at a time (local; default: CPUs / 2, each job runs its environments' "
+                         "processes) or the CPUs of a local Ray cluster")
+    ap.add_argument("--address", default=None,
+                    help="grid on Ray: join the cluster at this address (e.g. auto) instead of starting one")
+
+
+def _timesteps(items, tasks):
+    """-n: None, one N for every task, or TASK:N items (a dict task -> N)."""
+    if items is None:
+        return None
+    if len(items) == 1 and ":" not in items[0] and "=" not in items[0]:
+        return _int(1)(items[0])
+    out = {}
+    for task, n in _pairs(items, "-n").items():
+        if task not in rl.TASK_IDS:
+            raise ValueError(f"-n: unknown task {task!r} in TASK:N; accepted: {', '.join(rl.TASK_IDS)}")
+        out[task] = _int(1)(str(n))
+    missing = [t for t in tasks if t not in out]
+    if missing:
+        raise ValueError(f"-n gives no steps for task {', '.join(missing)}")
+    return out
+
+
+def _grid(a, ap, tasks, env_kwargs, override, timesteps, argv):
+    from controllers import train_grid
+    if a.out is not None:
+        ap.error("--out names one run; a grid writes LOG_FOLDER/<algo>-<task>-<estimator>[-seed<S>] (-f)")
+    jobs = train_grid.grid_jobs(
+        a.algo, tasks, a.estimator, a.seed, a.log_folder, timesteps, init_from=a.init_from,
+        final_episodes=a.eval_episodes, env_kwargs=env_kwargs, n_envs=a.n_envs, eval_freq=a.eval_freq,
+        checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes, bc_steps=a.bc_steps,
+        hyperparams_override=override, trusted=a.trusted, vec_env=a.vec_env)
+    command = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))
+    for j in jobs:
+        j["command"] = f"spherebot-train {command}  # grid job {j['task']} {j['estimator']} seed {j['seed']}"
+    try:
+        train_grid.run_train_grid(jobs, backend=a.backend or "local", workers=a.workers, address=a.address,
+                                  resume=a.resume, install=a.install_policy)
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"spherebot-train: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv=None):
+    import fusion
     ap = parser()
     a = ap.parse_args(argv)
     try:
-        task = _task(a.env)
+        tasks = list(dict.fromkeys(_task(e) for e in a.env))
         env_kwargs = _env_kwargs(a.env_kwargs)
         override = _pairs(a.hyperparams, "--hyperparams")
+        timesteps = _timesteps(a.timesteps, tasks)
+        for est in a.estimator:
+            choice("estimator", est, tuple(fusion.available()) + ("truth",))
+    except (ValueError, argparse.ArgumentTypeError) as e:
+        ap.error(str(e))
+    if a.backend is not None or len(tasks) * len(a.estimator) * len(a.seed) > 1:
+        return _grid(a, ap, tasks, env_kwargs, override, timesteps, argv)
+    if isinstance(timesteps, dict):
+        timesteps = timesteps[tasks[0]]
+    return _single(a, ap, tasks[0], a.estimator[0], a.seed[0], env_kwargs, override, timesteps, argv)
+
+
+def _single(a, ap, task, estimator, seed, env_kwargs, override, timesteps, argv):
+    try:
         if a.out is not None:
             out = Path(a.out)
         elif a.resume:
-            out = rl.latest_run_stem(a.algo, task, a.estimator, a.log_folder)
+            out = rl.latest_run_stem(a.algo, task, estimator, a.log_folder)
             if out is None:
-                raise FileNotFoundError(f"--resume: no run of {a.algo}-{task}-{a.estimator} with checkpoints "
+                raise FileNotFoundError(f"--resume: no run of {a.algo}-{task}-{estimator} with checkpoints "
                                         f"in {Path(a.log_folder) / a.algo}; train without --resume first")
         else:
-            out = rl.new_run_stem(a.algo, task, a.estimator, a.log_folder)
+            out = rl.new_run_stem(a.algo, task, estimator, a.log_folder)
     except (ValueError, FileNotFoundError) as e:
         ap.error(str(e))
     command = "spherebot-train " + " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))
     try:
-        stem = rl.train(a.algo, task, a.estimator, timesteps=a.timesteps, seed=a.seed, out=out,
+        stem = rl.train(a.algo, task, estimator, timesteps=timesteps, seed=seed, out=out,
                         env_kwargs=env_kwargs, resume=a.resume, n_envs=a.n_envs, progress=not a.no_progress,
                         command=command, init_from=a.init_from, overwrite=a.overwrite, eval_freq=a.eval_freq,
                         checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes,
@@ -177,15 +247,7 @@ def main(argv=None):
         return 2
     print(f"policy: {stem}.zip")
     if a.eval_episodes > 0:
-        from controllers.evaluation import evaluate
-        ctrl = rl.load_policy(stem, trusted=True)      # written by this run
-        res = evaluate(ctrl, dict(env_kwargs, task=task, estimator=a.estimator), episodes=a.eval_episodes,
-                       seed=1_000_000)
-        summary = {k: v["mean"] for k, v in res["summary"].items()}
-        meta_path = Path(str(stem) + ".json")
-        meta = json.loads(meta_path.read_text())
-        meta["final_evaluation"] = {"episodes": a.eval_episodes, "seed": 1_000_000, "mean": summary}
-        rl.atomic_write(meta_path, lambda f: f.write(json.dumps(meta, indent=2).encode()))
+        summary = rl.final_evaluation(stem, task, estimator, env_kwargs, a.eval_episodes)
         print("final evaluation:", ", ".join(f"{k} {v:.3g}" for k, v in summary.items()))
     if a.install_policy:
         print(f"installed: {rl.install_policy(stem)}.zip")

@@ -168,7 +168,8 @@ cdef class CFEKF(Estimator):
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
         self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
-                          acc_lowpass=p["acc_lowpass"], **{d.name: p[d.name] for d in MAGDIST})
+                          acc_lowpass=p["acc_lowpass"], rest_time=0.0,
+                          **{d.name: p[d.name] for d in MAGDIST})
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

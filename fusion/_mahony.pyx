@@ -7,8 +7,10 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import FLAG, BIAS_MAX, RECOVERY
-from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS
+from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
 from fusion._magdist cimport magd_check
+from fusion._rest cimport RestDetector, rest_detect, rest_clear
+from fusion._rest import REST_PROPERTIES
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
@@ -217,6 +219,20 @@ cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, co
     acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
 
 
+cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
+                      double dt) noexcept nogil:
+    """Rest detection (fusion/_rest.pxd) on the raw samples and, at rest, the bias -ki eint
+    pulled toward the measured rate with the time constant rest_tau (first order; out of
+    line: the batch loop keeps its inlined step)."""
+    cdef double k
+    cdef int i
+    if not rest_detect(e.rest, gyr, acc, dt) or e.ki <= 0.0:
+        return
+    k = dt / (e.rest_tau + dt)
+    for i in range(3):
+        eint[i] += k * (-gyr[i] / e.ki - eint[i])
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
@@ -230,7 +246,15 @@ cdef class Mahony(Estimator):
         Param("ki", 0.01, "1/s²", 1e-9, 1e3, "integral gain (the bias learned is -ki ε)", allow_zero=True),
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample kp is raised and the "
                        "integral held"),
-        MAG_UPDATE, ACC_LOWPASS, *MAGDIST)
+        MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
+        # the shared rest detector; no zero-rate update here, so no rest_noise
+        *[d for d in REST if d.name != "rest_noise"],
+        Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest (and ki > 0): the time constant with which "
+              "the bias -ki ε is pulled toward the measured rate"))
+
+    # the rest properties but rest_noise (no zero-rate update here), read from its detector
+    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
+    at_rest, rest_samples = REST_PROPERTIES[4:]
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -239,6 +263,8 @@ cdef class Mahony(Estimator):
         self.ki = p["ki"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
+        self.rest = RestDetector(p)
+        self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
@@ -250,7 +276,7 @@ cdef class Mahony(Estimator):
                                                  ("acc_lp", <double[:3]>self.acc_lp, None),
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._magd_fields())
+                + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
@@ -258,6 +284,7 @@ cdef class Mahony(Estimator):
         self.eint[2] = 0.0
         self.t_recover = 0.0
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -273,6 +300,8 @@ cdef class Mahony(Estimator):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        if self.rest.time > 0.0:
+            mahony_rest(self, self.eint, gyr, acc, dt)
         if acc != NULL and self.acc_lowpass > 0.0:
             mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
             acc = af
@@ -314,6 +343,8 @@ cdef class Mahony(Estimator):
                 ai = a + 3 * i
                 if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
                     acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+                if self.rest.time > 0.0:
+                    mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
                 if self.acc_lowpass > 0.0:
                     mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
                     ai = af

@@ -14,7 +14,8 @@ cdef class RestDetector:
     def __init__(self, p):
         """p: the holder's checked parameters (Estimator._take_params), REST's among them."""
         self.time, self.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
-        self.acc_tol, self.noise = p["rest_acc_tol"], p["rest_noise"]
+        # a filter without a zero-rate update (mahony) declares no rest_noise
+        self.acc_tol, self.noise = p["rest_acc_tol"], p.get("rest_noise", 0.0)
         rest_clear(self)
 
     cdef list fields(self):

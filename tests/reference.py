@@ -422,10 +422,12 @@ def make_magdist(est):
 
 class RefMahony(RefEstimator):
     PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+              "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_tau": 1.0,
               **MAGDIST_PARAMS}
 
     def _reset_state(self):
         self.eps = np.zeros(3)
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.t_recover = 0.0
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, IDENTITY.copy()
@@ -433,6 +435,10 @@ class RefMahony(RefEstimator):
     @property
     def mag_rejected(self):
         return self.magd.n
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
 
     @property
     def bias(self):
@@ -450,6 +456,8 @@ class RefMahony(RefEstimator):
         if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
             mag = None
         acc_lowpass_lost(self, gyr, sat, dt)
+        if self.rest(gyr, acc, dt) and self.ki > 0:     # at rest: -ki eps toward the rate
+            self.eps = self.eps + dt / (self.rest_tau + dt) * (-gyr / self.ki - self.eps)
         if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
             acc = acc_lowpass_step(self, gyr, -self.ki * self.eps, acc, dt)
         if gyr is not None:                                              # 1.

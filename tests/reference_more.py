@@ -317,7 +317,7 @@ class RefCFEKF(RefEKF):
     def _reset_state(self):
         super()._reset_state()
         self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range,
-                            mag_update=self.mag_update, acc_lowpass=self.acc_lowpass,
+                            mag_update=self.mag_update, acc_lowpass=self.acc_lowpass, rest_time=0.0,
                             **{k: getattr(self, k) for k in MAGDIST_PARAMS})
         self.cf_started = False
         self.pre = [RefSlidingMean(self.window) for _ in range(3)]

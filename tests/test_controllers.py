@@ -112,14 +112,22 @@ def test_resume_continues_from_checkpoint(tiny_policy):
     stem = tiny_policy
     ckpts = sorted((stem.parent / (stem.name + ".run") / "checkpoints").glob("ckpt_*_steps.zip"))
     assert ckpts, "checkpoints were written"
-    rl.train("ppo", "track", "truth", timesteps=900, seed=1, out=stem, n_envs=1, progress=False, resume=True,
+    log = stem.parent / (stem.name + ".run") / "evaluations.npz"
+    with np.load(log) as d:
+        before = d["timesteps"].tolist(), d["results"].tolist()
+    # PPO rounds up to whole rollouts (1,024 steps): the first run ended at 1,024, this one trains on
+    rl.train("ppo", "track", "truth", timesteps=2100, seed=1, out=stem, n_envs=1, progress=False, resume=True,
              eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
     meta = json.loads((stem.parent / (stem.name + ".json")).read_text())
-    assert meta["timesteps"] == 900
+    assert meta["timesteps"] == 2100
     # the resumed run starts from the earlier best score: the shipped model is the best of both
     assert meta["best_eval"] is not None
-    assert rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem == "ckpt_900_steps" or \
-        int(rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem.split("_")[1]) >= 900
+    assert int(rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints").stem.split("_")[1]) >= 2100
+    # the evaluation log (the learning curve) is continued, not started over
+    with np.load(log) as d:
+        assert before[0] == [300, 600, 900] and d["timesteps"].tolist()[:3] == before[0]
+        assert d["results"].tolist()[:3] == before[1] and d["timesteps"][3] > 1024
+        assert np.all(np.diff(d["timesteps"]) > 0)
 
 
 def test_init_from_fine_tunes(tmp_path, tiny_policy):
@@ -129,6 +137,11 @@ def test_init_from_fine_tunes(tmp_path, tiny_policy):
              log=lambda *a: None)
     meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
     assert meta["init_from"] == "ppo-track-truth.zip" and meta["estimator"] == "gyro"
+    # the starting policy's evaluation is the first point of the learning curve
+    with np.load(tmp_path / "ppo-track-gyro.run" / "evaluations.npz") as d:
+        assert d["timesteps"].tolist()[:2] == [0, 300] and d["results"].shape[1] == 1
+        # the best model is the best of the log, the start included
+        assert meta["best_eval"]["mean_reward"] == pytest.approx(d["results"].mean(axis=1).max())
     with pytest.raises(ValueError, match="ppo policy"):
         rl.train("sac", "track", "gyro", timesteps=10, out=tmp_path / "w", init_from=tiny_policy, progress=False)
 

@@ -108,12 +108,14 @@ def test_static_sensor_recovers_from_a_30_degree_wrong_start(name, nine_axis):
         assert np.degrees(inclination(out[-500:], q_true)).max() < 0.5
 
 
-@pytest.mark.parametrize("name, within", [("ekf", 0.05), ("mahony", 0.1)])     # mahony: its integral
-def test_a_constant_gyro_bias_is_learned(name, within):
+# mahony: at rest (its default) and by its integral alone (rest_time 0)
+@pytest.mark.parametrize("name, within, params", [("ekf", 0.05, {}), ("mahony", 0.1, {}),
+                                                  ("mahony", 0.1, {"rest_time": 0.0})])
+def test_a_constant_gyro_bias_is_learned(name, within, params):
     bias = np.array([0.01, -0.02, 0.015])
     q_true = axis_angle([0.2, 0.1, 1.0], 1.0)
     gyr, acc, mag = static_body(q_true, 30000, seed=3, noise=(0.003, 0.05, 0.005), bias=bias)
-    est = fusion.make(name, 100.0)
+    est = fusion.make(name, 100.0, **params)
     est.run(gyr, acc, mag)
     assert np.linalg.norm(est.bias - bias) < within * np.linalg.norm(bias)
 

@@ -323,8 +323,9 @@ def test_heading_only_magnetometer_cannot_tilt(name):
 
 
 @pytest.mark.parametrize("name, params", [("ekf", {}), ("ekf", {"acc_update": "tilt", "mag_update": "heading"}),
-                                          ("ekf", {"rest_time": 0.3, "rest_noise": 0.01})],
-                         ids=["defaults", "tilt-heading", "short-rest"])
+                                          ("ekf", {"rest_time": 0.3, "rest_noise": 0.01}), ("mahony", {}),
+                                          ("mahony", {"rest_time": 0.3, "rest_tau": 0.2, "ki": 0.05})],
+                         ids=["defaults", "tilt-heading", "short-rest", "mahony", "mahony-short-rest"])
 @pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
 def test_rest_update_equals_reference(data, name, params, nine_axis):
     """docs/estimators.md, "Rest": the detector and the zero-rate update of the kernel, by the
@@ -349,7 +350,7 @@ def test_rest_update_equals_reference(data, name, params, nine_axis):
     assert one.rest_samples == est.rest_samples
 
 
-@pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf"])
+@pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "mahony"])
 def test_rest_learns_the_whole_gyro_bias(name):
     """A still sensor with a constant gyro bias, 6-axis: the accelerometer sees only the
     horizontal part of the bias, so without rest detection the vertical part is never learned
@@ -387,6 +388,14 @@ def test_rest_parameters_are_checked():
         for bad in (-1.0, np.inf, "1", None):
             with pytest.raises(ValueError, match=name):
                 fusion.make("ekf", FS, **{name: bad})
+    for name in ("rest_time", "rest_gyro_tol", "rest_acc_tol", "rest_tau"):     # mahony's (no rest_noise)
+        for bad in (-1.0, np.inf, np.nan, "1", None, 1e5):
+            with pytest.raises(ValueError, match=name):
+                fusion.make("mahony", FS, **{name: bad})
+    with pytest.raises(ValueError, match="rest_tau"):
+        fusion.make("mahony", FS, rest_tau=0.0)         # a time constant: > 0 (rest_time 0 turns it off)
+    with pytest.raises(ValueError, match="rest_noise"):
+        fusion.make("mahony", FS, rest_noise=1e-3)      # not one of mahony's parameters
     with pytest.raises(ValueError, match="acc_update"):
         fusion.make("aekf", FS, acc_update="heading")
     assert fusion.make("ekf", FS, rest_time=0.0).rest_time == 0.0

@@ -164,3 +164,24 @@ def test_from_state_checks_the_class():
         fusion.UKF.from_state(s)
     assert type(fusion.EKF.from_state(s)) is fusion.EKF
     assert type(fusion.Estimator.from_state(s)) is fusion.EKF
+
+
+@pytest.mark.parametrize("how", ["state", "json", "pickle"])
+def test_mahony_resumes_mid_rest(how):
+    """mahony's rest detector (its low-passes, the time at rest, the count) and the bias it
+    pulled toward the rate are state: cut 3 s into a 6 s still spell (rest since 1.5 s), the
+    resumed filter goes on bit-identically."""
+    fs, n = 100.0, 900
+    rng = np.random.default_rng(7)
+    gyr = np.radians([0.5, -0.3, 0.8]) + rng.normal(0, 0.002, (n, 3))
+    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.02, (n, 3))
+    gyr[600:] += np.radians([0.0, 0.0, 30.0])           # then a turn: the rest run ends
+    whole = fusion.make("mahony", fs).run(gyr, acc)
+    est = fusion.make("mahony", fs)
+    est.run(gyr[:300], acc[:300])
+    assert est.at_rest and est.rest_samples > 100
+    assert {"rest_gyr", "rest_acc", "t_rest", "rest_samples"} <= set(est.state()["fields"])
+    other = _restored(est, how)
+    assert other.rest_samples == est.rest_samples and np.array_equal(other.bias, est.bias)
+    assert np.array_equal(other.run(gyr[300:], acc[300:]), whole[300:])
+    assert not other.at_rest and other.rest_samples == est.rest_samples + 300

@@ -1,0 +1,197 @@
+"""Training as a grid: one job per (task, estimator, training seed), on the comparison's
+backends (``local``: a process pool; ``ray``: tasks in one Ray session, ``address`` joins an
+existing cluster, the packages travel by content: ``controllers.compare.runtime_env``).
+
+Every job writes the policy ``<out>/<algo>-<task>-<estimator>[-seed<s>]`` (``rl.policy_stem``)
+with its JSON (the final evaluation in it) and its work directory. With ``resume``, a job
+whose JSON has its final evaluation is skipped, and (local backend) a job interrupted with
+checkpoints continues from the newest one; without ``resume`` a grid refuses to start over
+earlier results. On Ray a job trains in a temporary folder of the worker and returns its files,
+which the driver writes (atomically) into ``out``; its start policy (``init_from``) is sent by
+content too, so no job reads a path of the driver.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from controllers import rl
+
+
+
+def grid_jobs(algo, tasks, estimators, seeds, out, timesteps=None, init_from=None, final_episodes=10,
+              **train_kwargs) -> list[dict]:
+    """The jobs of the grid ``tasks`` x ``estimators`` x ``seeds``. ``timesteps``: an int, or a
+    dict task -> int (None: the YAML file's). ``init_from``: None, ``"pid"``, or a policy name
+    or path in which ``{task}``, ``{estimator}`` and ``{seed}`` are replaced per job.
+    ``train_kwargs``: more arguments of ``rl.train`` (n_envs, eval_freq, env_kwargs, ...)."""
+    jobs = []
+    for task in tasks:
+        for est in estimators:
+            for seed in seeds:
+                n = timesteps.get(task) if isinstance(timesteps, dict) else timesteps
+                start = None if init_from is None else init_from.format(task=task, estimator=est, seed=seed)
+                jobs.append(dict(train_kwargs, algo=algo, task=task, estimator=est, seed=seed, timesteps=n,
+                                 init_from=start, final_episodes=final_episodes,
+                                 stem=str(rl.policy_stem(algo, task, est, out, seed))))
+    return jobs
+
+
+def job_done(job) -> bool:
+    """Whether the job's JSON is written with its final evaluation (when it has one)."""
+    try:
+        meta = json.loads(Path(job["stem"] + ".json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and (job["final_episodes"] == 0 or "final_evaluation" in meta)
+
+
+def _started(job):
+    return Path(job["stem"] + ".json").exists() or rl._latest_checkpoint(Path(job["stem"] + ".run") /
+                                                                         "checkpoints") is not None
+
+
+def run_train_job(job, log=None) -> dict:
+    """Train one job (``rl.train``, then ``rl.final_evaluation``); returns {"stem": ...}, and
+    with ``job["portable"]`` (a Ray task) trains in a temporary folder and returns its files'
+    bytes as well (``files``: suffix -> bytes)."""
+    keys = ("timesteps", "seed", "env_kwargs", "n_envs", "eval_freq", "checkpoint_freq", "eval_episodes",
+            "bc_steps", "hyperparams_override", "trusted", "vec_env", "command")
+    kw = {k: job[k] for k in keys if k in job}
+    if not job.get("portable"):
+        stem = Path(job["stem"])
+        resume = rl._latest_checkpoint(Path(str(stem) + ".run") / "checkpoints") is not None
+        _train_and_evaluate(job, stem, job["init_from"], resume, kw, log)
+        return {"stem": str(stem)}
+    with tempfile.TemporaryDirectory(prefix="spherebot-train-") as tmp:
+        init = job["init_from"]
+        if job.get("init_files"):       # the start policy, sent by content
+            init = os.path.join(tmp, "init", "start")
+            os.makedirs(os.path.dirname(init))
+            for suffix, data in job["init_files"].items():
+                Path(init + suffix).write_bytes(data)
+            kw["trusted"] = True        # the driver read it under its own trust setting
+        stem = Path(tmp) / Path(job["stem"]).name
+        _train_and_evaluate(job, stem, init, False, kw, log)
+        return {"stem": job["stem"], "files": _job_files(stem)}
+
+
+def _train_and_evaluate(job, stem, init_from, resume, kw, log):
+    """rl.train, then the final evaluation into the JSON; the log goes to ``<stem>.log``
+    unless ``log`` is given."""
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    with open(str(stem) + ".log", "a") as f:
+        log = log or (lambda *a: print(*a, file=f, flush=True))
+        rl.train(job["algo"], job["task"], job["estimator"], out=stem, init_from=None if resume else init_from,
+                 resume=resume, progress=False, log=log, **kw)
+        if job["final_episodes"] > 0:
+            summary = rl.final_evaluation(stem, job["task"], job["estimator"], job.get("env_kwargs"),
+                                          job["final_episodes"])
+            log("final evaluation:", ", ".join(f"{k} {v:.3g}" for k, v in summary.items()))
+
+
+def _job_files(stem):
+    """suffix -> bytes of what a finished job returns from a Ray worker: the policy's three
+    files, its log, and of the work directory the evaluation and Monitor logs (the training
+    curves), not the checkpoints."""
+    stem = Path(stem)
+    run = Path(str(stem) + ".run")
+    paths = [Path(str(stem) + s) for s in (".zip", rl.NORM_SUFFIX, ".json", ".log")]
+    paths += [run / "evaluations.npz", run / "best.json"] + sorted((run / "monitor").glob("*.csv"))
+    return {str(p)[len(str(stem)):]: p.read_bytes() for p in paths if p.is_file()}
+
+
+def _portable(job):
+    """The job for a Ray worker: the start policy's files by content (a shipped name or a path
+    of the driver), the output by name only."""
+    job = dict(job, portable=True)
+    if job["init_from"] not in (None, rl.TEACHER):
+        _, zip_path, json_path, vn_path = rl._resolve(job["init_from"])
+        job["init_files"] = {s: p.read_bytes() for s, p in ((".zip", zip_path), (".json", json_path),
+                                                              (rl.NORM_SUFFIX, vn_path)) if p.is_file()}
+        if ".zip" not in job["init_files"]:
+            raise FileNotFoundError(f"init_from: policy file {zip_path} does not exist")
+    return job
+
+
+def _write_files(result):
+    for suffix, data in result["files"].items():
+        path = Path(result["stem"] + suffix)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        rl.atomic_write(path, lambda f, data=data: f.write(data))
+
+
+def _run_local(jobs, workers, done):
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    if workers == 1 or len(jobs) <= 1:
+        for j in jobs:
+            done(j, run_train_job(j))
+        return
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("forkserver"))
+    try:
+        futs = {pool.submit(run_train_job, j): j for j in jobs}
+        for f in as_completed(futs):
+            done(futs[f], f.result())
+    except BaseException:
+        # Ctrl-C or a failed job: stop the others now (finished jobs are written; an
+        # interrupted one continues from its checkpoints with resume)
+        for proc in list((pool._processes or {}).values()):
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _run_ray(jobs, address, workers, done):
+    from controllers.compare import ray_session
+    portable = [_portable(j) for j in jobs]
+    with ray_session(address, workers) as ray:
+        refs = {}
+        for j, pj in zip(jobs, portable):
+            # a job's environments are processes of their own: it takes their CPUs
+            remote = ray.remote(num_cpus=max(1, pj.get("n_envs") or 2))(run_train_job)
+            refs[remote.remote(pj)] = j
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for r in ready:
+                result = ray.get(r)
+                _write_files(result)
+                done(refs[r], result)
+
+
+def run_train_grid(jobs, backend="local", workers=None, address=None, resume=False, install=False,
+                   log=print) -> list[str]:
+    """Run the jobs not finished yet; returns every job's stem. ``install``: each finished
+    job's policy is copied into the package (``rl.install_policy``, under its stem's name)."""
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; accepted: local, ray")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be None or an integer >= 1, got {workers!r}")
+    if len({j["stem"] for j in jobs}) != len(jobs):
+        raise ValueError("two jobs of the grid write the same policy")
+    started = [j["stem"] for j in jobs if _started(j)]
+    if started and not resume:
+        raise FileExistsError(f"{len(started)} jobs of this grid have results or checkpoints already (e.g. "
+                              f"{started[0]}): resume=True (--resume) to continue the grid")
+    todo = [j for j in jobs if not job_done(j)]
+    log(f"training grid: {len(jobs) - len(todo)} of {len(jobs)} jobs finished already, {len(todo)} to run "
+        f"({backend})")
+
+    def done(job, result):
+        log(f"finished {job['stem']}")
+        if install:
+            log(f"installed: {rl.install_policy(job['stem'])}")
+
+    if install:
+        for j in jobs:
+            if j not in todo:
+                done(j, None)
+    if todo and backend == "local":
+        _run_local(todo, workers or max(1, (os.cpu_count() or 2) // 2), done)
+    elif todo:
+        _run_ray(todo, address, workers, done)
+    return [j["stem"] for j in jobs]

@@ -1,0 +1,83 @@
+"""Training as a grid (controllers.train_grid, spherebot-train with several --env/--estimator/
+--seed values): job by job, resumable, on the local pool and on Ray."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("pybullet")
+from controllers import rl, train_cli, train_grid        # noqa: E402
+
+TINY = ["--algo", "ppo", "--env", "track", "--estimator", "truth", "--seed", "0", "1", "-n", "64",
+        "--n-envs", "1", "--eval-freq", "1000000", "--eval-episodes", "1", "--env-kwargs", "episode_s:1.0",
+        "--hyperparams", "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress"]
+
+
+def _mtimes(folder):
+    return {p.name: p.stat().st_mtime_ns for p in Path(folder).glob("*.json")}
+
+
+def test_local_grid_runs_job_by_job_and_resumes(tmp_path, capsys):
+    args = TINY + ["-f", str(tmp_path), "--workers", "2"]
+    assert train_cli.main(args) == 0
+    names = sorted(p.name for p in tmp_path.glob("*.json"))
+    assert names == ["ppo-track-truth-seed1.json", "ppo-track-truth.json"]      # rl.policy_stem's names
+    for n in names:
+        meta = json.loads((tmp_path / n).read_text())
+        assert meta["final_evaluation"]["episodes"] == 1 and meta["timesteps"] == 64
+        assert meta["seed"] == (1 if "seed1" in n else 0) and "grid job" in meta["command"]
+    # without --resume a grid does not start over its results
+    assert train_cli.main(args) == 2
+    assert "--resume" in capsys.readouterr().err
+    before = _mtimes(tmp_path)
+    assert train_cli.main(args + ["--resume"]) == 0
+    assert _mtimes(tmp_path) == before                      # both finished: nothing ran
+    assert "2 of 2 jobs finished already" in capsys.readouterr().out
+    # an unfinished job (no final evaluation in its JSON) runs again, the finished one not
+    meta = json.loads((tmp_path / "ppo-track-truth-seed1.json").read_text())
+    del meta["final_evaluation"]
+    (tmp_path / "ppo-track-truth-seed1.json").write_text(json.dumps(meta))
+    assert train_cli.main(args + ["--resume"]) == 0
+    after = _mtimes(tmp_path)
+    assert after["ppo-track-truth.json"] == before["ppo-track-truth.json"]
+    assert "final_evaluation" in json.loads((tmp_path / "ppo-track-truth-seed1.json").read_text())
+
+
+def test_grid_jobs_and_bad_input(tmp_path):
+    jobs = train_grid.grid_jobs("ppo", ["track", "waypoints"], ["ekf"], [0, 2], tmp_path,
+                                timesteps={"track": 60, "waypoints": 50}, init_from="logs/ppo-{task}-truth-seed{seed}")
+    assert [(j["task"], j["seed"], j["timesteps"], j["init_from"], Path(j["stem"]).name) for j in jobs] == [
+        ("track", 0, 60, "logs/ppo-track-truth-seed0", "ppo-track-ekf"),
+        ("track", 2, 60, "logs/ppo-track-truth-seed2", "ppo-track-ekf-seed2"),
+        ("waypoints", 0, 50, "logs/ppo-waypoints-truth-seed0", "ppo-waypoints-ekf"),
+        ("waypoints", 2, 50, "logs/ppo-waypoints-truth-seed2", "ppo-waypoints-ekf-seed2")]
+    with pytest.raises(ValueError, match="backend"):
+        train_grid.run_train_grid(jobs, backend="slurm")
+    with pytest.raises(ValueError, match="workers"):
+        train_grid.run_train_grid(jobs, workers=0)
+    with pytest.raises(SystemExit):
+        train_cli.main(TINY + ["--out", str(tmp_path / "x")])       # --out names one run
+    with pytest.raises(SystemExit):
+        train_cli.main(TINY[:-3] + ["-n", "track:64", "waypoints:x"])
+    with pytest.raises(SystemExit):
+        train_cli.main(["--algo", "ppo", "--env", "track", "waypoints", "-n", "track:64", "-f", str(tmp_path)])
+    assert not any(tmp_path.iterdir())
+
+
+def test_ray_grid_equals_local(tmp_path):
+    """On Ray (a local cluster) the jobs train in the workers' folders and the driver writes
+    their files; the policies act as the local backend's do."""
+    pytest.importorskip("ray")
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    one = TINY[:8] + TINY[9:]                               # seed 0 only
+    assert one[6:9] == ["--seed", "0", "-n"]
+    assert train_cli.main(one + ["-f", str(local), "--backend", "local"]) == 0
+    assert train_cli.main(one + ["-f", str(remote), "--backend", "ray", "--workers", "1"]) == 0
+    for suffix in (".zip", rl.NORM_SUFFIX, ".json", ".log", ".run/monitor/0.monitor.csv"):
+        assert (remote / f"ppo-track-truth{suffix}").is_file(), suffix
+    obs = np.random.default_rng(0).uniform(-1, 1, (20, 14)).astype(np.float32)
+    a = rl.load_policy(local / "ppo-track-truth", trusted=True).act(obs)
+    b = rl.load_policy(remote / "ppo-track-truth", trusted=True).act(obs)
+    np.testing.assert_allclose(a, b, atol=1e-6)
