@@ -251,11 +251,11 @@ cdef class AEKF(EKF):
                 return
         # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
         if acc != NULL:
-            self.acc_update(acc, dt / self.reject_factor if acc_rej else dt)
+            self._acc_correct(acc, dt / self.reject_factor if acc_rej else dt)
         # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
         # re-learned, the document's gate's is not
         if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
-            self.mag_update(mag, dt / self.reject_factor if mag_rej else dt)
+            self._mag_correct(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,

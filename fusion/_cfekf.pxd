@@ -1,7 +1,13 @@
+from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
+from fusion._rest cimport RestDetector
 
-cdef class CFEKF(EKF):
+cdef class CFEKF(Estimator):
+    # the quaternion + gyro-bias EKF it feeds (its b, P, recovery and rest detector are
+    # cf-ekf's; its attitude is this estimator's q, copied in and out around each step)
+    cdef EKF core
+    cdef readonly RestDetector rest   # the core's
     cdef readonly double cf_noise
     cdef Mahony cf            # the complementary filter whose attitude is the measurement
     cdef bint cf_started

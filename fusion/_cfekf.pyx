@@ -5,6 +5,8 @@ complementary filter (Mahony) whose quaternion is the measurement of the 7-state
 
 import numpy as np
 
+from libc.string cimport memcpy
+
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
@@ -13,6 +15,7 @@ from fusion._prefilter import WINDOW_MAX
 from fusion._core import FLAG, TIMER
 from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
+from fusion._rest import REST_PROPERTIES
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
@@ -28,19 +31,94 @@ cdef double LEARN_COS = 0.99984769515639127 # cos(1 deg): 2 deg between the quat
 cdef double LEARN_HOLD = 0.5                # s
 
 
+# the parameters its EKF core takes (the others are the complementary filter's or its own)
+CORE_PARAMS = ("gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate",
+               *(d.name for d in REST))
+
+
 def default_window(fs):
     """Samples in the seed's 20 ms window at sample rate fs (at least 1)."""
     return max(1, int(round(WINDOW_S * fs)))
 
 
-cdef class CFEKF(EKF):
+cdef EKF _core(CFEKF e):
+    """e's EKF core, or a RuntimeError for an object whose __init__ did not run."""
+    if e.core is None:
+        raise RuntimeError("CFEKF object was not configured: call the class's __init__ or use fusion.make")
+    return e.core
+
+
+def _core_attr(CFEKF e, name):
+    return getattr(_core(e), name)
+
+
+def _of_core(*names):
+    """Read-only properties that read the EKF core's attributes of the same names."""
+    return tuple(property(lambda e, n=n: _core_attr(e, n), doc=f"The EKF core's {n}.") for n in names)
+
+
+cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* acc,
+                             const double* mag, double dt) noexcept nogil:
+    """CFEKF._step on its EKF core k (an argument: held in a register, not reloaded from
+    e after every store)."""
+    cdef double z[4]
+    cdef double g[3]
+    cdef int i
+    cdef bint sat = gyr != NULL and e.sat_left > 0
+    cdef bint learn
+    cdef double na, c
+    if not e.cf_started:         # the complementary filter starts where the EKF does
+        e.cf._reset_state()
+        for i in range(4):
+            e.cf.q[i] = e.q[i]
+        e.cf_started = True
+    # the EKF's attitude is this estimator's (set by reset, the first sample, load_state)
+    memcpy(k.q, e.q, 4 * sizeof(double))
+    if gyr != NULL and e.bias_feedback:
+        # the complementary filter integrates the gyro corrected by the EKF's bias (from
+        # before this sample's update)
+        for i in range(3):
+            g[i] = gyr[i] - k.b[i]
+        e.cf.step_flagged(g, acc, mag, dt, sat)
+    else:
+        e.cf.step_flagged(gyr, acc, mag, dt, sat)
+    k.propagate(gyr, dt, sat)
+    k.rest_update(gyr, acc, dt)
+    if acc != NULL or mag != NULL:
+        if e.cf.q[0] * k.q[0] + e.cf.q[1] * k.q[1] + e.cf.q[2] * k.q[2] + e.cf.q[3] * k.q[3] < 0.0:
+            for i in range(4):
+                z[i] = -e.cf.q[i]
+        else:
+            for i in range(4):
+                z[i] = e.cf.q[i]
+        learn = True
+        if e.bias_feedback:
+            # the bias is learned from the filter only while it is quiet (docs/cfekf.md):
+            # not under linear acceleration (its correction then turns the wrong way),
+            # nor while it corrects a large error (a start, a glitch), which would be
+            # read as bias and, fed back, integrated
+            na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+            c = fabs(z[0] * k.q[0] + z[1] * k.q[1] + z[2] * k.q[2] + z[3] * k.q[3])
+            if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
+                e.t_quiet = 0.0
+                learn = False
+            else:
+                e.t_quiet += dt
+                learn = e.t_quiet >= LEARN_HOLD
+        quat_measurement_update(k.q, k.b, k.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
+    quat_normalise(k.q)
+    memcpy(e.q, k.q, 4 * sizeof(double))
+
+
+cdef class CFEKF(Estimator):
     """The fusion of "Attitude-angle solution for a mobile robot": gyro, accelerometer and
     magnetometer through a sliding mean; Mahony's
     complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
     4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
     whose prediction integrates the averaged gyro. bias_feedback: the complementary filter
     integrates the averaged gyro minus the EKF's bias (ki then defaults to 0, else to
-    mahony's 0.005). gyro_range, motion_rate: as the ekf's."""
+    mahony's 0.005). gyro_range, motion_rate: as the ekf's. It holds both filters (an `ekf`
+    core and a `mahony`) and exposes its own parameters only."""
     name = "cf-ekf"
     PARAMS = table(
         # the ekf's noise declarations at the values cf-ekf's folds chose (docs/accuracy.md)
@@ -57,14 +135,25 @@ cdef class CFEKF(EKF):
         Param("bias_feedback", True, "", doc="the complementary filter integrates the averaged gyro "
               "minus the EKF's bias, which the EKF learns from the filter only while it is quiet"),
         MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
+    # the rest parameters and counts, read from the core's detector (fusion._rest)
+    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
+    # bias] are the core's
+    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of_core(
+        "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, rest taken
-        self.gyro_noise = p["gyro_noise"]
-        self.bias_noise = p["bias_noise"]
-        self.q_init_std = p["q_init_std"]
-        self.bias_init_std = p["bias_init_std"]
+        p = self._take_params(params)       # checked; gyro_range taken
+        # the EKF core: cf-ekf's noise, recovery and rest detection; its accelerometer
+        # low-pass and magnetic detection off (the complementary filter takes those sensors).
+        # A saturated gyro (tested on the raw samples: _process) restarts the complementary
+        # filter's gain ramp, and the core's attitude covariance grows (motion_rate) as the
+        # ekf's does, so that it takes the filter's recovered attitude as the ekf takes the
+        # accelerometer's
+        self.core = _EKF(self.fs, frame, on_invalid, acc_lowpass=0.0, magdist_time=0.0,
+                         **{k: p[k] for k in CORE_PARAMS})
+        self.rest = self.core.rest
         self.cf_noise = p["cf_noise"]
         self.bias_feedback = p["bias_feedback"]
         # with the EKF's bias fed back the complementary filter needs no integral of its own
@@ -76,10 +165,6 @@ cdef class CFEKF(EKF):
         self.pre_gyr = SlidingMean(w)
         self.pre_acc = SlidingMean(w)
         self.pre_mag = SlidingMean(w)
-        # a saturated gyro (tested on the raw samples: _process) restarts the complementary
-        # filter's gain ramp, and the EKF's attitude covariance grows as the ekf's does, so
-        # that it takes the filter's recovered attitude as the ekf takes the accelerometer's
-        self.motion_rate = p["motion_rate"]
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
         self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
@@ -89,14 +174,16 @@ cdef class CFEKF(EKF):
         self.reset()
 
     cdef list _state_fields(self):
-        # the inner complementary filter's whole state, under "cf."
-        return (EKF._state_fields(self) + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
-                                           ("sat_left", <int[:1]>&self.sat_left, (0, self.window)),
-                                           ("t_quiet", <double[:1]>&self.t_quiet, TIMER)]
+        # the core's b, P, recovery timer and rest detector under the ekf's names (its
+        # attitude is q); the inner complementary filter's whole state, under "cf."
+        return (Estimator._state_fields(self) + self.core._filter_fields() + self.rest.fields()
+                + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
+                   ("sat_left", <int[:1]>&self.sat_left, (0, self.window)),
+                   ("t_quiet", <double[:1]>&self.t_quiet, TIMER)]
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
-        EKF._reset_state(self)
+        self.core._reset_state()
         self.cf_started = False
         self.sat_left = 0
         self.t_quiet = 0.0
@@ -114,52 +201,7 @@ cdef class CFEKF(EKF):
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        cdef double z[4]
-        cdef double g[3]
-        cdef int i
-        cdef bint sat = gyr != NULL and self.sat_left > 0
-        cdef bint learn
-        cdef double na, c
-        if not self.cf_started:         # the complementary filter starts where the EKF does
-            self.cf._reset_state()
-            for i in range(4):
-                self.cf.q[i] = self.q[i]
-            self.cf_started = True
-        if gyr != NULL and self.bias_feedback:
-            # the complementary filter integrates the gyro corrected by the EKF's bias (from
-            # before this sample's update)
-            for i in range(3):
-                g[i] = gyr[i] - self.b[i]
-            self.cf.step_flagged(g, acc, mag, dt, sat)
-        else:
-            self.cf.step_flagged(gyr, acc, mag, dt, sat)
-        self.propagate(gyr, dt, sat)
-        self.rest_update(gyr, acc, dt)
-        if acc != NULL or mag != NULL:
-            if (self.cf.q[0] * self.q[0] + self.cf.q[1] * self.q[1] + self.cf.q[2] * self.q[2]
-                    + self.cf.q[3] * self.q[3]) < 0.0:
-                for i in range(4):
-                    z[i] = -self.cf.q[i]
-            else:
-                for i in range(4):
-                    z[i] = self.cf.q[i]
-            learn = True
-            if self.bias_feedback:
-                # the bias is learned from the filter only while it is quiet (docs/cfekf.md):
-                # not under linear acceleration (its correction then turns the wrong way),
-                # nor while it corrects a large error (a start, a glitch), which would be
-                # read as bias and, fed back, integrated
-                na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
-                c = fabs(z[0] * self.q[0] + z[1] * self.q[1] + z[2] * self.q[2] + z[3] * self.q[3])
-                if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
-                    self.t_quiet = 0.0
-                    learn = False
-                else:
-                    self.t_quiet += dt
-                    learn = self.t_quiet >= LEARN_HOLD
-            quat_measurement_update(self.q, self.b, self.P, z, self.cf_noise * self.cf_noise / dt,
-                                    NULL, 0.0, learn)
-        quat_normalise(self.q)
+        cf_ekf_step(self, self.core, gyr, acc, mag, dt)
 
     @property
     def window(self):

@@ -1,5 +1,4 @@
 from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
-from fusion._rest cimport RestDetector
 from fusion._magdist cimport MagDetector
 
 # sqrt(1/2) to the last bit (the NED frame change)
@@ -33,8 +32,6 @@ cdef class Estimator:
     cdef long long n_skip_gyr, n_skip_acc, n_skip_mag
     # optional prefilters an estimator composes (None: raw samples), applied to valid samples
     cdef Prefilter pre_gyr, pre_acc, pre_mag
-    # rest detection, for the estimators that learn the gyro bias at rest (time 0: off)
-    cdef RestDetector rest
     # set by the kernel's __init__ once configured: a subclass that skips it is refused
     cdef bint configured
     # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
@@ -48,7 +45,6 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
-    cdef list _rest_fields(self)
     cdef list _magd_fields(self)
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel

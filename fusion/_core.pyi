@@ -51,12 +51,6 @@ class Estimator:
     bias: Array | None
     covariance: Array | None
     gyro_range: float | None
-    rest_time: float
-    rest_gyro_tol: float
-    rest_acc_tol: float
-    rest_noise: float
-    at_rest: bool
-    rest_samples: int
     frame: str
     on_invalid: str
     initialised: bool

@@ -272,8 +272,9 @@ cdef class Estimator:
     def _take_params(self, params):
         """The parameters: each given one checked by its Param, the defaults for the rest.
         Unknown names, and bad values, are a ValueError naming them and what is accepted.
-        The parts the base class holds (saturation range, rest and magnetic disturbance
-        detection) take theirs here, in the estimators that declare them."""
+        The parts the base class holds (saturation range, magnetic disturbance detection)
+        take theirs here, in the estimators that declare them; a component the kernel holds
+        (rest detection: fusion._rest) is built by the kernel from the values returned."""
         unknown = sorted(set(params) - set(self.PARAMS))
         if unknown:
             accepted = ", ".join(sorted(self.PARAMS)) or "none"
@@ -282,10 +283,6 @@ cdef class Estimator:
         p = {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
         if "gyro_range" in p:
             self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
-        if "rest_time" in p:
-            self.rest.time, self.rest.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
-            # a filter without a zero-rate update (mahony) declares no rest_noise
-            self.rest.acc_tol, self.rest.noise = p["rest_acc_tol"], p.get("rest_noise", 0.0)
         if "magdist_time" in p:
             magd_set(&self.magd, (p["magdist_time"], p["magdist_norm_tol"], p["magdist_dip_tol"],
                                   p["magdist_new_time"]))
@@ -338,13 +335,6 @@ cdef class Estimator:
             self.is_init = True
         self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
                    mag if mag_ok else NULL, dt)
-
-    cdef list _rest_fields(self):
-        """The rest detector's state, for the _state_fields of the estimators that use it."""
-        return [("rest_gyr", <double[:3]>self.rest.gyr, None), ("rest_acc", <double[:3]>self.rest.acc, None),
-                ("t_rest", <double[:1]>&self.rest.t, TIMER),
-                ("rest_started", <int[:1]><int*>&self.rest.started, FLAG),
-                ("rest_samples", <long long[:1]>&self.rest.n, COUNT)]
 
     cdef list _magd_fields(self):
         """The magnetic disturbance detector's state, for the estimators that use it."""
@@ -547,29 +537,6 @@ cdef class Estimator:
         return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
-    def rest_time(self):
-        """s of rest before the gyro measures its bias; 0: no rest detection (off, or an
-        estimator without it). rest_gyro_tol, rest_acc_tol, rest_noise: docs/estimators.md."""
-        return self.rest.time
-
-    @property
-    def rest_gyro_tol(self):
-        return self.rest.gyro_tol
-
-    @property
-    def rest_acc_tol(self):
-        return self.rest.acc_tol
-
-    @property
-    def rest_noise(self):
-        return self.rest.noise
-
-    @property
-    def at_rest(self):
-        """True while the rest detector holds (the last sample was a zero-rate update)."""
-        return self.rest.time > 0.0 and self.rest.t >= self.rest.time
-
-    @property
     def magdist_time(self):
         return self.magd.time
 
@@ -590,11 +557,6 @@ cdef class Estimator:
         """Magnetometer samples rejected as disturbed since the last reset (0 where the
         estimator has no disturbance detection)."""
         return self.magd.n
-
-    @property
-    def rest_samples(self):
-        """Zero-rate updates (samples detected at rest) since the last reset."""
-        return self.rest.n
 
     @property
     def frame(self):

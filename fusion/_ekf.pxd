@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._rest cimport RestDetector
 
 cdef class EKF(Estimator):
     cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
@@ -16,12 +17,15 @@ cdef class EKF(Estimator):
     cdef double acc_qg[4]     # that frame: the bias-corrected gyro integrated, uncorrected
     cdef bint acc_lp_started
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
-    # the parts of _step, for subclasses
+    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
+    # the parts of _step, on this filter's state, for subclasses (aekf) and holders (cf-ekf's core)
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
-    cdef void acc_update(self, const double* acc, double dt) noexcept nogil
-    cdef void mag_update(self, const double* mag, double dt) noexcept nogil
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil
+    cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil
+    # the state of [q, b] and its recovery (b, P, t_unmeasured), as _state_fields lists it
+    cdef list _filter_fields(self)
 
 cdef class IIREKF(EKF):
     pass

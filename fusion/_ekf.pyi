@@ -1,7 +1,8 @@
 # Type stubs of the compiled fusion._ekf (fusion/_ekf.pyx).
 from fusion._core import Estimator, _KalmanParams
+from fusion._rest import _RestProperties
 
-class EKF(Estimator, _KalmanParams):
+class EKF(Estimator, _KalmanParams, _RestProperties):
     acc_lowpass: float
     mag_update: str
     acc_update: str

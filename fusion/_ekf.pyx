@@ -4,7 +4,8 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy
 
-from fusion._rest cimport rest_detect, rest_clear
+from fusion._rest cimport RestDetector, rest_detect, rest_clear
+from fusion._rest import REST_PROPERTIES
 from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
@@ -349,7 +350,7 @@ cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
     cdef double S[9]
     cdef double y[3]
     cdef int i, j
-    if not rest_detect(&e.rest, gyr, acc, dt):
+    if not rest_detect(e.rest, gyr, acc, dt):
         return
     for i in range(7):
         for j in range(3):
@@ -409,10 +410,13 @@ cdef class EKF(Estimator):
               "corrects the inclination (and the bias across the vertical) only, so that a linear "
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)
+    # the rest parameters and counts, read from the detector it holds (fusion._rest)
+    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, rest, magdist taken
+        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        self.rest = RestDetector(p)
         self.motion_rate = p["motion_rate"]
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
@@ -428,14 +432,16 @@ cdef class EKF(Estimator):
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
+    cdef list _filter_fields(self):
+        return [("b", <double[:3]>self.b, BIAS), ("P", <double[:49]>self.P, COV),
+                ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
+
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
-                                                ("P", <double[:49]>self.P, COV),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, TIMER),
-                                                ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._rest_fields() + self._magd_fields())
+        return (Estimator._state_fields(self) + self._filter_fields()
+                + [("acc_lp", <double[:3]>self.acc_lp, None),
+                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -449,20 +455,20 @@ cdef class EKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
-        rest_clear(&self.rest)
+        rest_clear(self.rest)
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
-    # the steps of ekf_step for the subclasses (aekf, cf-ekf), on this estimator's state
+    # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:
         ekf_propagate(self, self.q, self.b, self.P, &self.t_run, gyr, dt, sat)
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
         ekf_predict(self, self.q, self.b, self.P, gyr, dt)
 
-    cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
         ekf_acc_update(self, self.q, self.b, self.P, acc, dt)
 
-    cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
+    cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil:
         ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
 
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil:

@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._rest cimport RestDetector
 
 cdef void mahony_error(const double* q, const double* acc, const double* mag,
                        double* e) noexcept nogil
@@ -12,6 +13,7 @@ cdef class Mahony(Estimator):
     cdef double acc_lp[3]
     cdef double acc_qg[4]
     cdef bint acc_lp_started
+    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef readonly double rest_tau      # s: the bias's time constant at rest
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil

@@ -9,7 +9,8 @@ from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_o
 from fusion._core import FLAG, BIAS_MAX, RECOVERY
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
 from fusion._magdist cimport magd_check
-from fusion._rest cimport rest_detect, rest_clear
+from fusion._rest cimport RestDetector, rest_detect, rest_clear
+from fusion._rest import REST_PROPERTIES
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
@@ -225,7 +226,7 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
     line: the batch loop keeps its inlined step)."""
     cdef double k
     cdef int i
-    if not rest_detect(&e.rest, gyr, acc, dt) or e.ki <= 0.0:
+    if not rest_detect(e.rest, gyr, acc, dt) or e.ki <= 0.0:
         return
     k = dt / (e.rest_tau + dt)
     for i in range(3):
@@ -251,13 +252,18 @@ cdef class Mahony(Estimator):
         Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest (and ki > 0): the time constant with which "
               "the bias -ki ε is pulled toward the measured rate"))
 
+    # the rest properties but rest_noise (no zero-rate update here), read from its detector
+    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
+    at_rest, rest_samples = REST_PROPERTIES[4:]
+
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist, rest detector taken
+        p = self._take_params(params)       # checked; gyro_range, magdist taken
         self.kp = p["kp"]
         self.ki = p["ki"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
+        self.rest = RestDetector(p)
         self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
@@ -270,7 +276,7 @@ cdef class Mahony(Estimator):
                                                  ("acc_lp", <double[:3]>self.acc_lp, None),
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._rest_fields() + self._magd_fields())
+                + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
@@ -278,7 +284,7 @@ cdef class Mahony(Estimator):
         self.eint[2] = 0.0
         self.t_recover = 0.0
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
-        rest_clear(&self.rest)
+        rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:

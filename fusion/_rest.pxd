@@ -1,19 +1,22 @@
-# Rest detection (docs/estimators.md, "Rest"): the state and the detector the ekf family and
-# the ukf share; each filter does its own zero-rate update when rest_detect says so.
+# Rest detection (docs/estimators.md, "Rest"): a component the filters that learn the gyro bias
+# at rest hold (the ekf family, the ukf, cf-ekf through its EKF core); each does its own
+# zero-rate update when rest_detect says so. docs/contributing.md says how a filter takes it.
 
-cdef struct RestDetector:
-    double time         # s at rest before the gyro measures its bias (0: detection off)
-    double gyro_tol     # rad/s: gyro within this of its low-pass, the low-pass within this of 0
-    double acc_tol      # m/s^2: accelerometer within this of its low-pass
-    double noise        # rad/s/sqrt(Hz): the zero-rate measurement's noise density
-    double gyr[3]       # the low-passes
-    double acc[3]
-    double t            # s at rest so far
-    bint started        # the low-passes have their first sample
-    long long n         # zero-rate updates since the reset
+cdef class RestDetector:
+    cdef readonly double time       # s at rest before the gyro measures its bias (0: detection off)
+    cdef readonly double gyro_tol   # rad/s: gyro within this of its low-pass, the low-pass within this of 0
+    cdef readonly double acc_tol    # m/s^2: accelerometer within this of its low-pass
+    cdef readonly double noise      # rad/s/sqrt(Hz): the zero-rate measurement's noise density
+    cdef double gyr[3]              # the low-passes
+    cdef double acc[3]
+    cdef double t                   # s at rest so far
+    cdef bint started               # the low-passes have their first sample
+    cdef long long n                # zero-rate updates since the reset
+    # its state, as Estimator._state_fields: the holder's _state_fields adds it
+    cdef list fields(self)
 
 
-cdef inline void rest_clear(RestDetector* r) noexcept nogil:
+cdef inline void rest_clear(RestDetector r) noexcept nogil:
     cdef int i
     for i in range(3):
         r.gyr[i] = 0.0
@@ -23,7 +26,7 @@ cdef inline void rest_clear(RestDetector* r) noexcept nogil:
     r.n = 0
 
 
-cdef inline bint rest_detect(RestDetector* r, const double* gyr, const double* acc,
+cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* acc,
                              double dt) noexcept nogil:
     """One sample (gyr or acc NULL: the rest run ends); True when the body has been still for
     r.time s (counted in r.n): the caller then makes its zero-rate update."""

@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._rest cimport RestDetector
 
 cdef class UKF(Estimator):
     cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
@@ -12,10 +13,11 @@ cdef class UKF(Estimator):
     cdef double acc_qg[4]
     cdef bint acc_lp_started
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
+    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef void sigma_points(self, double* X) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void correct(self, const double* X, const double* Z, const double* z,
                       double r) noexcept nogil
     cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil
-    cdef void acc_update(self, const double* acc, double dt) noexcept nogil
-    cdef void mag_update(self, const double* mag, double dt) noexcept nogil
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil
+    cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil

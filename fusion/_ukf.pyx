@@ -5,7 +5,8 @@ compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
 
-from fusion._rest cimport rest_detect, rest_clear
+from fusion._rest cimport RestDetector, rest_detect, rest_clear
+from fusion._rest import REST_PROPERTIES
 from fusion._magdist cimport magd_check
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
@@ -85,10 +86,13 @@ cdef class UKF(Estimator):
                    _EKF.PARAMS["gyro_noise"].but(default=0.01),
                    _EKF.PARAMS["bias_noise"].but(allow_zero=False),
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
+    # the rest parameters and counts, read from the detector it holds (fusion._rest)
+    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, rest, magdist taken
+        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        self.rest = RestDetector(p)
         self.motion_rate = p["motion_rate"]
         self.gyro_noise = p["gyro_noise"]
         self.bias_noise = p["bias_noise"]
@@ -108,7 +112,7 @@ cdef class UKF(Estimator):
                 + [("acc_lp", <double[:3]>self.acc_lp, None),
                    ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
                    ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._rest_fields() + self._magd_fields())
+                + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -123,7 +127,7 @@ cdef class UKF(Estimator):
         self.b[1] = 0.0
         self.b[2] = 0.0
         self.t_run = 0.0
-        rest_clear(&self.rest)
+        rest_clear(self.rest)
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
@@ -336,7 +340,7 @@ cdef class UKF(Estimator):
                 P[(3 + i) * 6 + 3 + j] = s
                 P[(3 + j) * 6 + 3 + i] = s
 
-    cdef void acc_update(self, const double* acc, double dt) noexcept nogil:
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
         cdef double X[NS * 6]
         cdef double Z[NS * 3]
         cdef double z[3]
@@ -352,7 +356,7 @@ cdef class UKF(Estimator):
         unit3(acc, z)
         self.correct(X, Z, z, sa * sa / dt)
 
-    cdef void mag_update(self, const double* mag, double dt) noexcept nogil:
+    cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil:
         cdef double X[NS * 6]
         cdef double Z[NS * 3]
         cdef double z[3]
@@ -392,7 +396,7 @@ cdef class UKF(Estimator):
             self.P[0] += v
             self.P[7] += v
             self.P[14] += v
-        if rest_detect(&self.rest, gyr, acc, dt):
+        if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
             acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
@@ -401,10 +405,10 @@ cdef class UKF(Estimator):
                              gyr, self.b, acc, dt, af)
             acc = af
         if acc != NULL:
-            self.acc_update(acc, dt)
+            self._acc_correct(acc, dt)
         if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
             self.heading_gain = self.mag_heading
-            self.mag_update(mag, dt)
+            self._mag_correct(mag, dt)
             self.heading_gain = False
         quat_normalise(self.q)
 

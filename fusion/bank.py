@@ -202,7 +202,12 @@ class Bank(BankCore):
     bias = _stacked("bias", "(count, 3) gyro biases (rad/s), or None for an estimator without one.")
     covariance = _stacked("covariance", "(count, k, k) state covariances, or None for an estimator without one.")
     initialised = _stacked("initialised", "(count,) bool: start attitude set.")
-    at_rest = _stacked("at_rest", "(count,) bool: the rest detector holds.")
+
+    @property
+    def at_rest(self):
+        """(count,) bool: the rest detector holds; None for an estimator without rest detection
+        (one that does not declare the rest parameters)."""
+        return self._stack("at_rest") if "rest_time" in self._filters[0].PARAMS else None
 
     @property
     def skipped(self):

@@ -87,6 +87,10 @@ def test_bank_equals_separate_estimators(data, name, nine_axis):
     else:
         assert np.array_equal(bank.covariance, [e.covariance for e in ests])
     assert np.array_equal(bank.euler, [e.euler for e in ests])
+    if "rest_time" in ests[0].PARAMS:
+        assert np.array_equal(bank.at_rest, [e.at_rest for e in ests])
+    else:
+        assert bank.at_rest is None         # no rest detector (test_contract: no at_rest either)
     sk = bank.skipped
     for s in ("gyr", "acc", "mag"):
         assert list(sk[s]) == [e.skipped[s] for e in ests]

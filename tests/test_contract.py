@@ -53,6 +53,28 @@ def test_interface(name, make_estimator):
     assert type(again) is cls and again.params == est.params and again.fs == est.fs
 
 
+REST_PROPERTIES = ("rest_time", "rest_gyro_tol", "rest_acc_tol", "rest_noise", "at_rest", "rest_samples")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_rest_properties_exactly_where_rest_is_declared(name):
+    """Rest detection is a component the filters that declare its parameters (fusion.params.REST)
+    hold: they have the rest properties, reading what was given; the others have none."""
+    cls = type(fusion.make(name, FS))
+    if "rest_time" in cls.PARAMS:
+        if "rest_noise" in cls.PARAMS:      # the filters with a zero-rate update
+            est = fusion.make(name, FS, rest_time=0.25, rest_noise=0.002)
+            assert est.rest_noise == 0.002
+        else:                               # mahony: its own update at rest, no rest_noise
+            est = fusion.make(name, FS, rest_time=0.25)
+            assert not hasattr(est, "rest_noise")
+        assert (est.rest_time, est.at_rest, est.rest_samples) == (0.25, False, 0)
+        assert est.rest_gyro_tol == cls.PARAMS["rest_gyro_tol"].default
+    else:
+        est = fusion.make(name, FS)
+        assert [p for p in REST_PROPERTIES + ("rest",) if hasattr(est, p)] == []
+
+
 # --- run is N updates -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])

@@ -329,6 +329,26 @@ def test_cf_ekf_bias_feedback_removes_the_complementary_filters_tilt():
         assert tilt["new"] < 0.75 and tilt["mahony-rest"] < 0.75, tilt
 
 
+def test_cf_ekf_holds_an_ekf_and_exposes_only_its_own_parameters(data):
+    """Composition (docs/cfekf.md): cf-ekf is not an `ekf`; the ekf's and mahony's parameters
+    it does not declare (acc_noise, acc_update, ...) are not its attributes, and those it
+    declares read what was given, the EKF's ones from the EKF core it holds."""
+    est = fusion.make("cf-ekf", FS, gyro_noise=0.02, bias_noise=2e-4, q_init_std=0.1,
+                      bias_init_std=0.03, motion_rate=2.0, rest_time=0.7, kp=2.0)
+    assert not isinstance(est, fusion.EKF) and not isinstance(est, fusion.Mahony)
+    others = (set(fusion.EKF.PARAMS) | set(fusion.Mahony.PARAMS)) - set(fusion.CFEKF.PARAMS)
+    assert {"acc_noise", "mag_noise", "acc_update"} <= others
+    assert [k for k in sorted(others) if hasattr(est, k)] == []
+    assert (est.gyro_noise, est.bias_noise, est.q_init_std, est.bias_init_std, est.motion_rate,
+            est.rest_time, est.kp) == (0.02, 2e-4, 0.1, 0.03, 2.0, 0.7, 2.0)
+    # the EKF's state is cf-ekf's: bias, covariance and the rest count move with the run
+    _, gyr, acc, mag = data
+    est.run(gyr[:500], acc[:500], mag[:500])
+    assert est.bias.shape == (3,) and est.covariance.shape == (7, 7)
+    assert np.array_equal(est.bias, est.state()["fields"]["b"])
+    assert np.array_equal(est.covariance.ravel(), est.state()["fields"]["P"])
+
+
 def test_cf_ekf_ki_default_follows_bias_feedback():
     assert fusion.make("cf-ekf", 100.0, bias_feedback=False).ki == 0.005     # mahony's before issue 19
     assert fusion.make("cf-ekf", 100.0).ki == 0.0 and fusion.make("cf-ekf", 100.0).bias_feedback

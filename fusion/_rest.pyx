@@ -1,0 +1,52 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""Rest detection, the component (fusion/_rest.pxd; docs/estimators.md, "Rest"): a filter that
+learns the gyro bias at rest declares `fusion.params.REST` in its PARAMS and holds a
+RestDetector (docs/contributing.md); the rest properties below then read it."""
+from operator import attrgetter
+
+from fusion._core import FLAG, COUNT, TIMER
+
+
+cdef class RestDetector:
+    """The thresholds and state of the rest detector a filter holds as `est.rest`: time,
+    gyro_tol, acc_tol, noise (the rest_* parameters), at_rest, samples."""
+
+    def __init__(self, p):
+        """p: the holder's checked parameters (Estimator._take_params), REST's among them."""
+        self.time, self.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
+        # a filter without a zero-rate update (mahony) declares no rest_noise
+        self.acc_tol, self.noise = p["rest_acc_tol"], p.get("rest_noise", 0.0)
+        rest_clear(self)
+
+    cdef list fields(self):
+        return [("rest_gyr", <double[:3]>self.gyr, None), ("rest_acc", <double[:3]>self.acc, None),
+                ("t_rest", <double[:1]>&self.t, TIMER),
+                ("rest_started", <int[:1]><int*>&self.started, FLAG),
+                ("rest_samples", <long long[:1]>&self.n, COUNT)]
+
+    @property
+    def at_rest(self):
+        """True while the detector holds (the last sample was a zero-rate update)."""
+        return self.time > 0.0 and self.t >= self.time
+
+    @property
+    def samples(self):
+        """Zero-rate updates (samples detected at rest) since the last reset."""
+        return self.n
+
+
+def _of_rest(attr, doc):
+    return property(attrgetter("rest." + attr), doc=doc)
+
+
+#: The holder's rest properties, read from its `rest`: in its class body,
+#: ``rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES``
+REST_PROPERTIES = (
+    _of_rest("time", "s of rest before the gyro measures its bias; 0: rest detection off. "
+             "rest_gyro_tol, rest_acc_tol, rest_noise: docs/estimators.md, \"Rest\"."),
+    _of_rest("gyro_tol", "rad/s: at rest the gyro is within this of its low-pass, the low-pass "
+             "within this of zero."),
+    _of_rest("acc_tol", "m/s^2: at rest the accelerometer is within this of its low-pass."),
+    _of_rest("noise", "rad/s/sqrt(Hz): the zero-rate measurement's noise density."),
+    _of_rest("at_rest", "True while the rest detector holds (the last sample was a zero-rate update)."),
+    _of_rest("samples", "Zero-rate updates (samples detected at rest) since the last reset."))
