@@ -311,24 +311,36 @@ def _collect_teacher(model, venv, teacher, steps, sac, progress):
     return obs, acts, rews, dones
 
 
+def _minimise(module, loss_of, batches, epochs, lr):
+    """Adam on ``module``'s parameters, in training mode: ``epochs`` passes over ``batches()``,
+    ``loss_of(idx)`` per batch. Returns the last epoch's summed loss (each batch's times its size)."""
+    import torch
+    opt = torch.optim.Adam(module.parameters(), lr=lr)
+    module.set_training_mode(True)
+    for _ in range(epochs):
+        total = 0.0
+        for idx in batches():
+            loss = loss_of(idx)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+    module.set_training_mode(False)
+    return total
+
+
 def _fit_sac_actor(model, x, y, batches, epochs, lr, action_std):
     """SAC's actor: mean action to ``y`` by least squares, log std to log(action_std).
     Returns (action MSE, the last epoch's summed loss)."""
     import torch
     actor = model.actor
-    opt = torch.optim.Adam(actor.parameters(), lr=lr)
     target_log_std = float(np.log(action_std))
-    actor.set_training_mode(True)
-    for _ in range(epochs):
-        total = 0.0
-        for idx in batches():
-            mean, log_std, _ = actor.get_action_dist_params(x[idx])
-            loss = ((torch.tanh(mean) - y[idx]) ** 2).mean() + ((log_std - target_log_std) ** 2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-    actor.set_training_mode(False)
+
+    def loss_of(idx):
+        mean, log_std, _ = actor.get_action_dist_params(x[idx])
+        return ((torch.tanh(mean) - y[idx]) ** 2).mean() + ((log_std - target_log_std) ** 2).mean()
+
+    total = _minimise(actor, loss_of, batches, epochs, lr)
     with torch.no_grad():
         mse = float(((actor(x, deterministic=True) - y) ** 2).mean())
     return mse, total
@@ -346,18 +358,12 @@ def _fit_ppo_policy(model, x, y, rews, dones, batches, epochs, lr, action_std):
         returns[t] = g
     ret = torch.as_tensor(returns.reshape(-1).astype(np.float32))
     policy = model.policy
-    opt = torch.optim.Adam(policy.parameters(), lr=lr)
-    policy.set_training_mode(True)
-    for _ in range(epochs):
-        total = 0.0
-        for idx in batches():
-            values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
-            loss = -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-    policy.set_training_mode(False)
+
+    def loss_of(idx):
+        values, logp, _ = policy.evaluate_actions(x[idx], y[idx])
+        return -logp.mean() + 0.5 * ((values.flatten() - ret[idx]) ** 2).mean()
+
+    total = _minimise(policy, loss_of, batches, epochs, lr)
     with torch.no_grad():
         policy.log_std.clamp_(min=float(np.log(action_std)))
         mse = float(((policy.get_distribution(x).distribution.mean - y) ** 2).mean())
