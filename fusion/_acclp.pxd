@@ -6,18 +6,21 @@ from libc.string cimport memcpy
 from fusion._qmath cimport phi_matrix, quat_normalise, rot_to_nav, rot_to_body
 
 
-cdef inline void acc_gyro_lowpass(double tau, double* lp, double* qg, bint* started,
+cdef inline void acc_gyro_lowpass(double tau, double* lp, double* qg, bint* started, double* t,
                                   const double* gyr, const double* b, const double* acc,
                                   double dt, double* out) noexcept nogil:
     """The sample turned into the frame qg (the gyro minus the bias b integrated from the
     first sample, never corrected; gyr NULL: not turned), low-passed there (first order,
     time constant tau; the first sample starts it), and turned back with qg into out: a
     body-frame vertical the linear acceleration of a shaken body averages out of, and that
-    does not depend on the filter's corrections."""
+    does not depend on the filter's corrections. For its first tau seconds (t: the time
+    since the first sample, held at tau after) it is the running mean of the samples so far,
+    which weighs them alike: an exponential low-pass would hold the first sample, and the
+    linear acceleration in it, for about tau."""
     cdef double an[3]
     cdef double A[16]
     cdef double qn[4]
-    cdef double k = dt / (tau + dt)
+    cdef double k
     cdef int i
     if gyr != NULL and started[0]:
         phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
@@ -31,7 +34,12 @@ cdef inline void acc_gyro_lowpass(double tau, double* lp, double* qg, bint* star
         lp[1] = an[1]
         lp[2] = an[2]
         started[0] = True
+        t[0] = 0.0
     else:
+        t[0] += dt
+        if t[0] > tau:
+            t[0] = tau
+        k = dt / (t[0] + dt)
         lp[0] += k * (an[0] - lp[0])
         lp[1] += k * (an[1] - lp[1])
         lp[2] += k * (an[2] - lp[2])
@@ -46,7 +54,8 @@ cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double
     return gyr == NULL or sat or dt > 2.0 * dt_nominal
 
 
-cdef inline void acc_lowpass_clear(double* lp, double* qg, bint* started) noexcept nogil:
+cdef inline void acc_lowpass_clear(double* lp, double* qg, bint* started, double* t) noexcept nogil:
+    t[0] = 0.0
     lp[0] = 0.0
     lp[1] = 0.0
     lp[2] = 0.0

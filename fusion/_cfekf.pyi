@@ -19,6 +19,7 @@ class CFEKF(Estimator, _RestProperties):
     window: int
     kp: float
     ki: float
+    mag_weight: float
     cf_noise: float
     bias_feedback: bool
     mag_update: str

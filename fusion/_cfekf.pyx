@@ -129,6 +129,7 @@ cdef class CFEKF(Estimator):
         _Mahony.PARAMS["kp"].but(allow_zero=False, doc="the complementary filter's proportional gain"),
         _Mahony.PARAMS["ki"].but(default=None, doc="its integral gain; None: 0 with bias_feedback, "
                                  f"else {MAHONY_KI}"),
+        _Mahony.PARAMS["mag_weight"].but(default=0.3),    # chosen as the ekf's mag_noise: docs/accuracy.md
         Param("cf_noise", 0.005, "1/√Hz", 1e-4, 10.0, "noise density of each component of the "
               "complementary filter's quaternion, as a measurement"),
         GYRO_RANGE, MOTION_RATE,
@@ -167,7 +168,8 @@ cdef class CFEKF(Estimator):
         self.pre_mag = SlidingMean(w)
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
-        self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, gyro_range=p["gyro_range"], mag_update=p["mag_update"],
+        self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, mag_weight=p["mag_weight"], gyro_range=p["gyro_range"],
+                          mag_update=p["mag_update"],
                           acc_lowpass=p["acc_lowpass"], rest_time=0.0,
                           **{d.name: p[d.name] for d in MAGDIST})
         self.configured = True     # before reset(), which refuses an unconfigured object
@@ -245,6 +247,10 @@ cdef class CFEKF(Estimator):
     @property
     def ki(self):
         return None if self.cf is None else self.cf.ki
+
+    @property
+    def mag_weight(self):
+        return None if self.cf is None else self.cf.mag_weight
 
     @property
     def cf_quaternion(self):

@@ -26,7 +26,7 @@ FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
 # --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
-STATE_VERSION = 3     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover; 3: magnetic disturbance detection
+STATE_VERSION = 4     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover; 3: magnetic disturbance detection; 4: acc_lp_time (the low-pass's running-mean start)
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter

@@ -16,6 +16,7 @@ cdef class EKF(Estimator):
     cdef double acc_lp[3]     # its state, in the gyro-integrated frame acc_qg
     cdef double acc_qg[4]     # that frame: the bias-corrected gyro integrated, uncorrected
     cdef bint acc_lp_started
+    cdef double acc_lp_time    # s since its first sample, held at acc_lowpass (the running-mean start)
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     # the parts of _step, on this filter's state, for subclasses (aekf) and holders (cf-ekf's core)

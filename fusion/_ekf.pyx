@@ -338,7 +338,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
 cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
                           double dt, double* out) noexcept nogil:
     """acc_lowpass (fusion/_acclp.pxd) on the ekf's state, out of line."""
-    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time, gyr, b, acc, dt, out)
 
 
 cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
@@ -375,7 +375,7 @@ cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
     sat = gyr != NULL and saturated(gyr, e.gyro_range_)
     ekf_propagate(e, q, b, P, t_run, gyr, dt, sat)
     if e.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, e.dt_nominal):
-        acc_lowpass_clear(e.acc_lp, e.acc_qg, &e.acc_lp_started)
+        acc_lowpass_clear(e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time)
     if e.rest.time > 0.0:
         ekf_rest(e, q, b, P, gyr, acc, dt)
     if acc != NULL and e.acc_lowpass > 0.0:
@@ -399,8 +399,10 @@ cdef class EKF(Estimator):
         Param("bias_noise", 1e-4, "rad/s/√s", 1e-9, 0.01, "gyro bias random walk", allow_zero=True),
         Param("acc_noise", 0.5, "m/s²/√Hz", 1e-3, 1e3, "accelerometer noise density about gravity, "
               "including the linear acceleration a moving body adds (datasheets: about 0.002)"),
-        Param("mag_noise", 0.03, "1/√Hz", 1e-4, 10.0, "magnetometer noise density, relative to the "
-              "field norm, including disturbances"),
+        Param("mag_noise", 0.2, "1/√Hz", 1e-4, 10.0, "magnetometer noise density, relative to the "
+              "field norm, including disturbances and calibration residue (with gyro_noise it sets the "
+              "heading's time constant, roughly mag_noise / gyro_noise seconds; chosen leave-one-set-out "
+              "within the failure scenarios' bounds: docs/accuracy.md)"),
         Param("q_init_std", 0.05, "1", 1e-4, 1.0, "initial std of each quaternion component"),
         Param("bias_init_std", 0.0087, "rad/s", 1e-6, 1.0, "initial std of each gyro bias component "
               "(MEMS turn-on bias; 0.0087 = 0.5 °/s, VQF's, chosen leave-one-set-out: docs/accuracy.md)",
@@ -440,6 +442,7 @@ cdef class EKF(Estimator):
         return (Estimator._state_fields(self) + self._filter_fields()
                 + [("acc_lp", <double[:3]>self.acc_lp, None),
                    ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                   ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
                    ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self.rest.fields() + self._magd_fields())
 
@@ -456,7 +459,7 @@ cdef class EKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(self.rest)
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

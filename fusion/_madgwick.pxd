@@ -9,3 +9,4 @@ cdef class Madgwick(Estimator):
     cdef double acc_lp[3]
     cdef double acc_qg[4]
     cdef bint acc_lp_started
+    cdef double acc_lp_time    # s since its first sample, held at acc_lowpass (the running-mean start)

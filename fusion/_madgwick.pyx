@@ -4,7 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import BIAS, RECOVERY, FLAG
+from fusion._core import BIAS, RECOVERY, FLAG, TIMER
 from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
@@ -58,6 +58,7 @@ cdef class Madgwick(Estimator):
                                                  ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
                                                  ("acc_lp", <double[:3]>self.acc_lp, None),
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                 ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self._magd_fields())
 
@@ -66,7 +67,7 @@ cdef class Madgwick(Estimator):
         self.bw[1] = 0.0
         self.bw[2] = 0.0
         self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -85,9 +86,9 @@ cdef class Madgwick(Estimator):
         if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time,
                              gyr, self.bw, acc, dt, af)
             acc = af
         if gyr != NULL:

@@ -5,6 +5,7 @@ from fusion._rest import RestDetector
 class Mahony(Estimator):
     kp: float
     ki: float
+    mag_weight: float
     rest_tau: float
     rest: RestDetector        # the rest properties but rest_noise (no zero-rate update)
     rest_time: float

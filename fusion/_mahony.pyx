@@ -6,7 +6,7 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import FLAG, BIAS_MAX, RECOVERY
+from fusion._core import FLAG, BIAS_MAX, RECOVERY, TIMER
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
 from fusion._magdist cimport magd_check
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
@@ -99,10 +99,11 @@ cdef inline void half_angle_fast(double wx, double wy, double wz, double dt, dou
 
 cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
                              const double* gyr, const double* acc, const double* mag,
-                             double dt, bint heading) noexcept nogil:
+                             double dt, bint heading, double km) noexcept nogil:
     """One sample (gyr, acc, mag may be NULL), q and eint in place: Mahony._step and the
     batch loop both run this. heading (mag_update="heading"): the magnetometer's error
-    keeps only its component about the vertical, so that it turns the heading alone."""
+    keeps only its component about the vertical, so that it turns the heading alone; km
+    (mag_weight) weighs the magnetometer's error against the accelerometer's."""
     # Propagate with the integral-corrected gyro, q1 = q ⊗ p, then correct with this
     # sample's vectors: the measurements belong to the attitude after the step, as in the
     # EKF. The error (mahony_error at q1) is evaluated in the navigation frame, with one
@@ -160,7 +161,7 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     if mag != NULL:
         # h = R1 mag, turned about z onto north: v = [0, rho, h2]; h x v = [h2 (h1 - rho),
         # -h0 h2, h0 rho], over |mag|^2 (the folded field is linear in mag)
-        k = 1.0 / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        k = km / (mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         mat_vec(R1, mag, h)
         if not heading:         # heading: only the vertical component, h0 rho
             W[0] += (h[2] * k) * h[1]
@@ -216,7 +217,7 @@ cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, co
     b[0] = -e.ki * eint[0]
     b[1] = -e.ki * eint[1]
     b[2] = -e.ki * eint[2]
-    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
+    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time, gyr, b, acc, dt, out)
 
 
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
@@ -246,6 +247,9 @@ cdef class Mahony(Estimator):
         Param("ki", 0.01, "1/s²", 1e-9, 1e3, "integral gain (the bias learned is -ki ε)", allow_zero=True),
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample kp is raised and the "
                        "integral held"),
+        Param("mag_weight", 1.0, "1", 1e-6, 1e3, "weight of the magnetometer's error against the "
+              "accelerometer's (1: Mahony's; the heading's time constant is about 1 / (kp mag_weight) s)",
+              allow_zero=True),
         MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
         # the shared rest detector; no zero-rate update here, so no rest_noise
         *[d for d in REST if d.name != "rest_noise"],
@@ -261,6 +265,7 @@ cdef class Mahony(Estimator):
         p = self._take_params(params)       # checked; gyro_range, magdist taken
         self.kp = p["kp"]
         self.ki = p["ki"]
+        self.mag_weight = p["mag_weight"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.rest = RestDetector(p)
@@ -275,6 +280,7 @@ cdef class Mahony(Estimator):
                                                  ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
                                                  ("acc_lp", <double[:3]>self.acc_lp, None),
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                                                 ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self.rest.fields() + self._magd_fields())
 
@@ -283,7 +289,7 @@ cdef class Mahony(Estimator):
         self.eint[1] = 0.0
         self.eint[2] = 0.0
         self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
@@ -299,14 +305,15 @@ cdef class Mahony(Estimator):
         if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         if self.rest.time > 0.0:
             mahony_rest(self, self.eint, gyr, acc, dt)
         if acc != NULL and self.acc_lowpass > 0.0:
             mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
             acc = af
         if f == 1.0:
-            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
+            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
+                        self.mag_weight)
             return
         # recovering: the large error is the attitude's, not the gyro's bias. At low rates
         # the raised gain would turn by more than the error in one step and overshoot: at
@@ -314,7 +321,8 @@ cdef class Mahony(Estimator):
         if f * self.kp * dt > RECOVERY_STEP_MAX:
             f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
         memcpy(eint, self.eint, 3 * sizeof(double))
-        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
+        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
+                    self.mag_weight)
         memcpy(self.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
@@ -324,7 +332,7 @@ cdef class Mahony(Estimator):
         # which it cannot for self.q (any store through o or eint might alias it)
         cdef double q[4]
         cdef double eint[3]
-        cdef double kp = self.kp, ki = self.ki
+        cdef double kp = self.kp, ki = self.ki, km = self.mag_weight
         cdef bint heading = self.mag_heading
         cdef bint ned = self.ned
         cdef Py_ssize_t i
@@ -342,13 +350,13 @@ cdef class Mahony(Estimator):
                     mi = NULL
                 ai = a + 3 * i
                 if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
-                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
                 if self.rest.time > 0.0:
                     mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
                 if self.acc_lowpass > 0.0:
                     mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
                     ai = af
-                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading)
+                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading, km)
             else:
                 if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
                     return i

@@ -12,6 +12,7 @@ cdef class UKF(Estimator):
     cdef double acc_lp[3]
     cdef double acc_qg[4]
     cdef bint acc_lp_started
+    cdef double acc_lp_time    # s since its first sample, held at acc_lowpass (the running-mean start)
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef void sigma_points(self, double* X) noexcept nogil

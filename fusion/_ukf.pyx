@@ -111,6 +111,7 @@ cdef class UKF(Estimator):
                                                 ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
                 + [("acc_lp", <double[:3]>self.acc_lp, None),
                    ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
+                   ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
                    ("acc_qg", <double[:4]>self.acc_qg, "unit")]
                 + self.rest.fields() + self._magd_fields())
 
@@ -128,7 +129,7 @@ cdef class UKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(self.rest)
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -399,9 +400,9 @@ cdef class UKF(Estimator):
         if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time,
                              gyr, self.b, acc, dt, af)
             acc = af
         if acc != NULL:

@@ -403,16 +403,21 @@ class RefMagDist:
 def acc_lowpass_lost(est, gyr, sat, dt):
     """The gyro did not measure the step (none, saturated, a gap > 2 periods): restart."""
     if est.acc_lowpass > 0 and (gyr is None or sat or dt > 2.0 / est.fs):
-        est.acc_lp, est.acc_qg = None, IDENTITY.copy()
+        est.acc_lp, est.acc_qg, est.acc_lp_time = None, IDENTITY.copy(), 0.0
 
 
 def acc_lowpass_step(est, gyr, b, acc, dt):
     """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
-    (never corrected), turned back into the body frame; est.acc_lp None before the first."""
+    (never corrected), turned back into the body frame; est.acc_lp None before the first.
+    For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples."""
     if gyr is not None and est.acc_lp is not None:
         est.acc_qg = normalise(phi(gyr - b, dt) @ est.acc_qg)
     an = rotmat(est.acc_qg) @ acc
-    est.acc_lp = an if est.acc_lp is None else est.acc_lp + dt / (est.acc_lowpass + dt) * (an - est.acc_lp)
+    if est.acc_lp is None:
+        est.acc_lp, est.acc_lp_time = an, 0.0
+    else:
+        est.acc_lp_time = min(est.acc_lp_time + dt, est.acc_lowpass)
+        est.acc_lp = est.acc_lp + dt / (est.acc_lp_time + dt) * (an - est.acc_lp)
     return rotmat(est.acc_qg).T @ est.acc_lp
 
 
@@ -421,7 +426,7 @@ def make_magdist(est):
 
 
 class RefMahony(RefEstimator):
-    PARAMS = {"kp": 1.0, "ki": 0.01, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+    PARAMS = {"kp": 1.0, "ki": 0.01, "mag_weight": 1.0, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
               "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_tau": 1.0,
               **MAGDIST_PARAMS}
 
@@ -476,7 +481,7 @@ class RefMahony(RefEstimator):
             if self.mag_update == "heading":     # only the turn about the vertical
                 up = rotmat(q).T @ np.array([0.0, 0.0, 1.0])
                 c = (c @ up) * up
-            e += c
+            e += self.mag_weight * c
         if self.ki > 0 and not recovering:                               # 4.
             self.eps = self.eps + e * dt
         if self.kp > 0:
@@ -561,7 +566,7 @@ class RestAndMagCounts:
 
 
 class RefEKF(RestAndMagCounts, RefEstimator):
-    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.03,
+    PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.2,
               "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
               "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,

@@ -302,7 +302,7 @@ class RefSlidingMean:
 
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 1.0, "ki": None, "cf_noise": 0.005, "gyro_range": None,
+              "window": None, "kp": 1.0, "ki": None, "mag_weight": 0.3, "cf_noise": 0.005, "gyro_range": None,
               "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
               **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_") or k.startswith("magdist_")}}
     LEARN_ACC_TOL, LEARN_ANGLE, LEARN_HOLD = 0.5, math.radians(2.0), 0.5     # bias_feedback
@@ -316,7 +316,7 @@ class RefCFEKF(RefEKF):
 
     def _reset_state(self):
         super()._reset_state()
-        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, gyro_range=self.gyro_range,
+        self.cf = RefMahony(self.fs, kp=self.kp, ki=self.ki, mag_weight=self.mag_weight, gyro_range=self.gyro_range,
                             mag_update=self.mag_update, acc_lowpass=self.acc_lowpass, rest_time=0.0,
                             **{k: getattr(self, k) for k in MAGDIST_PARAMS})
         self.cf_started = False

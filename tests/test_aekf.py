@@ -181,8 +181,8 @@ def test_quiet_body_is_the_ekf():
     ekf's inlined batch loop and in aekf's calls)."""
     _, gyr, acc, mag, *_ = scenario(n=3000, turn=0.3, burst_amp=0.0, disturb=None, mag_noise=0.2)
     a = fusion.make("aekf", FS)
-    e = fusion.make("ekf", FS, acc_update=a.acc_update, acc_noise=a.acc_noise, acc_lowpass=0.0,
-                    bias_init_std=a.bias_init_std)
+    e = fusion.make("ekf", FS, acc_update=a.acc_update, acc_noise=a.acc_noise, mag_noise=a.mag_noise,
+                    acc_lowpass=0.0, bias_init_std=a.bias_init_std)
     qa, qe = a.run(gyr, acc, mag), e.run(gyr, acc, mag)
     assert a.rejected == {"acc": 0, "mag": 0} and a.tested == {"acc": 3000, "mag": 3000}
     assert np.abs(qa - qe).max() < 1e-13
