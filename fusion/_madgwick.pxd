@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._rest cimport RestDetector
 
 cdef class Madgwick(Estimator):
     cdef readonly double beta, zeta
@@ -10,3 +11,5 @@ cdef class Madgwick(Estimator):
     cdef double acc_qg[4]
     cdef bint acc_lp_started
     cdef double acc_lp_time    # s since its first sample, held at acc_lowpass (the running-mean start)
+    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
+    cdef readonly double rest_tau      # s: the bias's time constant at rest

@@ -5,11 +5,13 @@ from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
 from fusion._core import BIAS, RECOVERY, FLAG, TIMER
-from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST
+from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST, REST_PULL
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
 from fusion._magdist cimport magd_check
+from fusion._rest cimport RestDetector, rest_detect, rest_clear
+from fusion._rest import REST_PROPERTIES
 from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
@@ -32,7 +34,8 @@ cdef class Madgwick(Estimator):
     beta and holds the bias learning for 3 s (recovery_gain). mag_update="heading": the
     field's gradient projected onto a turn about the vertical; magdist_*: disturbed fields
     skipped (fusion/_magdist.pxd); acc_lowpass (s): the gradient's accelerometer low-passed
-    in a gyro-integrated frame (fusion/_acclp.pxd)."""
+    in a gyro-integrated frame (fusion/_acclp.pxd); rest_* (fusion/_rest.pxd): at rest the
+    bias is pulled toward the measured rate with the time constant rest_tau."""
     name = "madgwick"
     PARAMS = table(
         Param("beta", 0.041, "rad/s", 1e-6, 1e3, "step of the quaternion along the normalised "
@@ -41,7 +44,10 @@ cdef class Madgwick(Estimator):
               "in MadgwickAHRS.c and ahrs)", allow_zero=True),
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
                        "bias learning held"),
-        MAG_UPDATE, ACC_LOWPASS.but(default=0.0), *MAGDIST)
+        MAG_UPDATE, ACC_LOWPASS, *MAGDIST, *REST_PULL)
+    # the rest properties but rest_noise (no zero-rate update here), read from its detector
+    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
+    at_rest, rest_samples = REST_PROPERTIES[4:]
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -50,6 +56,8 @@ cdef class Madgwick(Estimator):
         self.zeta = p["zeta"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
+        self.rest = RestDetector(p)
+        self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
@@ -60,7 +68,7 @@ cdef class Madgwick(Estimator):
                                                  ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
                                                  ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
                                                  ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self._magd_fields())
+                + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0
@@ -68,6 +76,7 @@ cdef class Madgwick(Estimator):
         self.bw[2] = 0.0
         self.t_recover = 0.0
         acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+        rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -81,12 +90,17 @@ cdef class Madgwick(Estimator):
         cdef double u[4]
         cdef double af[3]
         cdef double n2, k
+        cdef int i
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
         if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+        if self.rest.time > 0.0 and rest_detect(self.rest, gyr, acc, dt):
+            k = dt / (self.rest_tau + dt)
+            for i in range(3):
+                self.bw[i] += k * (gyr[i] - self.bw[i])
         if acc != NULL and self.acc_lowpass > 0.0:
             acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time,
                              gyr, self.bw, acc, dt, af)
@@ -150,7 +164,7 @@ cdef class Madgwick(Estimator):
 
     @property
     def bias(self):
-        """The gyro bias learned with the zeta gain, rad/s (body frame; zero when zeta = 0)."""
+        """The gyro bias learned at rest and with the zeta gain, rad/s (body frame)."""
         return np.array([self.bw[0], self.bw[1], self.bw[2]])
 
     @property

@@ -7,7 +7,7 @@ from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import FLAG, BIAS_MAX, RECOVERY, TIMER
-from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
+from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST_PULL
 from fusion._magdist cimport magd_check
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
@@ -237,7 +237,8 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
-    (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain)."""
+    (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain). At
+    rest (rest_*) the bias -ki ε is pulled toward the measured rate (with ki > 0 only)."""
     name = "mahony"
     # kp, ki and acc_lowpass chosen leave-one-set-out on the recorded sets (docs/accuracy.md);
     # kp / ki = 100 s as before, so the integral learns the bias as fast
@@ -252,9 +253,7 @@ cdef class Mahony(Estimator):
               allow_zero=True),
         MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
         # the shared rest detector; no zero-rate update here, so no rest_noise
-        *[d for d in REST if d.name != "rest_noise"],
-        Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest (and ki > 0): the time constant with which "
-              "the bias -ki ε is pulled toward the measured rate"))
+        *REST_PULL)
 
     # the rest properties but rest_noise (no zero-rate update here), read from its detector
     rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]

@@ -17,7 +17,7 @@ from typing import Any
 
 from fusion import checks
 
-__all__ = ["Param", "table", "REST", "MAGDIST", "GYRO_RANGE", "MOTION_RATE", "MAG_UPDATE", "ACC_LOWPASS"]
+__all__ = ["Param", "table", "REST", "REST_PULL", "MAGDIST", "GYRO_RANGE", "MOTION_RATE", "MAG_UPDATE", "ACC_LOWPASS"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,6 +101,12 @@ REST = (
     Param("rest_noise", 1e-3, "rad/s/√Hz", 1e-7, 1.0, "the gyro's white-noise density as the "
           "zero-rate measurement's noise"),
 )
+
+# the complementary filters' rest learning (no zero-rate update there, so no rest_noise): at
+# rest their gyro bias is pulled toward the measured rate
+REST_PULL = (*[d for d in REST if d.name != "rest_noise"],
+             Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest: the time constant with which the gyro "
+                   "bias is pulled toward the measured rate"))
 
 # magnetic disturbance rejection (docs/estimators.md, "Magnetic disturbances"): VQF's
 # thresholds and times

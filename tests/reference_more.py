@@ -41,7 +41,8 @@ def rotmat_unit_form(q):
 
 class RefMadgwick(RefEstimator):
     PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None, "mag_update": "heading",
-              "acc_lowpass": 0.0, **MAGDIST_PARAMS}
+              "acc_lowpass": 1.0, "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+              "rest_tau": 1.0, **MAGDIST_PARAMS}
     DEAD_ZONE = 1e-10
 
     def __init__(self, *args, written_form=False, **kwargs):
@@ -54,6 +55,7 @@ class RefMadgwick(RefEstimator):
     def _reset_state(self):
         self.bw = np.zeros(3)
         self.t_recover = 0.0
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, IDENTITY.copy()
 
@@ -72,6 +74,8 @@ class RefMadgwick(RefEstimator):
         if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
             mag = None
         acc_lowpass_lost(self, gyr, sat, dt)
+        if self.rest(gyr, acc, dt):                     # at rest: the bias toward the rate
+            self.bw = self.bw + dt / (self.rest_tau + dt) * (gyr - self.bw)
         if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
             acc = acc_lowpass_step(self, gyr, self.bw, acc, dt)
         if gyr is not None:                                              # 1.
