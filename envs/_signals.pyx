@@ -42,6 +42,7 @@ cdef double RAD2DEG = 180.0 / 3.141592653589793     # math.degrees' factor
 cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: called, not copied)
 cdef object _sum = sum
 cdef str NEEDS_RESET = "call reset() before step() (and after an episode ended)"
+cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -536,6 +537,7 @@ cdef class Loop:
         cdef float[::1] lo = self.obs_lo, hi = self.obs_hi
         cdef tuple task
         cdef Py_ssize_t i
+        cdef Estimator fe
         steps = env._steps + 1
         env._steps = steps
         t = steps / self.control_hz
@@ -613,6 +615,13 @@ cdef class Loop:
             if o[i] > hi[i]:
                 o[i] = hi[i]
         # _info
+        if est is None:
+            skipped = {"gyr": 0, "acc": 0, "mag": 0}
+        elif isinstance(est, Estimator) and type(est).skipped is SKIPPED:
+            fe = est
+            skipped = {"gyr": fe.n_skip_gyr, "acc": fe.n_skip_acc, "mag": fe.n_skip_mag}
+        else:
+            skipped = dict(est.skipped)
         qt = env._q_true_s
         qt0, qt1, qt2, qt3 = qt
         dot = abs(qt0 * w + qt1 * x + qt2 * y + qt3 * z)
@@ -628,7 +637,7 @@ cdef class Loop:
             "heading_true": _heading(ow, ox, oy, oz), "heading_est": psi,
             "encoder_speed": enc_speed, "motor_torque": env._tau,
             "reward_terms": terms, "action_clipped": env._clipped,
-            "estimator_skipped": dict(est.skipped) if est is not None else {"gyr": 0, "acc": 0, "mag": 0},
+            "estimator_skipped": skipped,
             "imu_samples": env._n_samples, "t": t,
             "frame_tilt_deg": acos(tilt) * RAD2DEG,
         }
