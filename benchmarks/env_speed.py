@@ -373,6 +373,36 @@ def reset_memory(n, n_cycles):
     return before, after, el / n * 1e3, max(ids), len(set(ids)), cyc_before, cyc_after
 
 
+def print_rates(steps, repeats):
+    """The env's steps/s against PyBullet's limit (env_rates), as a table."""
+    raw = RawWorld()
+    plain = raw.plain(20000)
+    raw.close()
+    wall, cpu, update_us = env_rates(["ekf", "truth"], steps, repeats)
+    med = {k: float(np.median(v)) for k, v in cpu.items()}
+    lim = float(np.median(np.concatenate([v for k, v in cpu.items() if isinstance(k, tuple)])))
+    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s (wall clock); with the env's joint read, "
+          f"torque command and floor-loss torque (PyBullet's limit): {8 * lim:,.0f}/s by CPU time = {lim:,.0f} "
+          "env steps/s at 8 physics steps each (median of the runs)")
+    print(f"{repeats} rounds, chunks of {steps:,} env steps (gymnasium.make('SphereBotTrack-v1'), 50 Hz "
+          "control, 200 Hz IMU mpu9250, 400 Hz physics), each against the limit measured before and after it; "
+          "medians [lowest, highest] over the rounds:")
+    print("| | env steps/s, CPU time | share of PyBullet's limit, CPU time | share, wall clock |\n|---|---|---|---|")
+    for k, name in (("ekf", "ekf"), ("truth", "truth")):
+        c, w = _share(cpu, k), _share(wall, k)
+        print(f"| {name} | {med[k]:,.0f} | {c[0]:.1%} [{c[1]:.1%}, {c[2]:.1%}] | {w[0]:.1%} [{w[1]:.1%}, {w[2]:.1%}] |")
+    c = _share(cpu, "ekf")
+    print(f"  target (issue 16) >= 75 % of the limit with ekf (CPU time, median): {'met' if c[0] >= 0.75 else 'NOT met'}")
+    print(f"  of which gymnasium.make's wrappers (TimeLimit, OrderEnforcing, PassiveEnvChecker): "
+          f"{wrapper_cost():.2f} us per step (measured on a do-nothing env with and without them)")
+    share_diff = 1.0 - med["ekf"] / med["truth"]
+    share_direct = update_us["ekf"] * 1e-6 * med["ekf"]
+    print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
+          f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step); "
+          f"target >= 2,000 steps/s with ekf: {'met' if med['ekf'] >= 2000 else 'NOT met'}; "
+          f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
@@ -394,32 +424,7 @@ def main():
         step_scaling()
         return
 
-    raw = RawWorld()
-    plain = raw.plain(20000)
-    raw.close()
-    wall, cpu, update_us = env_rates(["ekf", "truth"], args.steps, args.repeats)
-    med = {k: float(np.median(v)) for k, v in cpu.items()}
-    lim = float(np.median(np.concatenate([v for k, v in cpu.items() if isinstance(k, tuple)])))
-    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s (wall clock); with the env's joint read, "
-          f"torque command and floor-loss torque (PyBullet's limit): {8 * lim:,.0f}/s by CPU time = {lim:,.0f} "
-          "env steps/s at 8 physics steps each (median of the runs)")
-    print(f"{args.repeats} rounds, chunks of {args.steps:,} env steps (gymnasium.make('SphereBotTrack-v1'), 50 Hz "
-          "control, 200 Hz IMU mpu9250, 400 Hz physics), each against the limit measured before and after it; "
-          "medians [lowest, highest] over the rounds:")
-    print("| | env steps/s, CPU time | share of PyBullet's limit, CPU time | share, wall clock |\n|---|---|---|---|")
-    for k, name in (("ekf", "ekf"), ("truth", "truth")):
-        c, w = _share(cpu, k), _share(wall, k)
-        print(f"| {name} | {med[k]:,.0f} | {c[0]:.1%} [{c[1]:.1%}, {c[2]:.1%}] | {w[0]:.1%} [{w[1]:.1%}, {w[2]:.1%}] |")
-    c = _share(cpu, "ekf")
-    print(f"  target (issue 16) >= 75 % of the limit with ekf (CPU time, median): {'met' if c[0] >= 0.75 else 'NOT met'}")
-    print(f"  of which gymnasium.make's wrappers (TimeLimit, OrderEnforcing, PassiveEnvChecker): "
-          f"{wrapper_cost():.2f} us per step (measured on a do-nothing env with and without them)")
-    share_diff = 1.0 - med["ekf"] / med["truth"]
-    share_direct = update_us["ekf"] * 1e-6 * med["ekf"]
-    print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
-          f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step); "
-          f"target >= 2,000 steps/s with ekf: {'met' if med['ekf'] >= 2000 else 'NOT met'}; "
-          f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+    print_rates(args.steps, args.repeats)
     if args.rates:
         return
 
