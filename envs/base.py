@@ -41,7 +41,7 @@ START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ra
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
-#: the methods of step() that the compiled step (envs/_signals.pyx, Loop.step) runs in C
+#: the methods of step() that the compiled step (envs/_signals.pyx, Loop.control_step) runs in C
 _COMPILED_STEP = ("step", "_begin_step", "_end_step", "_check_action", "_advance", "_encoder_counts", "_odometry",
                   "_episode_end", "_observation", "_info", "_q_est_wxyz", "_est_bias", "_heading_est",
                   "_heading_true")
