@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/env_speed.py            # full run (10,000 resets: about a minute)
     .venv/bin/python benchmarks/env_speed.py --quick    # 1,000 resets
     .venv/bin/python benchmarks/env_speed.py --breakdown  # CPU time of the parts of a step
+    .venv/bin/python benchmarks/env_speed.py --rates      # only the env against PyBullet's limit
 
 Prints, in one run on one core:
   - the raw PyBullet step rate of the same world (stepSimulation only, and with the drive
@@ -10,7 +11,9 @@ Prints, in one run on one core:
   - environment steps per second at the defaults (50 Hz control, 200 Hz IMU, 400 Hz physics)
     with estimator="ekf" and with "truth", and the estimator's share of the step time;
   - the share of that limit the env reaches with "ekf" and "truth" (issue 16: >= 75 %),
-    by wall clock and by CPU time;
+    by CPU time and wall clock, each chunk of env steps against the limit measured around
+    it, medians over the rounds with their range; the env is made as users make it
+    (``gymnasium.make``), and a do-nothing env under the same wrappers says what they add;
   - robot steps per second of the batched vector env of 16 robots against one environment;
   - reset() time (mean, median, 99th percentile);
   - resident memory before and after N resets in one process, and whether physics clients
@@ -142,47 +145,96 @@ def vector_rates(n=16, steps=200, repeats=3):
     return best
 
 
-def env_rates(estimators, steps, repeats=5):
-    """Best steps/s of each estimator and of the raw PyBullet world (physics steps/s with the
-    env's per-step calls), runs interleaved (so that load changes on the machine hit all
-    alike), by wall clock and by CPU time (thread_time: less sensitive to the other jobs on
-    a shared machine), plus the measured time inside est.update per env step (us)."""
-    envs_ = {e: SphereRobotEnv(task="track", estimator=e) for e in estimators}
+def env_rates(estimators, steps, repeats=9):
+    """Each contender's env steps/s against PyBullet's limit measured right around it: the raw
+    world (physics steps with the env's per-step calls, ``8 * steps``) runs before and after
+    every chunk of ``steps`` env steps, and the contenders take turns, ``repeats`` rounds
+    (so that load changes on a shared machine hit the env and its limit alike). Contenders:
+    each estimator's environment as users make it (``gymnasium.make``: with its wrappers).
+    Episodes run on across the chunks (resets where they end, as in training). Returns per chunk and
+    contender env steps/s, by wall clock and by CPU time (thread_time: less sensitive to the
+    other jobs), each with the mean of its two limits (key (name, "limit"), env steps/s =
+    physics steps/s / 8), and the measured time inside est.update per env step (us)."""
+    import gymnasium as gym
+    envs_ = {e: gym.make("SphereBotTrack-v1", estimator=e) for e in estimators}
     raw = RawWorld()
     rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, (steps, 2)).astype(np.float32)
+    actions = rng.uniform(-1, 1, (steps * repeats, 2)).astype(np.float32)
     actions[:, 0] = np.abs(actions[:, 0]) * 0.8          # mostly forward, changing steering
-    best = {e: 0.0 for e in estimators}
-    best_cpu = {e: 0.0 for e in estimators}
-    best_raw = best_raw_cpu = 0.0
+    wall = {k: [] for e in envs_ for k in (e, (e, "limit"))}
+    cpu = {k: [] for k in wall}
+    for env in envs_.values():
+        env.reset(seed=0)
+    last = raw.with_motor(8 * steps)
     for r in range(repeats):
-        w, u = raw.with_motor(8 * steps)
-        best_raw, best_raw_cpu = max(best_raw, w), max(best_raw_cpu, u)
+        chunk = actions[r * steps:(r + 1) * steps]
         for e, env in envs_.items():
-            env.reset(seed=r)
-            cpu = time.thread_time()
+            c0 = time.thread_time()
             t = time.perf_counter()
-            for a in actions:
+            for a in chunk:
                 _, _, term, trunc, _ = env.step(a)
                 if term or trunc:
                     env.reset()
-            best[e] = max(best[e], steps / (time.perf_counter() - t))
-            best_cpu[e] = max(best_cpu[e], steps / (time.thread_time() - cpu))
+            wall[e].append(steps / (time.perf_counter() - t))
+            cpu[e].append(steps / (time.thread_time() - c0))
+            now = raw.with_motor(8 * steps)
+            wall[e, "limit"].append((last[0] + now[0]) / 16)
+            cpu[e, "limit"].append((last[1] + now[1]) / 16)
+            last = now
     raw.close()
     update_us = {}
     for e, env in envs_.items():
-        est = env._est
+        u = env.unwrapped
+        est = u._est
         if est is not None:                                # the estimator's own cost per env step
-            timed = env._est = _TimedUpdate(est)
+            timed = u._est = _TimedUpdate(est)             # (the loop then calls its update from C)
             env.reset(seed=0)
-            for a in actions[:2000]:
+            n = min(2000, len(actions))
+            for a in actions[:n]:
                 _, _, term, trunc, _ = env.step(a)
                 if term or trunc:
                     env.reset()
-            env._est = est
-            update_us[e] = timed.spent / 2000 * 1e6
+            u._est = est
+            update_us[e] = timed.spent / n * 1e6
         env.close()
-    return best, update_us, best_raw, best_cpu, best_raw_cpu
+    return {k: np.array(v) for k, v in wall.items()}, {k: np.array(v) for k, v in cpu.items()}, update_us
+
+
+def wrapper_cost(steps=200_000):
+    """CPU time (us) per step that ``gymnasium.make``'s wrappers (TimeLimit, OrderEnforcing,
+    PassiveEnvChecker) add: a do-nothing environment with and without them, best of 5."""
+    import gymnasium as gym
+
+    class Null(gym.Env):
+        observation_space = action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+        def reset(self, *, seed=None, options=None):
+            super().reset(seed=seed)
+            return np.zeros(2, np.float32), {}
+
+        def step(self, action):
+            return np.zeros(2, np.float32), 0.0, False, False, {}
+
+    gym.register("EnvSpeedNull-v0", entry_point=Null, max_episode_steps=10 * steps)
+    a = np.zeros(2, np.float32)
+    best = {}
+    for name, env in (("bare", Null()), ("made", gym.make("EnvSpeedNull-v0"))):
+        env.reset(seed=0)
+        env.step(a)
+        best[name] = float("inf")
+        for _ in range(5):
+            t = time.thread_time()
+            for _ in range(steps):
+                env.step(a)
+            best[name] = min(best[name], (time.thread_time() - t) / steps * 1e6)
+    gym.registry.pop("EnvSpeedNull-v0")
+    return best["made"] - best["bare"]
+
+
+def _share(rates, key):
+    """(median, lowest, highest) over the rounds of the share of PyBullet's limit."""
+    r = rates[key] / rates[key, "limit"]
+    return float(np.median(r)), float(r.min()), float(r.max())
 
 
 def breakdown(rounds=12, steps=250):
@@ -193,7 +245,9 @@ def breakdown(rounds=12, steps=250):
     ``rounds`` interleaved rounds of ``steps`` env steps each."""
     raw = RawWorld()
 
+    import gymnasium as gym
     envs_ = {"step, ekf": SphereRobotEnv(task="track", estimator="ekf"),
+             "step, ekf, gymnasium.make (its wrappers)": gym.make("SphereBotTrack-v1", estimator="ekf"),
              "step, truth": SphereRobotEnv(task="track", estimator="truth"),
              "step, ekf, Python reference": SphereRobotEnv(task="track", estimator="ekf", compiled=False)}
     rng = np.random.default_rng(0)
@@ -319,12 +373,45 @@ def reset_memory(n, n_cycles):
     return before, after, el / n * 1e3, max(ids), len(set(ids)), cyc_before, cyc_after
 
 
+def print_rates(steps, repeats):
+    """The env's steps/s against PyBullet's limit (env_rates), as a table."""
+    raw = RawWorld()
+    plain = raw.plain(20000)
+    raw.close()
+    wall, cpu, update_us = env_rates(["ekf", "truth"], steps, repeats)
+    med = {k: float(np.median(v)) for k, v in cpu.items()}
+    lim = float(np.median(np.concatenate([v for k, v in cpu.items() if isinstance(k, tuple)])))
+    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s (wall clock); with the env's joint read, "
+          f"torque command and floor-loss torque (PyBullet's limit): {8 * lim:,.0f}/s by CPU time = {lim:,.0f} "
+          "env steps/s at 8 physics steps each (median of the runs)")
+    print(f"{repeats} rounds, chunks of {steps:,} env steps (gymnasium.make('SphereBotTrack-v1'), 50 Hz "
+          "control, 200 Hz IMU mpu9250, 400 Hz physics), each against the limit measured before and after it; "
+          "medians [lowest, highest] over the rounds:")
+    print("| | env steps/s, CPU time | share of PyBullet's limit, CPU time | share, wall clock |\n|---|---|---|---|")
+    for k, name in (("ekf", "ekf"), ("truth", "truth")):
+        c, w = _share(cpu, k), _share(wall, k)
+        print(f"| {name} | {med[k]:,.0f} | {c[0]:.1%} [{c[1]:.1%}, {c[2]:.1%}] | {w[0]:.1%} [{w[1]:.1%}, {w[2]:.1%}] |")
+    c = _share(cpu, "ekf")
+    print(f"  target (issue 16) >= 75 % of the limit with ekf (CPU time, median): {'met' if c[0] >= 0.75 else 'NOT met'}")
+    print(f"  of which gymnasium.make's wrappers (TimeLimit, OrderEnforcing, PassiveEnvChecker): "
+          f"{wrapper_cost():.2f} us per step (measured on a do-nothing env with and without them)")
+    share_diff = 1.0 - med["ekf"] / med["truth"]
+    share_direct = update_us["ekf"] * 1e-6 * med["ekf"]
+    print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
+          f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step); "
+          f"target >= 2,000 steps/s with ekf: {'met' if med['ekf'] >= 2000 else 'NOT met'}; "
+          f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="1,000 resets instead of 10,000")
-    ap.add_argument("--steps", type=int, default=5000, help="env steps per timing repeat")
+    ap.add_argument("--steps", type=int, default=2000, help="env steps per timing round")
+    ap.add_argument("--repeats", type=int, default=9, help="interleaved timing rounds")
     ap.add_argument("--scaling", action="store_true",
                     help="only stepSimulation's time per robot with N robots in one client (the vector env's floor)")
+    ap.add_argument("--rates", action="store_true",
+                    help="only the env's steps/s against PyBullet's limit (the interleaved rounds)")
     ap.add_argument("--breakdown", action="store_true",
                     help="only the CPU-time breakdown of an env step (PyBullet, physics loop, the rest)")
     args = ap.parse_args()
@@ -337,28 +424,9 @@ def main():
         step_scaling()
         return
 
-    raw = RawWorld()
-    plain = raw.plain(20000)
-    raw.close()
-    rates, update_us, with_motor, rates_cpu, with_motor_cpu = env_rates(["ekf", "truth"], args.steps)
-    limit = with_motor / 8
-    print(f"raw PyBullet, 400 Hz world: {plain:,.0f} stepSimulation/s; with the env's joint read, "
-          f"torque command and floor-loss torque: {with_motor:,.0f}/s  (= {limit:,.0f} env steps/s at 8 physics steps "
-          "each; best of the runs interleaved with the env's)")
-    r_ekf, r_truth = rates["ekf"], rates["truth"]
-    share_diff = 1.0 - r_ekf / r_truth
-    share_direct = update_us["ekf"] * 1e-6 * r_ekf
-    print(f"env steps/s (50 Hz control, 200 Hz IMU mpu9250, 400 Hz physics): ekf {r_ekf:,.0f}   "
-          f"truth {r_truth:,.0f}")
-    print(f"  estimator share of the ekf step time: {100 * share_diff:.1f} % from the two rates, "
-          f"{100 * share_direct:.1f} % measured inside est.update ({update_us['ekf']:.1f} us per env step)")
-    print(f"  share of PyBullet's limit: ekf {r_ekf / limit:.1%}, truth {r_truth / limit:.1%} "
-          f"(target >= 75 % with ekf: {'met' if r_ekf >= 0.75 * limit else 'NOT met'}); by CPU time: "
-          f"limit {with_motor_cpu / 8:,.0f}, "
-          f"ekf {rates_cpu['ekf']:,.0f} ({8 * rates_cpu['ekf'] / with_motor_cpu:.1%}), "
-          f"truth {rates_cpu['truth']:,.0f} ({8 * rates_cpu['truth'] / with_motor_cpu:.1%})")
-    print(f"  target >= 2,000 with ekf: {'met' if r_ekf >= 2000 else 'NOT met'}; "
-          f"estimator share < 10 %: {'met' if max(share_diff, share_direct) < 0.10 else 'NOT met'}")
+    print_rates(args.steps, args.repeats)
+    if args.rates:
+        return
 
     one, many = vector_rates(16, 100 if args.quick else 300)
     print(f"batched vector env (envs/vector.py), 16 robots in one client, waypoints, ekf: {many:,.0f} robot steps/s "

@@ -1,23 +1,29 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""The environment's per-physics-step path in C: ``SphereRobotEnv._advance`` (motor, servo,
-floor losses, gearbox stiction, the PyBullet calls) and ``SphereRobotEnv._sense`` (the true
-IMU signals: body rate, specific force at the IMU point, the field with the floor's dipole
-zones, the drive's vibration and the robot's own field; then the IMU model's step and the
-estimator's update).
+"""The environment's step in C: ``SphereRobotBase._advance`` (motor, servo, floor losses,
+gearbox stiction, the PyBullet calls), ``SphereRobotBase._sense`` (the true IMU signals: body
+rate, specific force at the IMU point, the field with the floor's dipole zones, the drive's
+vibration and the robot's own field; then the IMU model's step and the estimator's update)
+and the base's part of ``SphereRobotBase.step`` around them (action check, odometry, episode
+end, observation, info; the task's rewards, observation values and info stay Python methods,
+called from here).
 
-The Python methods in envs/sphere.py are the reference: the same arithmetic in the same
+The Python methods in envs/base.py are the reference: the same arithmetic in the same
 order, compiled without fused multiply-adds, so the trajectories are the same to the last
 bit (tests/test_env_kernel.py). ``Loop.load(env)`` takes the constants and state from the
 environment at every reset; ``advance`` and ``sense`` read the state the environment may
 change between calls and write back everything the Python code reads, so the two paths can
 be mixed (the environment falls back to Python while a signal log is on).
 """
-from libc.math cimport sqrt, sin, cos, fmod, copysign
+from libc.math cimport sqrt, sin, cos, fmod, copysign, atan2, acos, floor, isfinite
+cimport numpy as cnp
 
 from fusion._imu cimport StepKernel
 from fusion._core cimport Estimator, _claim, _release
 
+import math
 import numpy as np
+
+cnp.import_array()
 
 cdef extern from *:
     """
@@ -32,6 +38,11 @@ cdef extern from *:
 from fusion._constants cimport GRAVITY as G     # envs.base.G
 cdef double TWO_PI = 6.283185307179586
 cdef tuple ZERO2 = (0.0, 0.0)        # the unused targets and gains of a torque command
+cdef double RAD2DEG = 180.0 / 3.141592653589793     # math.degrees' factor
+cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: called, not copied)
+cdef object _sum = sum
+cdef str NEEDS_RESET = "call reset() before step() (and after an episode ended)"
+cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -43,6 +54,26 @@ cdef inline double _pymod(double a, double m) noexcept nogil:
     else:
         r = copysign(0.0, m)
     return r
+
+
+cdef inline double _heading(double w, double x, double y, double z):
+    """SphereRobotBase._heading_est's angle of the quaternion (w, x, y, z): math.atan2's,
+    which for finite arguments is libm's."""
+    cdef double s = -2.0 * (x * y - w * z), c = 1.0 - 2.0 * (x * x + z * z)
+    if s != s or c != c:
+        return math.atan2(s, c)             # (its NaN)
+    return atan2(s, c)
+
+
+cdef inline cnp.ndarray _f64(object seq, int n):
+    """np.array(seq) of a tuple of n floats."""
+    cdef cnp.npy_intp dim = n
+    cdef cnp.ndarray a = cnp.PyArray_SimpleNew(1, &dim, cnp.NPY_DOUBLE)
+    cdef double* d = <double*>cnp.PyArray_DATA(a)
+    cdef int i
+    for i in range(n):
+        d[i] = seq[i]
+    return a
 
 
 cdef class Loop:
@@ -86,6 +117,16 @@ cdef class Loop:
     cdef long long gyr_n, n_samples
     cdef object est, motor
     cdef Estimator fast_est
+    # the control step (SphereRobotBase.step): constants, the observation's bounds
+    cdef object getj
+    cdef int drive_joint, n_sub
+    cdef double control_hz, cpr, shell_r, half_arena, volt, steer, fix_hz
+    cdef long long max_steps
+    cdef float[::1] obs_lo, obs_hi
+    cdef Py_ssize_t n_obs
+    # the joint states read after advance's last physics step, or None: they are the next
+    # advance's first (nothing moves the robot between steps) and the step's encoder reading
+    cdef object js_next
 
     def load(self, env):
         """Constants of the episode (call after the world is built, before the first sense)."""
@@ -133,9 +174,21 @@ cdef class Loop:
             raise ValueError("the compiled loop needs an IMU with compiled=True")
         if not self.imu.live:
             self.imu.load(imu)
+        self.getj, self.drive_joint = p.getJointState, robot.DRIVE_JOINT
+        self.n_sub, self.control_hz, self.max_steps = env._n_sub, env.control_hz, env.max_steps
+        self.cpr, self.shell_r = rp.encoder_cpr, rp.shell_radius
+        self.half_arena, self.volt, self.steer = 0.5 * env.arena_size, rp.motor_voltage, rp.steer_max
+        self.fix_hz = env.position_fix_hz
+        self.obs_lo, self.obs_hi = env._obs_low, env._obs_high
+        self.n_obs = self.obs_lo.shape[0]
+        self.js_next = None
+
+    def forget(self):
+        """The robot's joints may have moved outside advance (the Python path ran)."""
+        self.js_next = None
 
     # -- state in and out ----------------------------------------------------------------
-    cdef int _get(self, env, bint first=False) except -1:
+    cdef int _get(self, env, bint first=False, bint fresh=False) except -1:
         cdef int i
         if not first:               # (a first sense sets them)
             v = env._v_prev
@@ -152,11 +205,15 @@ cdef class Loop:
         self.patch_on = env._patch_on
         if self.npatch and not first:
             self.pos = env._true[0]             # the last sensed position (the Python path may have sensed)
-        self._get_sums(env)
+        self._get_sums(env, fresh)
         return 0
 
-    cdef int _get_sums(self, env) except -1:
-        self.gyr_sum_y, self.gyr_n, self.n_samples = env._gyr_sum_y, env._gyr_n, env._n_samples
+    cdef int _get_sums(self, env, bint fresh=False) except -1:
+        if fresh:                   # a new control step (SphereRobotBase._begin_step)
+            self.gyr_sum_y, self.gyr_n = 0.0, 0
+        else:
+            self.gyr_sum_y, self.gyr_n = env._gyr_sum_y, env._gyr_n
+        self.n_samples = env._n_samples
         est = env._est
         self.est = est
         self.fast_est = est if isinstance(est, Estimator) else None
@@ -334,13 +391,16 @@ cdef class Loop:
 
     # -- the physics steps (SphereRobotEnv._advance) ----------------------------------------
     def advance(self, env, int n, double voltage, double target):
-        """SphereRobotEnv._advance on the kernel."""
+        """SphereRobotBase._advance on the kernel."""
+        self._advance(env, n, voltage, target, False)
+
+    cdef int _advance(self, env, int n, double voltage, double target, bint fresh) except -1:
         cdef double v_old, t_old, v, tgt, wd, t, lim, ts = 0.0, tau = 0.0, e, s0, spin, px, py, dx, dy
         cdef int i
         cdef Py_ssize_t k
         cdef bint stuck, on
         cdef double[:, ::1] pt = self.patches
-        self._get(env)
+        self._get(env, False, fresh)
         v_old, t_old = env._cmd_prev
         b, c, joints = self.b, self.c, self.joints
         for i in range(n):
@@ -348,7 +408,10 @@ cdef class Loop:
                 v, tgt = v_old, t_old
             else:
                 v, tgt = voltage, target
-            js = self.getjs(b, joints, c)
+            if i == 0 and self.js_next is not None:
+                js = self.js_next          # read after the last step's physics, nothing moved since
+            else:
+                js = self.getjs(b, joints, c)
             j0, j1 = js[0], js[1]
             self.qd = j0[0]
             wd = j0[1]
@@ -409,6 +472,177 @@ cdef class Loop:
                     self.set_drive_friction(self.p, c, b, self.stiction if stuck else self.coulomb)
             self.step(c)
             self._sense(False)
+        if n > 0:
+            self.js_next = self.getjs(b, joints, c)
         env._cmd_prev = (voltage, target)
         env._tau = tau
         self._put(env)
+        return 0
+
+    # -- the control step (SphereRobotBase.step) ------------------------------------------
+    def control_step(self, env, action):
+        """SphereRobotBase.step on the kernel: _begin_step, _advance, _end_step."""
+        cdef double a0, a1
+        if env._needs_reset:
+            raise RuntimeError(NEEDS_RESET)
+        if not self._action(env, action, &a0, &a1):
+            a0, a1 = env._check_action(action)
+        env._action = (a0, a1)
+        self._advance(env, self.n_sub, a0 * self.volt, a1 * self.steer, True)
+        return self._finish(env, a0, a1)
+
+    def finish(self, env, double a0, double a1):
+        """SphereRobotBase._end_step on the kernel (after either path's physics)."""
+        return self._finish(env, a0, a1)
+
+    cdef bint _action(self, env, action, double* a0, double* a1) except -1:
+        """SphereRobotBase._check_action for a finite float32 or float64 array of shape (2,),
+        False for anything else (the Python method checks it)."""
+        cdef cnp.ndarray arr
+        cdef char* d
+        cdef cnp.npy_intp st
+        cdef int t
+        if type(action) is not cnp.ndarray:
+            return False
+        arr = <cnp.ndarray>action
+        if cnp.PyArray_NDIM(arr) != 1 or cnp.PyArray_DIM(arr, 0) != 2 or not cnp.PyArray_ISNOTSWAPPED(arr) \
+                or not cnp.PyArray_ISALIGNED(arr):
+            return False
+        t = cnp.PyArray_TYPE(arr)
+        d, st = cnp.PyArray_BYTES(arr), cnp.PyArray_STRIDE(arr, 0)
+        if t == cnp.NPY_FLOAT:
+            a0[0], a1[0] = (<float*>d)[0], (<float*>(d + st))[0]
+        elif t == cnp.NPY_DOUBLE:
+            a0[0], a1[0] = (<double*>d)[0], (<double*>(d + st))[0]
+        else:
+            return False
+        if not (isfinite(a0[0]) and isfinite(a1[0])):
+            return False                    # (the Python method raises)
+        if a0[0] > 1.0 or a0[0] < -1.0 or a1[0] > 1.0 or a1[0] < -1.0:
+            env._clipped += 1
+            a0[0] = 1.0 if a0[0] > 1.0 else (-1.0 if a0[0] < -1.0 else a0[0])
+            a1[0] = 1.0 if a1[0] > 1.0 else (-1.0 if a1[0] < -1.0 else a1[0])
+        return True
+
+    cdef tuple _finish(self, env, double a0, double a1):
+        """SphereRobotBase._end_step: the same operations in the same order (its methods
+        _odometry, _episode_end, _observation and _info inlined), the task's methods called."""
+        cdef double w, x, y, z, psi, b0 = 0.0, b1 = 0.0, b2 = 0.0, angle, c, enc_speed, rate_y, step_len
+        cdef double t, qt0, qt1, qt2, qt3, dot, ox, oy, oz, ow, tilt, stuck_t, g0, g1, g2
+        cdef bint has_bias = False, out, stuck, terminated, truncated
+        cdef long long steps, counts, gyr_n
+        cdef cnp.npy_intp n = self.n_obs
+        cdef cnp.ndarray obs
+        cdef float* o
+        cdef float[::1] lo = self.obs_lo, hi = self.obs_hi
+        cdef tuple task
+        cdef Py_ssize_t i
+        cdef Estimator fe
+        steps = env._steps + 1
+        env._steps = steps
+        t = steps / self.control_hz
+        env._t = t
+        # the estimated attitude and heading, the estimator's bias
+        est = env._est
+        q = env._q_est
+        if est is None or q is None:
+            q = env._q_true_s
+        w, x, y, z = q
+        psi = _heading(w, x, y, z)
+        if est is not None:
+            bias = est.bias
+            if bias is not None:
+                has_bias = True
+                b0, b1, b2 = bias.tolist()
+        # _odometry: the encoder (its reading the joint states after the physics when kept)
+        js = self.js_next
+        angle = js[0][0] if js is not None else self.getj(self.b, self.drive_joint, self.c)[0]
+        c = angle * self.cpr / TWO_PI
+        if not isfinite(c):
+            math.floor(c)                   # (its error)
+        counts = <long long>floor(c)
+        enc_speed = <double>(counts - <long long>env._enc_counts) * (TWO_PI / self.cpr) * self.control_hz
+        env._enc_speed = enc_speed
+        env._enc_counts = counts
+        gyr_n = env._gyr_n
+        rate_y = <double>env._gyr_sum_y / <double>gyr_n if gyr_n else 0.0
+        if has_bias:
+            rate_y -= b1
+        step_len = self.shell_r * (enc_speed + rate_y) / self.control_hz
+        pe = env._pos_est
+        pe[0] = <double>pe[0] + step_len * cos(psi)
+        pe[1] = <double>pe[1] + step_len * sin(psi)
+        if self.fix_hz > 0 and t >= <double>env._next_fix - 1e-9:
+            env._position_fix()
+        # the task's reward; _episode_end
+        terms, done = env._get_rew(a0, a1)
+        reward = float(_sum(terms.values()))
+        tr = env._true
+        pos, orn, lin = tr[0], tr[1], tr[2]
+        out = abs(<double>pos[0]) > self.half_arena or abs(<double>pos[1]) > self.half_arena
+        if _hypot(lin[0], lin[1]) < 0.02 and abs(a0) > 0.5:
+            stuck_t = <double>env._stuck_t + 1.0 / self.control_hz
+        else:
+            stuck_t = 0.0
+        env._stuck_t = stuck_t
+        stuck = stuck_t >= 3.0
+        terminated = bool(done) or out or stuck
+        truncated = (not terminated) and steps >= self.max_steps
+        if terminated or truncated:
+            env._needs_reset = True
+        # _observation
+        task = env._task_obs(psi)
+        if len(task) != n - 10:
+            raise ValueError(f"the task's observation values must be {n - 10} numbers, got {len(task)}")
+        gl = env._gyr_last
+        g0, g1, g2 = gl[0], gl[1], gl[2]
+        if has_bias:
+            g0, g1, g2 = g0 - b0, g1 - b1, g2 - b2
+        act = env._action
+        obs = cnp.PyArray_SimpleNew(1, &n, cnp.NPY_FLOAT)
+        o = <float*>cnp.PyArray_DATA(obs)
+        if w < 0:
+            o[0], o[1], o[2], o[3] = -w, -x, -y, -z
+        else:
+            o[0], o[1], o[2], o[3] = w, x, y, z
+        o[4], o[5], o[6], o[7] = g0, g1, g2, enc_speed
+        o[8], o[9] = <double>act[0], <double>act[1]
+        for i in range(n - 10):
+            o[10 + i] = <double>task[i]
+        for i in range(n):                  # np.maximum, np.minimum (a NaN stays)
+            if o[i] < lo[i]:
+                o[i] = lo[i]
+            if o[i] > hi[i]:
+                o[i] = hi[i]
+        # _info
+        if est is None:
+            skipped = {"gyr": 0, "acc": 0, "mag": 0}
+        elif isinstance(est, Estimator) and type(est).skipped is SKIPPED:
+            fe = est
+            skipped = {"gyr": fe.n_skip_gyr, "acc": fe.n_skip_acc, "mag": fe.n_skip_mag}
+        else:
+            skipped = dict(est.skipped)
+        qt = env._q_true_s
+        qt0, qt1, qt2, qt3 = qt
+        dot = abs(qt0 * w + qt1 * x + qt2 * y + qt3 * z)
+        ox, oy, oz, ow = orn
+        o0, o1 = orn[0], orn[1]
+        tilt = 1.0 - 2.0 * <double>(o0 ** 2 + o1 ** 2)     # (Python's float power: libm's pow)
+        tilt = tilt if tilt < 1.0 else 1.0
+        tilt = tilt if tilt > -1.0 else -1.0
+        info = {
+            "q_true": _f64(qt, 4), "q_est": _f64(q, 4),
+            "attitude_error_deg": (2.0 * acos(dot if dot < 1.0 else 1.0)) * RAD2DEG,
+            "position": _f64(pos, 3), "velocity": _f64(lin, 3),
+            "heading_true": _heading(ow, ox, oy, oz), "heading_est": psi,
+            "encoder_speed": enc_speed, "motor_torque": env._tau,
+            "reward_terms": terms, "action_clipped": env._clipped,
+            "estimator_skipped": skipped,
+            "imu_samples": env._n_samples, "t": t,
+            "frame_tilt_deg": acos(tilt) * RAD2DEG,
+        }
+        env._task_info(info)
+        info["out_of_arena"] = out
+        info["stuck"] = stuck
+        env._task_step_info(info, terminated and not out and not stuck)
+        return obs, reward, terminated, truncated, info

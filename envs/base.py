@@ -41,6 +41,10 @@ START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ra
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
+#: the methods of step() that the compiled step (envs/_signals.pyx, Loop.control_step) runs in C
+_COMPILED_STEP = ("step", "_begin_step", "_end_step", "_check_action", "_advance", "_encoder_counts", "_odometry",
+                  "_episode_end", "_observation", "_info", "_q_est_wxyz", "_est_bias", "_heading_est",
+                  "_heading_true")
 
 
 def ESTIMATORS():
@@ -138,8 +142,10 @@ class SphereRobotBase(gym.Env):
     render_mode: None, "rgb_array" (TinyRenderer, headless) or "human" (PyBullet window).
     render_size: (width, height) of rgb_array frames.
     compiled: True (default): the per-physics-step path (motor, servo, floor losses, true
-        IMU signals, IMU model, estimator update) runs in C (envs/_signals.pyx, fusion/_imu.pyx),
-        the same numbers as the Python methods here, which False selects (the reference).
+        IMU signals, IMU model, estimator update) and the base's part of each step (action
+        check, odometry, episode end, observation, info; the task's methods are called from
+        it) run in C (envs/_signals.pyx, fusion/_imu.pyx), the same numbers as the Python
+        methods here, which False selects (the reference).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
@@ -197,6 +203,9 @@ class SphereRobotBase(gym.Env):
         self._compiled = bool(compiled)
         #: the per-physics-step path in C (envs/_signals.pyx), or None: the Python methods below
         self._loop = _signals.Loop() if self._compiled else None
+        #: the rest of step() in C too, unless a subclass overrides one of the methods it inlines
+        self._compiled_step = self._loop is not None and all(
+            getattr(type(self), m) is getattr(SphereRobotBase, m) for m in _COMPILED_STEP)
         self.imu_spec = spec.replace(rate_hz=self.imu_hz)
         self._make_estimator(estimator, estimator_params)
         self._make_models()
@@ -645,9 +654,11 @@ class SphereRobotBase(gym.Env):
         """n physics steps with the drive ``voltage`` (V at the nominal pack voltage) and the
         steering ``target`` (rad); the previous command holds for the first
         ``latency_s`` of them (actuation latency). The compiled loop runs the same."""
-        if self._loop is not None and self.signal_log is None:
-            self._loop.advance(self, n, voltage, target)
-            return
+        if self._loop is not None:
+            if self.signal_log is None:
+                self._loop.advance(self, n, voltage, target)
+                return
+            self._loop.forget()         # (the joints it read last are moving)
         step, c, actuate, sense = self._p.stepSimulation, self._client, self._actuate, self._sense
         for i in range(n):
             actuate(i, voltage, target)
@@ -779,6 +790,8 @@ class SphereRobotBase(gym.Env):
             self._yaw0 = number("options['start_yaw']", options["start_yaw"])
 
     def step(self, action):
+        if self._compiled_step and self.signal_log is None:
+            return self._loop.control_step(self, action)    # the three calls below, in C
         a0, a1 = self._begin_step(action)
         rp = self.robot
         self._advance(self._n_sub, a0 * rp.motor_voltage, a1 * rp.steer_max)
@@ -795,6 +808,8 @@ class SphereRobotBase(gym.Env):
 
     def _end_step(self, a0, a1):
         """(obs, reward, terminated, truncated, info) of a step, after its physics."""
+        if self._compiled_step:
+            return self._loop.finish(self, a0, a1)      # the same as below, in C
         self._steps += 1
         self._t = self._steps / self.control_hz
         # the estimated heading and bias, read once: the estimator does not move until the next step
@@ -854,10 +869,14 @@ class SphereRobotBase(gym.Env):
         self._pos_est[0] += step_len * math.cos(psi)
         self._pos_est[1] += step_len * math.sin(psi)
         if self.position_fix_hz > 0 and self._t >= self._next_fix - 1e-9:
-            pos = self._true[0]
-            n = self.np_random.normal(size=2) * self.position_fix_std
-            self._pos_est = [pos[0] + float(n[0]), pos[1] + float(n[1])]
-            self._next_fix += 1.0 / self.position_fix_hz
+            self._position_fix()
+
+    def _position_fix(self):
+        """The dead reckoning replaced by the true position with the fix's noise."""
+        pos = self._true[0]
+        n = self.np_random.normal(size=2) * self.position_fix_std
+        self._pos_est = [pos[0] + float(n[0]), pos[1] + float(n[1])]
+        self._next_fix += 1.0 / self.position_fix_hz
 
     def _episode_end(self, done, a0):
         """(terminated, out of the arena, stuck) after a step; ``done``: the task's own end."""

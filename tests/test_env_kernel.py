@@ -1,39 +1,55 @@
-"""The environment's compiled per-physics-step path (envs/_signals.pyx, fusion/_imu.pyx)
-against its Python reference (``compiled=False``): same seed, same actions, the same
-trajectories and observations."""
+"""The environment's compiled step (envs/_signals.pyx, fusion/_imu.pyx: the physics steps,
+and the base's part of each control step) against its Python reference (``compiled=False``):
+same seed, same actions, the same observations, rewards, flags and infos, bit for bit."""
+import gymnasium as gym
 import numpy as np
 import pytest
 
+import envs  # noqa: F401  (registers the ids)
 from envs.sphere import SphereRobotEnv
+from envs.track import SphereBotTrackEnv
 
 
 def rollout(env, actions, seed, log_from=None):
+    """Every value reset() and step() return (and the reset()s after an episode's end)."""
     obs, info = env.reset(seed=seed)
-    out = [(obs, 0.0, info)]
+    out = [(obs, info)]
     for i, a in enumerate(actions):
         if log_from is not None and i == log_from:
-            env.enable_signal_log()             # the Python path takes over ...
+            env.unwrapped.enable_signal_log()   # the Python path takes over ...
         if log_from is not None and i == log_from + 20:
-            env.disable_signal_log()            # ... and hands back
-        obs, r, term, trunc, info = env.step(a)
-        out.append((obs, r, info))
-        if term or trunc:
-            obs, info = env.reset()
-            out.append((obs, 0.0, info))
+            env.unwrapped.disable_signal_log()  # ... and hands back
+        res = env.step(a)
+        out.append(res)
+        if res[2] or res[3]:
+            out.append(env.reset())
     return out
+
+
+def identical(a, b, where="step"):
+    """a and b the same to the last bit: types, dict keys in order, arrays' dtype, shape and
+    bytes, floats' bits (a NaN equals a NaN of the same bits)."""
+    assert type(a) is type(b), f"{where}: {type(a)} against {type(b)}"
+    if isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), f"{where}: {a} against {b}"
+    elif isinstance(a, dict):
+        assert list(a) == list(b), f"{where}: keys {list(a)} against {list(b)}"
+        for k in a:
+            identical(a[k], b[k], f"{where}[{k!r}]")
+    elif isinstance(a, (tuple, list)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            identical(x, y, f"{where}[{i}]")
+    elif isinstance(a, float):
+        assert np.float64(a).tobytes() == np.float64(b).tobytes(), f"{where}: {a!r} against {b!r}"
+    else:
+        assert a == b, f"{where}: {a!r} against {b!r}"
 
 
 def assert_same(a, b):
     assert len(a) == len(b)
-    for (oa, ra, ia), (ob, rb, ib) in zip(a, b):
-        np.testing.assert_allclose(oa, ob, rtol=0, atol=1e-12)
-        assert abs(ra - rb) <= 1e-12
-        for k in ("q_est", "q_true", "position", "velocity"):
-            np.testing.assert_allclose(ia[k], ib[k], rtol=0, atol=1e-12)
-        for k in ("attitude_error_deg", "heading_est", "motor_torque", "encoder_speed"):
-            assert abs(ia[k] - ib[k]) <= 1e-12, k
-        assert ia["imu_samples"] == ib["imu_samples"]
-        assert ia["estimator_skipped"] == ib["estimator_skipped"]
+    for i, (x, y) in enumerate(zip(a, b)):
+        identical(x, y, f"record {i}")
 
 
 CASES = {
@@ -81,6 +97,74 @@ def test_compiled_env_hands_over_to_python_while_logging():
 def test_compiled_bad_input():
     with pytest.raises(ValueError, match="compiled"):
         SphereRobotEnv(compiled=1)
+
+
+def mixed_actions(n, seed):
+    """Actions in every form step() accepts: float32 and float64 arrays, strided and
+    byte-swapped ones, float16, lists and tuples; some outside [-1, 1] (clipped, counted)."""
+    rng = np.random.default_rng(seed)
+    raw = rng.uniform(-1, 1, (n, 2))
+    raw[:, 0] = 0.3 + 0.6 * raw[:, 0]
+    raw[::13] *= 1.7
+    out = []
+    for i, a in enumerate(raw):
+        k = i % 8
+        out.append(a.astype(np.float32) if k < 4 else a if k == 4 else np.repeat(a, 2)[::2] if k == 5
+                   else a.astype(">f4") if k == 6 else [float(a[0]), float(a[1])] if i % 16 == 7
+                   else (a.astype(np.float16)[0], float(a[1])))
+    return out
+
+
+@pytest.mark.parametrize("env_id, kw, seed", [
+    ("SphereBotTrack-v1", {"estimator": "ekf"}, 11),
+    ("SphereBotWaypoints-v1", {"estimator": "ekf", "position_fix_hz": 2.0, "waypoint_radius": 1.5,
+                               "mag_zones": "random"}, 12),
+    ("SphereBotTrack-v1", {"estimator": "truth", "bumps": 3, "slippery_patches": 4, "arena_size": 6.0}, 13),
+])
+def test_long_rollout_as_users_make_it(env_id, kw, seed):
+    """gymnasium.make's environment, 2,500 steps (the track's episode is 1,500: resets in
+    between) of actions in every accepted form: the compiled step returns exactly what the
+    Python reference returns."""
+    acts = mixed_actions(2500, seed)
+    ref, ker = gym.make(env_id, compiled=False, **kw), gym.make(env_id, **kw)
+    try:
+        assert ker.unwrapped._compiled_step and not ref.unwrapped._compiled_step
+        assert_same(rollout(ref, acts, seed), rollout(ker, acts, seed))
+    finally:
+        ref.close()
+        ker.close()
+
+
+def test_compiled_step_errors_as_the_python_step():
+    for compiled in (False, True):
+        env = SphereRobotEnv(compiled=compiled)
+        with pytest.raises(RuntimeError, match="call reset"):
+            env.step(np.zeros(2, np.float32))
+        env.reset(seed=0)
+        for bad, match in ((np.array([np.nan, 0.0], np.float32), "finite"), (np.zeros(3), "shape"),
+                           ("ab", "finite numbers"), (np.array([0.0, np.inf]), "finite")):
+            with pytest.raises(ValueError, match=match):
+                env.step(bad)
+        env.close()
+
+
+def test_a_subclass_overriding_the_inlined_methods_keeps_them():
+    """The compiled step inlines the base's end-of-step methods: a subclass that overrides one
+    gets the Python step (with its override), the physics still compiled."""
+    class Louder(SphereBotTrackEnv):
+        def _observation(self, psi, bias):
+            return 2.0 * super()._observation(psi, bias)
+
+    env, plain = Louder(), SphereBotTrackEnv()
+    try:
+        assert plain._compiled_step and not env._compiled_step and env._loop is not None
+        o1, _ = env.reset(seed=1)
+        o2, _ = plain.reset(seed=1)
+        a = np.array([0.5, 0.2], np.float32)
+        np.testing.assert_array_equal(env.step(a)[0], 2.0 * plain.step(a)[0])
+    finally:
+        env.close()
+        plain.close()
 
 
 def test_every_estimator_same_through_the_compiled_update():
