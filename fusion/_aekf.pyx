@@ -244,7 +244,7 @@ cdef class AEKF(EKF):
                 v[1] = self.q[0] * u[0] - self.q[3] * u[1] + self.q[2] * u[2]
                 v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
                 v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
-                quat_measurement_update(self.q, self.b, self.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
+                quat_measurement_update(self.q, self.s.b, self.s.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
                 self.n_quest += 1
                 self.last_code |= 4
                 quat_normalise(self.q)

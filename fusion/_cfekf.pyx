@@ -78,7 +78,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
         # the complementary filter integrates the gyro corrected by the EKF's bias (from
         # before this sample's update)
         for i in range(3):
-            g[i] = gyr[i] - k.b[i]
+            g[i] = gyr[i] - k.s.b[i]
         e.cf.step_flagged(g, acc, mag, dt, sat)
     else:
         e.cf.step_flagged(gyr, acc, mag, dt, sat)
@@ -105,7 +105,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
             else:
                 e.t_quiet += dt
                 learn = e.t_quiet >= LEARN_HOLD
-        quat_measurement_update(k.q, k.b, k.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
+        quat_measurement_update(k.q, k.s.b, k.s.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
     quat_normalise(k.q)
     memcpy(e.q, k.q, 4 * sizeof(double))
 

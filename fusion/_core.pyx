@@ -39,6 +39,7 @@ TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
 COV = "cov"
+ACC_LP_CHECKS = {"qg": "unit"}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
 COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 
@@ -135,6 +136,23 @@ cdef class Prefilter:
 
     cdef list _state_fields(self):
         return []
+
+
+def struct_fields(view, checks=None, prefix=""):
+    """The state fields of one C struct, as _state_fields lists them: view is the struct as a
+    typed memoryview of one element (``<S[:1]>&self.s``), whose structured dtype gives every
+    member's name, type and length, so that a member added to the struct is saved, loaded
+    and checked with no other line. Each member is a field prefix + its name, a view onto
+    the struct; its check from checks (name -> check), else None for doubles, FLAG for a
+    bint (C int) and COUNT for a long long (an int member other than a bint must be given)."""
+    a = np.asarray(view)
+    checks = checks or {}
+    out = []
+    for name in a.dtype.names:
+        v = a[name].reshape(-1)
+        default = None if v.dtype.kind == "f" else (FLAG if v.dtype.itemsize == 4 else COUNT)
+        out.append((prefix + name, v, checks.get(name, default)))
+    return out
 
 
 cdef list _fields_of(Estimator e):

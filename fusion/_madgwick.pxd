@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._acclp cimport AccLowpass
 
 cdef class Madgwick(Estimator):
     cdef readonly double beta, zeta
@@ -6,6 +7,4 @@ cdef class Madgwick(Estimator):
     cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
     cdef bint mag_heading     # mag_update="heading": the field's gradient turns the heading only
     cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
-    cdef double acc_lp[3]
-    cdef double acc_qg[4]
-    cdef bint acc_lp_started
+    cdef AccLowpass acc_lp

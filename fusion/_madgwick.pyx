@@ -4,13 +4,13 @@ import numpy as np
 from libc.math cimport sqrt
 
 from fusion._core cimport Estimator
-from fusion._core import BIAS, RECOVERY, FLAG
+from fusion._core import struct_fields, BIAS, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
+from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -55,10 +55,8 @@ cdef class Madgwick(Estimator):
 
     cdef list _state_fields(self):
         return (Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
-                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
                 + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -66,7 +64,7 @@ cdef class Madgwick(Estimator):
         self.bw[1] = 0.0
         self.bw[2] = 0.0
         self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(&self.acc_lp)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -85,9 +83,9 @@ cdef class Madgwick(Estimator):
         if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(&self.acc_lp)
         if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+            acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
                              gyr, self.bw, acc, dt, af)
             acc = af
         if gyr != NULL:

@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._acclp cimport AccLowpass
 from fusion._rest cimport RestDetector
 
 cdef void mahony_error(const double* q, const double* acc, const double* mag,
@@ -10,9 +11,7 @@ cdef class Mahony(Estimator):
     cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
     cdef bint mag_heading     # mag_update="heading"
     cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
-    cdef double acc_lp[3]
-    cdef double acc_qg[4]
-    cdef bint acc_lp_started
+    cdef AccLowpass acc_lp
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef readonly double rest_tau      # s: the bias's time constant at rest
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,

@@ -6,12 +6,12 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy
 
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import FLAG, BIAS_MAX, RECOVERY
+from fusion._core import struct_fields, BIAS_MAX, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
 from fusion._magdist cimport magd_check
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -216,7 +216,7 @@ cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, co
     b[0] = -e.ki * eint[0]
     b[1] = -e.ki * eint[1]
     b[2] = -e.ki * eint[2]
-    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, gyr, b, acc, dt, out)
+    acc_gyro_lowpass(e.acc_lowpass, &e.acc_lp, gyr, b, acc, dt, out)
 
 
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
@@ -272,10 +272,8 @@ cdef class Mahony(Estimator):
         # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
         eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
         return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
-                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
                 + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -283,7 +281,7 @@ cdef class Mahony(Estimator):
         self.eint[1] = 0.0
         self.eint[2] = 0.0
         self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(&self.acc_lp)
         rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
@@ -299,7 +297,7 @@ cdef class Mahony(Estimator):
         if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(&self.acc_lp)
         if self.rest.time > 0.0:
             mahony_rest(self, self.eint, gyr, acc, dt)
         if acc != NULL and self.acc_lowpass > 0.0:
@@ -342,7 +340,7 @@ cdef class Mahony(Estimator):
                     mi = NULL
                 ai = a + 3 * i
                 if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
-                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+                    acc_lowpass_clear(&self.acc_lp)
                 if self.rest.time > 0.0:
                     mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
                 if self.acc_lowpass > 0.0:

@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._acclp cimport AccLowpass
 from fusion._rest cimport RestDetector
 
 cdef class UKF(Estimator):
@@ -9,9 +10,7 @@ cdef class UKF(Estimator):
     cdef double t_run
     cdef bint mag_heading     # mag_update="heading"
     cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
-    cdef double acc_lp[3]
-    cdef double acc_qg[4]
-    cdef bint acc_lp_started
+    cdef AccLowpass acc_lp
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef void sigma_points(self, double* X) noexcept nogil

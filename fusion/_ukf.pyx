@@ -8,9 +8,9 @@ from libc.math cimport sqrt
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
-from fusion._core import FLAG, BIAS, COV, TIMER
+from fusion._core import struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
 from fusion._ekf import EKF as _EKF
 from fusion.params import table
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
@@ -109,9 +109,7 @@ cdef class UKF(Estimator):
         return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
                                                 ("P", <double[:36]>self.P, COV),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
-                + [("acc_lp", <double[:3]>self.acc_lp, None),
-                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
+                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
                 + self.rest.fields() + self._magd_fields())
 
     cdef void _reset_state(self) noexcept nogil:
@@ -128,7 +126,7 @@ cdef class UKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(self.rest)
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+        acc_lowpass_clear(&self.acc_lp)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -399,9 +397,9 @@ cdef class UKF(Estimator):
         if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started)
+            acc_lowpass_clear(&self.acc_lp)
         if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started,
+            acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
                              gyr, self.b, acc, dt, af)
             acc = af
         if acc != NULL:
