@@ -115,6 +115,11 @@ cdef class AEKF(EKF):
                         if (self.learn_norm or self.learn_dip) else 0)
         EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
 
+    @property
+    def acc_lowpass(self):
+        """Not an aekf parameter: hidden, as an attribute that meant nothing here would be."""
+        raise AttributeError("'aekf' has no acc_lowpass: it judges the raw accelerometer (docs/aekf.md)")
+
     def __dealloc__(self):
         free(self.log)
 
@@ -254,7 +259,7 @@ cdef class AEKF(EKF):
             self._acc_correct(acc, dt / self.reject_factor if acc_rej else dt)
         # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
         # re-learned, the document's gate's is not
-        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
             self._mag_correct(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 

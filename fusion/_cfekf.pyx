@@ -16,6 +16,7 @@ from fusion._core import FLAG, TIMER
 from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
 from fusion._rest import REST_PROPERTIES
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
@@ -137,6 +138,8 @@ cdef class CFEKF(Estimator):
         MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
     # the rest parameters and counts, read from the core's detector (fusion._rest)
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # the disturbance parameters and count, read from the complementary filter's (its magd)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
     # bias] are the core's
     gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of_core(
@@ -209,11 +212,6 @@ cdef class CFEKF(Estimator):
         return (<object>self.pre_gyr).window
 
     @property
-    def mag_rejected(self):
-        """Magnetometer samples the complementary filter rejected as disturbed."""
-        return self.cf.mag_rejected
-
-    @property
     def mag_update(self):
         return self.cf.mag_update
 
@@ -223,20 +221,9 @@ cdef class CFEKF(Estimator):
         return self.cf.acc_lowpass
 
     @property
-    def magdist_time(self):
-        return self.cf.magdist_time
-
-    @property
-    def magdist_norm_tol(self):
-        return self.cf.magdist_norm_tol
-
-    @property
-    def magdist_dip_tol(self):
-        return self.cf.magdist_dip_tol
-
-    @property
-    def magdist_new_time(self):
-        return self.cf.magdist_new_time
+    def magd(self):
+        """The complementary filter's magnetic disturbance detector (it takes the magnetometer)."""
+        return None if self.cf is None else self.cf.magd
 
     @property
     def kp(self):

@@ -1,5 +1,4 @@
 from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
-from fusion._magdist cimport MagDetector
 
 # sqrt(1/2) to the last bit (the NED frame change)
 cdef extern from *:
@@ -36,8 +35,6 @@ cdef class Estimator:
     cdef bint configured
     # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
     cdef bint busy
-    # magnetic disturbance detection, for the estimators that use the magnetometer (time 0: off)
-    cdef MagDetector magd
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil
@@ -45,7 +42,6 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
-    cdef list _magd_fields(self)
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
     # may override it with a loop that inlines its step (see run_fast). With stop_invalid it

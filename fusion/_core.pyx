@@ -4,9 +4,8 @@ import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
-from fusion._magdist cimport magd_clear, magd_set
 from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
-from fusion.checks import number, choice
+from fusion.checks import number, choice, state_header
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -26,7 +25,10 @@ FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
 # --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
-STATE_VERSION = 3     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover; 3: magnetic disturbance detection
+# 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover;
+# 3: magnetic disturbance detection; 4: rest detection in mahony, cf-ekf composed (an EKF core
+# and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*)
+STATE_VERSION = 4
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter
@@ -165,14 +167,7 @@ cdef list _fields_of(Estimator e):
 
 
 def _check_header(state):
-    if not isinstance(state, dict):
-        raise ValueError(f"state must be a dict made by est.state(), got {type(state).__name__}")
-    missing = [k for k in STATE_KEYS if k not in state]
-    if missing:
-        raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from est.state()")
-    v = state["version"]
-    if isinstance(v, bool) or not isinstance(v, int) or v != STATE_VERSION:
-        raise ValueError(f"state version {v!r} is not supported (this build reads version {STATE_VERSION})")
+    state_header(state, STATE_KEYS, STATE_VERSION, "est.state()")
     if not isinstance(state["fields"], dict) or not isinstance(state["params"], dict):
         raise ValueError("state['fields'] and state['params'] must be dicts")
 
@@ -290,9 +285,10 @@ cdef class Estimator:
     def _take_params(self, params):
         """The parameters: each given one checked by its Param, the defaults for the rest.
         Unknown names, and bad values, are a ValueError naming them and what is accepted.
-        The parts the base class holds (saturation range, magnetic disturbance detection)
-        take theirs here, in the estimators that declare them; a component the kernel holds
-        (rest detection: fusion._rest) is built by the kernel from the values returned."""
+        The part the base class holds (the saturation range) takes its value here, in the
+        estimators that declare it; a component the kernel holds (rest detection:
+        fusion._rest; magnetic disturbance detection: fusion._magdist) is built by the
+        kernel from the values returned."""
         unknown = sorted(set(params) - set(self.PARAMS))
         if unknown:
             accepted = ", ".join(sorted(self.PARAMS)) or "none"
@@ -301,9 +297,6 @@ cdef class Estimator:
         p = {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
         if "gyro_range" in p:
             self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
-        if "magdist_time" in p:
-            magd_set(&self.magd, (p["magdist_time"], p["magdist_norm_tol"], p["magdist_dip_tol"],
-                                  p["magdist_new_time"]))
         return p
 
     # --- kernel hooks -------------------------------------------------------------------
@@ -353,15 +346,6 @@ cdef class Estimator:
             self.is_init = True
         self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
                    mag if mag_ok else NULL, dt)
-
-    cdef list _magd_fields(self):
-        """The magnetic disturbance detector's state, for the estimators that use it."""
-        return [("magd_cur", <double[:2]>self.magd.cur, None), ("magd_ref", <double[:2]>self.magd.ref, None),
-                ("magd_cand", <double[:2]>self.magd.cand, None),
-                ("magd_t", <double[:3]>&self.magd.t_undist, None),
-                ("magd_disturbed", <int[:1]><int*>&self.magd.disturbed, FLAG),
-                ("magd_started", <int[:1]><int*>&self.magd.started, FLAG),
-                ("mag_rejected", <long long[:1]>&self.magd.n, COUNT)]
 
     cdef list _state_fields(self):
         return [("q", <double[:4]>self.q, "unit"), ("q0", <double[:4]>self.q0, "unit"),
@@ -426,7 +410,6 @@ cdef class Estimator:
         for pre in (self.pre_gyr, self.pre_acc, self.pre_mag):
             if pre is not None:
                 (<Prefilter>pre).clear()
-        magd_clear(&self.magd)
         self._reset_state()
 
 
@@ -553,28 +536,6 @@ cdef class Estimator:
         """Gyro range (rad/s) at which a sample counts as saturated, or None (unknown, or an
         estimator without saturation handling)."""
         return self.gyro_range_ if self.gyro_range_ > 0.0 else None
-
-    @property
-    def magdist_time(self):
-        return self.magd.time
-
-    @property
-    def magdist_norm_tol(self):
-        return self.magd.norm_tol
-
-    @property
-    def magdist_dip_tol(self):
-        return self.magd.dip_tol_deg
-
-    @property
-    def magdist_new_time(self):
-        return self.magd.new_time
-
-    @property
-    def mag_rejected(self):
-        """Magnetometer samples rejected as disturbed since the last reset (0 where the
-        estimator has no disturbance detection)."""
-        return self.magd.n
 
     @property
     def frame(self):

@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._magdist cimport MagDetector
 from fusion._rest cimport RestDetector
 from fusion._acclp cimport AccLowpass
 
@@ -21,6 +22,7 @@ cdef class EKF(Estimator):
     cdef AccLowpass acc_lp
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
+    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
     # the parts of _step, on this filter's state, for subclasses (aekf) and holders (cf-ekf's core)
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil

@@ -6,7 +6,8 @@ from libc.string cimport memcpy, memset
 
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._prefilter cimport Butterworth
@@ -387,7 +388,7 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         acc = af
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
-    if mag != NULL and magd_check(&e.magd, q, mag, gyr, dt):
+    if mag != NULL and magd_check(e.magd, q, mag, gyr, dt):
         ekf_mag_update(e, q, s.b, s.P, mag, dt)
     quat_normalise(q)
 
@@ -416,11 +417,14 @@ cdef class EKF(Estimator):
         *REST, *MAGDIST)
     # the rest parameters and counts, read from the detector it holds (fusion._rest)
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        p = self._take_params(params)       # checked; gyro_range taken
         self.rest = RestDetector(p)
+        self.magd = MagDetector(p)
         self.motion_rate = p["motion_rate"]
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
@@ -442,7 +446,7 @@ cdef class EKF(Estimator):
     cdef list _state_fields(self):
         return (Estimator._state_fields(self) + self._filter_fields()
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self._magd_fields())
+                + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -452,6 +456,7 @@ cdef class EKF(Estimator):
         for i in range(4, 7):
             self.s.P[i * 8] = self.bias_init_std * self.bias_init_std
         rest_clear(self.rest)
+        magd_clear(self.magd)
         acc_lowpass_clear(&self.acc_lp)
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state

@@ -1,8 +1,10 @@
 from fusion._core cimport Estimator
+from fusion._magdist cimport MagDetector
 from fusion._acclp cimport AccLowpass
 
 cdef class Madgwick(Estimator):
     cdef readonly double beta, zeta
+    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
     cdef double bw[3]         # gyro bias learned with the zeta gain, rad/s
     cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
     cdef bint mag_heading     # mag_update="heading": the field's gradient turns the heading only

@@ -1,7 +1,8 @@
 # Type stubs of the compiled fusion._madgwick (fusion/_madgwick.pyx).
 from fusion._core import Array, Estimator
+from fusion._magdist import _MagdistProperties
 
-class Madgwick(Estimator):
+class Madgwick(Estimator, _MagdistProperties):
     beta: float
     zeta: float
     acc_lowpass: float

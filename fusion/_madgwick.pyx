@@ -9,7 +9,8 @@ from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAG
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
@@ -42,12 +43,15 @@ cdef class Madgwick(Estimator):
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
                        "bias learning held"),
         MAG_UPDATE, ACC_LOWPASS.but(default=0.0), *MAGDIST)
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range and the disturbance detector taken
         self.beta = p["beta"]
         self.zeta = p["zeta"]
+        self.magd = MagDetector(p)
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
@@ -57,7 +61,7 @@ cdef class Madgwick(Estimator):
         return (Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
                                                  ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self._magd_fields())
+                + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.bw[0] = 0.0
@@ -65,6 +69,7 @@ cdef class Madgwick(Estimator):
         self.bw[2] = 0.0
         self.t_recover = 0.0
         acc_lowpass_clear(&self.acc_lp)
+        magd_clear(self.magd)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -80,7 +85,7 @@ cdef class Madgwick(Estimator):
         cdef double n2, k
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
-        if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
+        if mag != NULL and not magd_check(self.magd, q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(&self.acc_lp)

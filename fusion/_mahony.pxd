@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._magdist cimport MagDetector
 from fusion._acclp cimport AccLowpass
 from fusion._rest cimport RestDetector
 
@@ -13,6 +14,7 @@ cdef class Mahony(Estimator):
     cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
     cdef AccLowpass acc_lp
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
+    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
     cdef readonly double rest_tau      # s: the bias's time constant at rest
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil

@@ -8,7 +8,8 @@ from libc.string cimport memcpy
 from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
 from fusion._core import struct_fields, BIAS_MAX, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
@@ -255,15 +256,18 @@ cdef class Mahony(Estimator):
     # the rest properties but rest_noise (no zero-rate update here), read from its detector
     rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
     at_rest, rest_samples = REST_PROPERTIES[4:]
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        p = self._take_params(params)       # checked; gyro_range taken
         self.kp = p["kp"]
         self.ki = p["ki"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.rest = RestDetector(p)
+        self.magd = MagDetector(p)
         self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
@@ -274,7 +278,7 @@ cdef class Mahony(Estimator):
         return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
                                                  ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self._magd_fields())
+                + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
         self.eint[0] = 0.0
@@ -283,6 +287,7 @@ cdef class Mahony(Estimator):
         self.t_recover = 0.0
         acc_lowpass_clear(&self.acc_lp)
         rest_clear(self.rest)
+        magd_clear(self.magd)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -294,7 +299,7 @@ cdef class Mahony(Estimator):
         cdef double f = recovery_gain(&self.t_recover, sat, dt)
         cdef double eint[3]
         cdef double af[3]
-        if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and not magd_check(self.magd, self.q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(&self.acc_lp)
@@ -336,7 +341,7 @@ cdef class Mahony(Estimator):
         for i in range(n):
             mi = m + 3 * i if m != NULL else NULL
             if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
+                if mi != NULL and not magd_check(self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
                     mi = NULL
                 ai = a + 3 * i
                 if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):

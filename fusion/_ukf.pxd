@@ -1,4 +1,5 @@
 from fusion._core cimport Estimator
+from fusion._magdist cimport MagDetector
 from fusion._acclp cimport AccLowpass
 from fusion._rest cimport RestDetector
 
@@ -13,6 +14,7 @@ cdef class UKF(Estimator):
     cdef AccLowpass acc_lp
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
+    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
     cdef void sigma_points(self, double* X) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void correct(self, const double* X, const double* Z, const double* z,

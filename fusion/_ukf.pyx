@@ -7,7 +7,8 @@ from libc.math cimport sqrt
 
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
 from fusion._core import struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
@@ -88,11 +89,14 @@ cdef class UKF(Estimator):
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
     # the rest parameters and counts, read from the detector it holds (fusion._rest)
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        p = self._take_params(params)       # checked; gyro_range taken
         self.rest = RestDetector(p)
+        self.magd = MagDetector(p)
         self.motion_rate = p["motion_rate"]
         self.gyro_noise = p["gyro_noise"]
         self.bias_noise = p["bias_noise"]
@@ -110,7 +114,7 @@ cdef class UKF(Estimator):
                                                 ("P", <double[:36]>self.P, COV),
                                                 ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self._magd_fields())
+                + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -126,6 +130,7 @@ cdef class UKF(Estimator):
         self.b[2] = 0.0
         self.t_run = 0.0
         rest_clear(self.rest)
+        magd_clear(self.magd)
         acc_lowpass_clear(&self.acc_lp)
 
     cdef void sigma_points(self, double* X) noexcept nogil:
@@ -404,7 +409,7 @@ cdef class UKF(Estimator):
             acc = af
         if acc != NULL:
             self._acc_correct(acc, dt)
-        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
             self.heading_gain = self.mag_heading
             self._mag_correct(mag, dt)
             self.heading_gain = False
