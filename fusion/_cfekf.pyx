@@ -42,20 +42,21 @@ def default_window(fs):
     return max(1, int(round(WINDOW_S * fs)))
 
 
-cdef EKF _core(CFEKF e):
-    """e's EKF core, or a RuntimeError for an object whose __init__ did not run."""
-    if e.core is None:
+def _held(CFEKF e, part):
+    """e's EKF core ("core") or complementary filter ("cf"), or a RuntimeError for an object
+    whose __init__ did not run."""
+    f = e.core if part == "core" else e.cf
+    if f is None:
         raise RuntimeError("CFEKF object was not configured: call the class's __init__ or use fusion.make")
-    return e.core
+    return f
 
 
-def _core_attr(CFEKF e, name):
-    return getattr(_core(e), name)
-
-
-def _of_core(*names):
-    """Read-only properties that read the EKF core's attributes of the same names."""
-    return tuple(property(lambda e, n=n: _core_attr(e, n), doc=f"The EKF core's {n}.") for n in names)
+def _of(part, *names):
+    """Read-only properties that read the attributes of the same names of the filter it holds
+    as part ("core": the EKF, "cf": the complementary filter)."""
+    what = "EKF core" if part == "core" else "complementary filter"
+    return tuple(property(lambda e, n=n: getattr(_held(e, part), n), doc=f"The {what}'s {n}.")
+                 for n in names)
 
 
 cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* acc,
@@ -142,8 +143,11 @@ cdef class CFEKF(Estimator):
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
     # bias] are the core's
-    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of_core(
-        "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
+    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of(
+        "core", "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
+    # its complementary filter's gains and the parts of it that take the accelerometer and
+    # magnetometer (acc_lowpass: fusion/_acclp.pxd; magd: its disturbance detector)
+    kp, ki, mag_update, acc_lowpass, magd = _of("cf", "kp", "ki", "mag_update", "acc_lowpass", "magd")
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -210,28 +214,6 @@ cdef class CFEKF(Estimator):
     def window(self):
         """Sliding-mean window, samples."""
         return (<object>self.pre_gyr).window
-
-    @property
-    def mag_update(self):
-        return self.cf.mag_update
-
-    @property
-    def acc_lowpass(self):
-        """s: the complementary filter's accelerometer low-pass (fusion/_acclp.pxd; 0: off)."""
-        return self.cf.acc_lowpass
-
-    @property
-    def magd(self):
-        """The complementary filter's magnetic disturbance detector (it takes the magnetometer)."""
-        return None if self.cf is None else self.cf.magd
-
-    @property
-    def kp(self):
-        return None if self.cf is None else self.cf.kp     # None: not configured
-
-    @property
-    def ki(self):
-        return None if self.cf is None else self.cf.ki
 
     @property
     def cf_quaternion(self):

@@ -1,3 +1,4 @@
+from libc.string cimport memcpy
 from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
 
 # sqrt(1/2) to the last bit (the NED frame change)
@@ -6,6 +7,17 @@ cdef extern from *:
     #define FUSION_SQRT_HALF 0.70710678118654752440084436210484903928483593768847
     """
     double SQRT_HALF "FUSION_SQRT_HALF"
+
+# The noise and recovery parameters of the Kalman filters (ekf family, ukf), one struct: set
+# from the checked parameters at once (self.kalman = p), read in Python by KALMAN_PROPERTIES
+cdef struct KalmanNoise:
+    double gyro_noise       # rad/s/√Hz
+    double bias_noise       # rad/s/√s
+    double acc_noise        # m/s²/√Hz
+    double mag_noise        # 1/√Hz, relative to the field norm
+    double q_init_std       # initial std of each quaternion component
+    double bias_init_std    # rad/s
+    double motion_rate      # rad/s: rate std over unmeasured time (recovery, docs/robustness.md)
 
 cdef class Prefilter:
     """A per-sample filter on one 3-vector sensor stream (Butterworth, sliding mean, ...)."""
@@ -78,6 +90,64 @@ cdef inline bint sample_fast(Estimator e, const double* g, const double* a,
     """Initialised and every vector valid: _process would only call _step. Otherwise
     (skips, counting, the first attitude) the sample goes through _process."""
     return e.is_init and vec3_finite(g) and vec3_valid(a) and (m == NULL or vec3_valid(m))
+
+# The state's one path through a kernel's batch loop: q and the kernel's state struct (size
+# bytes at own; size 0: none) copied into locals before the loop (batch_enter), back after it
+# (batch_leave), and around each sample the loop leaves to _process (batch_slow_sample).
+
+cdef inline void batch_enter(Estimator e, double* q, void* local, const void* own,
+                             size_t size) noexcept nogil:
+    memcpy(q, e.q, 4 * sizeof(double))
+    if size:
+        memcpy(local, own, size)
+
+cdef inline void batch_leave(Estimator e, const double* q, const void* local, void* own,
+                             size_t size) noexcept nogil:
+    memcpy(e.q, q, 4 * sizeof(double))
+    if size:
+        memcpy(own, local, size)
+
+cdef inline bint batch_slow_sample(Estimator e, double* q, void* local, void* own, size_t size,
+                                   const double* g, const double* a, const double* m, double dt,
+                                   bint stop_invalid) noexcept nogil:
+    """A sample sample_fast refused, through e._process with the locals written back first and
+    read again after. True: the batch stops here (stop_invalid, and the sample is invalid)."""
+    if stop_invalid and not sample_valid(g, a, m):
+        return True
+    batch_leave(e, q, local, own, size)
+    e._process(g, a, m, dt)
+    batch_enter(e, q, local, own, size)
+    return False
+
+# The batch loop itself, one for every kernel with a step of its own: step is the kernel's
+# sample on the local state (local: its struct; q: the attitude), called through a constant
+# pointer, which the compiler inlines into the kernel's _run_batch (no call per sample).
+ctypedef void (*batch_step)(Estimator e, double* q, void* local, const double* g, const double* a,
+                            const double* m, double dt) noexcept nogil
+
+cdef inline Py_ssize_t batch_loop(Estimator e, batch_step step, void* local, void* own, size_t size,
+                                  const double* g, const double* a, const double* m,
+                                  const double* d, double dt, double* o, Py_ssize_t n,
+                                  bint stop_invalid) noexcept nogil:
+    """Estimator._run_batch's loop with the state in locals (stores through o cannot alias
+    them, so the compiler keeps them in registers): the samples sample_fast accepts go to
+    step, the others through batch_slow_sample."""
+    cdef double q[4]
+    cdef bint ned = e.ned
+    cdef Py_ssize_t i
+    cdef const double* mi
+    cdef double h
+    batch_enter(e, q, local, own, size)
+    for i in range(n):
+        mi = m + 3 * i if m != NULL else NULL
+        h = d[i] if d != NULL else dt
+        if sample_fast(e, g + 3 * i, a + 3 * i, mi):
+            step(e, q, local, g + 3 * i, a + 3 * i, mi, h)
+        elif batch_slow_sample(e, q, local, own, size, g + 3 * i, a + 3 * i, mi, h, stop_invalid):
+            return i
+        quat_out(q, ned, o + 4 * i)
+    batch_leave(e, q, local, own, size)
+    return n
 
 cdef inline void quat_out(const double* q, bint ned, double* out) noexcept nogil:
     """The attitude q (ENU) in the public frame: c ⊗ q for NED."""

@@ -62,6 +62,7 @@ class Estimator:
 
 class _KalmanParams:
     """The process and measurement noise of the Kalman filters (ekf family, ukf)."""
+    kalman: dict[str, float]     # the KalmanNoise struct they hold, as a dict
     gyro_noise: float
     bias_noise: float
     acc_noise: float

@@ -157,6 +157,16 @@ def struct_fields(view, checks=None, prefix=""):
     return out
 
 
+def _of_kalman(name):
+    return property(lambda e: e.kalman[name], doc=f"The {name} parameter (PARAMS[{name!r}]).")
+
+
+#: The Kalman filters' noise parameters, read from their `kalman` struct: in the class body,
+#: ``gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES``
+KALMAN_PROPERTIES = tuple(_of_kalman(n) for n in ("gyro_noise", "bias_noise", "acc_noise", "mag_noise",
+                                                  "q_init_std", "bias_init_std", "motion_rate"))
+
+
 cdef list _fields_of(Estimator e):
     """The estimator's state fields followed by those of its prefilters ("pre_acc.z1", ...)."""
     fields = e._state_fields()
@@ -261,6 +271,15 @@ cdef void _release(Estimator e) noexcept:
     _pre_mark(e.pre_gyr, False)
     _pre_mark(e.pre_acc, False)
     _pre_mark(e.pre_mag, False)
+
+
+cdef object _exclusively(Estimator e, f, tuple args):
+    """f(*args) with e claimed for the call (_claim), released however the call ends."""
+    _claim(e)
+    try:
+        return f(*args)
+    finally:
+        _release(e)
 
 
 cdef class Estimator:
@@ -374,11 +393,7 @@ cdef class Estimator:
     def reset(self, q0=None):
         """Forget everything. q0 ([w, x, y, z] in the estimator's frame) fixes the start
         attitude; without it the first valid accelerometer (+ magnetometer) sample sets it."""
-        _claim(self)
-        try:
-            self._reset(q0)
-        finally:
-            _release(self)
+        _exclusively(self, self._reset, (q0,))
 
     def _reset(self, q0):
         cdef double qin[4]
@@ -447,11 +462,7 @@ cdef class Estimator:
         """A batch: gyr, acc, mag as (N, 3) arrays (mag None for 6-axis); dt None (1/fs), a
         scalar, or an (N,) array of time steps in s for uneven time stamps. Returns (N, 4)
         quaternions, the same numbers as N calls of update()."""
-        _claim(self)        # the loop below releases the GIL
-        try:
-            return self._run(gyr, acc, mag, dt)
-        finally:
-            _release(self)
+        return _exclusively(self, self._run, (gyr, acc, mag, dt))    # its loop releases the GIL
 
     def _run(self, gyr, acc, mag, dt):
         G = _as_samples(gyr, "gyr")
@@ -571,17 +582,16 @@ cdef class Estimator:
         terms, flags, counters, prefilter histories), with the configuration, as a plain dict
         of Python numbers, lists and strings (picklable, JSON-serialisable, exact).
         est.load_state(s) or Estimator.from_state(s) resumes bit-identically."""
-        _claim(self)
-        try:
-            fields = {}
-            for name, view, check in _fields_of(self):
-                a = np.asarray(view)
-                fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
-            return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
-                    "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
-                    "fields": fields}
-        finally:
-            _release(self)
+        return _exclusively(self, self._state, ())
+
+    def _state(self):
+        fields = {}
+        for name, view, check in _fields_of(self):
+            a = np.asarray(view)
+            fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
+        return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
+                "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
+                "fields": fields}
 
     def load_state(self, state):
         """Restore a state from est.state() of an estimator of the same kind. The dynamic
@@ -590,11 +600,7 @@ cdef class Estimator:
         missing or extra fields, wrong shapes or types, or values out of their ranges (each
         field's in _state_fields: a covariance symmetric positive definite, a bias within
         BIAS_MAX, timers within TIME_MAX, ...)."""
-        _claim(self)
-        try:
-            self._load_state(state)
-        finally:
-            _release(self)
+        _exclusively(self, self._load_state, (state,))
 
     def _load_state(self, state):
         _check_header(state)

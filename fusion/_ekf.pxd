@@ -1,4 +1,4 @@
-from fusion._core cimport Estimator
+from fusion._core cimport Estimator, KalmanNoise
 from fusion._magdist cimport MagDetector
 from fusion._rest cimport RestDetector
 from fusion._acclp cimport AccLowpass
@@ -11,10 +11,8 @@ cdef struct EKFState:
     double t_unmeasured     # s: the current run of unmeasured time (recovery, docs/robustness.md)
 
 cdef class EKF(Estimator):
-    cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
+    cdef readonly KalmanNoise kalman  # its noise and recovery parameters
     cdef EKFState s
-    # recovery (the gyro range is the base class's): rate std over unmeasured time (rad/s)
-    cdef readonly double motion_rate
     # the vector updates' gains (_ekf.pyx GAIN_*): mag_update="heading", acc_update="tilt"
     cdef int acc_gain, mag_gain
     # acc_lowpass (s, 0: off): the accelerometer low-passed in a gyro-integrated frame

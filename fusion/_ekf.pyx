@@ -9,9 +9,9 @@ from fusion._rest import REST_PROPERTIES
 from fusion._magdist cimport MagDetector, magd_check, magd_clear
 from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
-from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
+from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_fs, struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
+from fusion._core import KALMAN_PROPERTIES, check_fs, struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
@@ -38,7 +38,7 @@ cdef inline void ekf_propagate(EKF e, double* q, EKFState* s, const double* gyr,
     the attitude covariance for the motion it did not measure (dropped sample, time gap,
     saturated sample: sat; docs/robustness.md, "Recovery")."""
     cdef bint measured = gyr != NULL and not sat
-    cdef double v = unobserved_variance(&s.t_unmeasured, dt, e.dt_nominal, measured, e.motion_rate)
+    cdef double v = unobserved_variance(&s.t_unmeasured, dt, e.dt_nominal, measured, e.kalman.motion_rate)
     if gyr != NULL:
         ekf_predict(e, q, s.b, s.P, gyr, dt)
     if v > 0.0:
@@ -100,7 +100,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
             F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
                             + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
     # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
-    gq = 0.25 * dt * e.gyro_noise * e.gyro_noise
+    gq = 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise
     pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
     pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
     pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
@@ -109,7 +109,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
         for j in range(3):
             P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
             P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
-    s = e.bias_noise * e.bias_noise * dt
+    s = e.kalman.bias_noise * e.kalman.bias_noise * dt
     for i in range(4, 7):
         P[i * 8] += s
     memcpy(q, qn, 4 * sizeof(double))
@@ -267,7 +267,7 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     cdef double z[3]
     cdef double h[3]
     cdef double H[12]
-    cdef double sa = e.acc_noise / G0
+    cdef double sa = e.kalman.acc_noise / G0
     unit3(acc, z)
     up_in_body(q, h)
     jac_up_in_body(q, H)
@@ -336,7 +336,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
-    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_gain)
+    ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
 
 
 cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
@@ -393,6 +393,12 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
     quat_normalise(q)
 
 
+cdef inline void ekf_batch_step(Estimator e, double* q, void* s, const double* gyr,
+                                const double* acc, const double* mag, double dt) noexcept nogil:
+    """ekf_step as fusion/_core.pxd's batch_loop calls it."""
+    ekf_step(<EKF>e, q, <EKFState*>s, gyr, acc, mag, dt)
+
+
 cdef class EKF(Estimator):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
@@ -419,21 +425,16 @@ cdef class EKF(Estimator):
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
     # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
+    gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
         self.rest = RestDetector(p)
         self.magd = MagDetector(p)
-        self.motion_rate = p["motion_rate"]
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
-        self.gyro_noise = p["gyro_noise"]
-        self.bias_noise = p["bias_noise"]
-        self.acc_noise = p["acc_noise"]
-        self.mag_noise = p["mag_noise"]
-        self.q_init_std = p["q_init_std"]
-        self.bias_init_std = p["bias_init_std"]
+        self.kalman = p
         # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
         self.acc_lowpass = p.get("acc_lowpass", 0.0)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
@@ -452,9 +453,9 @@ cdef class EKF(Estimator):
         cdef int i
         memset(&self.s, 0, sizeof(EKFState))
         for i in range(4):
-            self.s.P[i * 8] = self.q_init_std * self.q_init_std
+            self.s.P[i * 8] = self.kalman.q_init_std * self.kalman.q_init_std
         for i in range(4, 7):
-            self.s.P[i * 8] = self.bias_init_std * self.bias_init_std
+            self.s.P[i * 8] = self.kalman.bias_init_std * self.kalman.bias_init_std
         rest_clear(self.rest)
         magd_clear(self.magd)
         acc_lowpass_clear(&self.acc_lp)
@@ -482,33 +483,13 @@ cdef class EKF(Estimator):
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
                                bint stop_invalid) noexcept nogil:
-        # the state lives in locals during the loop, as in Mahony._run_batch: stores through
-        # o cannot alias them, so the compiler keeps q and b in registers and P unreloaded
-        cdef double q[4]
+        # the state in locals (fusion/_core.pxd batch_loop): the compiler keeps q and b in
+        # registers and P unreloaded
         cdef EKFState s
-        cdef bint ned = self.ned
-        cdef Py_ssize_t i
-        cdef const double* mi
         if not (self.own_step and run_fast(self)):
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
-        memcpy(q, self.q, 4 * sizeof(double))
-        s = self.s
-        for i in range(n):
-            mi = m + 3 * i if m != NULL else NULL
-            if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                ekf_step(self, q, &s, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-            else:
-                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
-                    return i
-                memcpy(self.q, q, 4 * sizeof(double))
-                self.s = s
-                self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-                memcpy(q, self.q, 4 * sizeof(double))
-                s = self.s
-            quat_out(q, ned, o + 4 * i)
-        memcpy(self.q, q, 4 * sizeof(double))
-        self.s = s
-        return n
+        return batch_loop(self, ekf_batch_step, &s, &self.s, sizeof(EKFState), g, a, m, d, dt, o, n,
+                          stop_invalid)
 
     @property
     def bias(self):

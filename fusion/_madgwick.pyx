@@ -2,6 +2,7 @@
 """`madgwick`: Madgwick's gradient-descent orientation filter (docs/madgwick.md)."""
 import numpy as np
 from libc.math cimport sqrt
+from libc.string cimport memset
 
 from fusion._core cimport Estimator
 from fusion._core import struct_fields, BIAS, RECOVERY, ACC_LP_CHECKS
@@ -58,16 +59,13 @@ cdef class Madgwick(Estimator):
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+        return (Estimator._state_fields(self)
+                + struct_fields(<MadgwickState[:1]>&self.s, {"bw": BIAS, "t_recover": RECOVERY})
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
                 + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
-        self.bw[0] = 0.0
-        self.bw[1] = 0.0
-        self.bw[2] = 0.0
-        self.t_recover = 0.0
+        memset(&self.s, 0, sizeof(MadgwickState))
         acc_lowpass_clear(&self.acc_lp)
         magd_clear(self.magd)
 
@@ -84,17 +82,17 @@ cdef class Madgwick(Estimator):
         cdef double af[3]
         cdef double n2, k
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
-        cdef double f = recovery_gain(&self.t_recover, sat, dt)
+        cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
         if mag != NULL and not magd_check(self.magd, q, mag, gyr, dt):
             mag = NULL
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(&self.acc_lp)
         if acc != NULL and self.acc_lowpass > 0.0:
             acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
-                             gyr, self.bw, acc, dt, af)
+                             gyr, self.s.bw, acc, dt, af)
             acc = af
         if gyr != NULL:
-            quat_propagate(q, gyr[0] - self.bw[0], gyr[1] - self.bw[1], gyr[2] - self.bw[2], dt)
+            quat_propagate(q, gyr[0] - self.s.bw[0], gyr[1] - self.s.bw[1], gyr[2] - self.s.bw[2], dt)
         g[0] = 0.0
         g[1] = 0.0
         g[2] = 0.0
@@ -140,9 +138,9 @@ cdef class Madgwick(Estimator):
             g[3] *= k
             if self.zeta > 0.0 and f == 1.0:     # (held while recovering) w_eps = 2 vec(q* ⊗ g) = 2 Xi(q)^T g
                 k = 2.0 * self.zeta * dt
-                self.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
-                self.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
-                self.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
+                self.s.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
+                self.s.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
+                self.s.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
             k = f * self.beta * dt
             q[0] -= k * g[0]
             q[1] -= k * g[1]
@@ -153,7 +151,7 @@ cdef class Madgwick(Estimator):
     @property
     def bias(self):
         """The gyro bias learned with the zeta gain, rad/s (body frame; zero when zeta = 0)."""
-        return np.array([self.bw[0], self.bw[1], self.bw[2]])
+        return np.array([self.s.bw[0], self.s.bw[1], self.s.bw[2]])
 
     @property
     def mag_update(self):

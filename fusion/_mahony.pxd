@@ -6,10 +6,14 @@ from fusion._rest cimport RestDetector
 cdef void mahony_error(const double* q, const double* acc, const double* mag,
                        double* e) noexcept nogil
 
+# its state besides the attitude, one struct (as the ekf's EKFState; fusion._core.struct_fields)
+cdef struct MahonyState:
+    double eint[3]      # integral of the correction error
+    double t_recover    # s of raised gain left after a saturated gyro (recovery_gain)
+
 cdef class Mahony(Estimator):
     cdef readonly double kp, ki
-    cdef double eint[3]       # integral of the correction error
-    cdef double t_recover     # s of raised gain left after a saturated gyro (recovery_gain)
+    cdef MahonyState s
     cdef bint mag_heading     # mag_update="heading"
     cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
     cdef AccLowpass acc_lp

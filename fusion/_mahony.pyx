@@ -3,9 +3,9 @@
 import numpy as np
 from libc.math cimport sqrt
 
-from libc.string cimport memcpy
+from libc.string cimport memcpy, memset
 
-from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
+from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._core import struct_fields, BIAS_MAX, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST
 from fusion._magdist cimport MagDetector, magd_check, magd_clear
@@ -234,6 +234,24 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
         eint[i] += k * (-gyr[i] / e.ki - eint[i])
 
 
+cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double* gyr,
+                                   const double* acc, const double* mag, double dt) noexcept nogil:
+    """step_flagged without recovery (gyro_range unknown), on the batch loop's local state
+    (fusion/_core.pxd batch_loop)."""
+    cdef double* eint = (<MahonyState*>s).eint
+    cdef double af[3]
+    if mag != NULL and not magd_check((<Mahony>e).magd, q, mag, gyr, dt):
+        mag = NULL
+    if (<Mahony>e).acc_lowpass > 0.0 and acc_lowpass_lost(gyr, False, dt, e.dt_nominal):
+        acc_lowpass_clear(&(<Mahony>e).acc_lp)
+    if (<Mahony>e).rest.time > 0.0:
+        mahony_rest(<Mahony>e, eint, gyr, acc, dt)
+    if (<Mahony>e).acc_lowpass > 0.0:
+        mahony_acc_lowpass(<Mahony>e, eint, gyr, acc, dt, af)
+        acc = af
+    mahony_step(q, eint, (<Mahony>e).kp, (<Mahony>e).ki, gyr, acc, mag, dt, (<Mahony>e).mag_heading)
+
+
 cdef class Mahony(Estimator):
     """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
@@ -275,16 +293,13 @@ cdef class Mahony(Estimator):
     cdef list _state_fields(self):
         # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
         eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
-        return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY)]
+        return (Estimator._state_fields(self)
+                + struct_fields(<MahonyState[:1]>&self.s, {"eint": eint, "t_recover": RECOVERY})
                 + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
                 + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
-        self.eint[0] = 0.0
-        self.eint[1] = 0.0
-        self.eint[2] = 0.0
-        self.t_recover = 0.0
+        memset(&self.s, 0, sizeof(MahonyState))
         acc_lowpass_clear(&self.acc_lp)
         rest_clear(self.rest)
         magd_clear(self.magd)
@@ -296,7 +311,7 @@ cdef class Mahony(Estimator):
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil:
         """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
-        cdef double f = recovery_gain(&self.t_recover, sat, dt)
+        cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
         cdef double eint[3]
         cdef double af[3]
         if mag != NULL and not magd_check(self.magd, self.q, mag, gyr, dt):
@@ -304,66 +319,32 @@ cdef class Mahony(Estimator):
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
             acc_lowpass_clear(&self.acc_lp)
         if self.rest.time > 0.0:
-            mahony_rest(self, self.eint, gyr, acc, dt)
+            mahony_rest(self, self.s.eint, gyr, acc, dt)
         if acc != NULL and self.acc_lowpass > 0.0:
-            mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
+            mahony_acc_lowpass(self, self.s.eint, gyr, acc, dt, af)
             acc = af
         if f == 1.0:
-            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
+            mahony_step(self.q, self.s.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
             return
         # recovering: the large error is the attitude's, not the gyro's bias. At low rates
         # the raised gain would turn by more than the error in one step and overshoot: at
         # most RECOVERY_STEP_MAX of it per step (never below the plain gain)
         if f * self.kp * dt > RECOVERY_STEP_MAX:
             f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
-        memcpy(eint, self.eint, 3 * sizeof(double))
-        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
-        memcpy(self.eint, eint, 3 * sizeof(double))
+        memcpy(eint, self.s.eint, 3 * sizeof(double))
+        mahony_step(self.q, self.s.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
+        memcpy(self.s.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
                                bint stop_invalid) noexcept nogil:
-        # the state lives in locals during the loop: the compiler keeps them in registers,
-        # which it cannot for self.q (any store through o or eint might alias it)
-        cdef double q[4]
-        cdef double eint[3]
-        cdef double kp = self.kp, ki = self.ki
-        cdef bint heading = self.mag_heading
-        cdef bint ned = self.ned
-        cdef Py_ssize_t i
-        cdef const double* mi
-        cdef const double* ai
-        cdef double af[3]
+        # the state in locals (fusion/_core.pxd batch_loop): the compiler keeps them in
+        # registers, which it cannot for self.q (any store through o or eint might alias it)
+        cdef MahonyState st
         if not run_fast(self) or self.gyro_range_ > 0.0:     # recovery: step by step
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
-        memcpy(q, self.q, 4 * sizeof(double))
-        memcpy(eint, self.eint, 3 * sizeof(double))
-        for i in range(n):
-            mi = m + 3 * i if m != NULL else NULL
-            if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                if mi != NULL and not magd_check(self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
-                    mi = NULL
-                ai = a + 3 * i
-                if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
-                    acc_lowpass_clear(&self.acc_lp)
-                if self.rest.time > 0.0:
-                    mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
-                if self.acc_lowpass > 0.0:
-                    mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
-                    ai = af
-                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading)
-            else:
-                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
-                    return i
-                memcpy(self.q, q, 4 * sizeof(double))
-                memcpy(self.eint, eint, 3 * sizeof(double))
-                self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-                memcpy(q, self.q, 4 * sizeof(double))
-                memcpy(eint, self.eint, 3 * sizeof(double))
-            quat_out(q, ned, o + 4 * i)
-        memcpy(self.q, q, 4 * sizeof(double))
-        memcpy(self.eint, eint, 3 * sizeof(double))
-        return n
+        return batch_loop(self, mahony_batch_step, &st, &self.s, sizeof(MahonyState), g, a, m, d, dt,
+                          o, n, stop_invalid)
 
     @property
     def mag_update(self):
@@ -373,4 +354,4 @@ cdef class Mahony(Estimator):
     @property
     def bias(self):
         """The gyro bias the integral term has learned, rad/s (body frame)."""
-        return -self.ki * np.array([self.eint[0], self.eint[1], self.eint[2]])
+        return -self.ki * np.array([self.s.eint[0], self.s.eint[1], self.s.eint[2]])

@@ -4,6 +4,7 @@ that "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 20
 compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
+from libc.string cimport memcpy
 
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
@@ -11,7 +12,7 @@ from fusion._magdist cimport MagDetector, magd_check, magd_clear
 from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
 from fusion._core cimport Estimator
-from fusion._core import struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
+from fusion._core import KALMAN_PROPERTIES, struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
 from fusion._ekf import EKF as _EKF
 from fusion.params import table
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
@@ -60,6 +61,28 @@ cdef inline void rate_quat(double wx, double wy, double wz, double dt, double* e
     e[3] = s * wz
 
 
+cdef inline void sigma_mean_cov(double* Y, int n, double* mean, double* cov) noexcept nogil:
+    """The unscented mean (n) and covariance (n x n, row-major) of the 13 sigma vectors Y
+    (13 x n, a row each), Y replaced by their deviations from the mean."""
+    cdef double s
+    cdef int i, j, k
+    for k in range(n):
+        s = WM0 * Y[k]
+        for i in range(1, NS):
+            s += WI * Y[i * n + k]
+        mean[k] = s
+    for i in range(NS):
+        for k in range(n):
+            Y[i * n + k] -= mean[k]
+    for j in range(n):
+        for k in range(j, n):
+            s = WC0 * Y[j] * Y[k]
+            for i in range(1, NS):
+                s += WI * Y[i * n + j] * Y[i * n + k]
+            cov[j * n + k] = s
+            cov[k * n + j] = s
+
+
 cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
     """mag_update="heading": the gain's attitude rows (body-frame error) and bias rows (6x3)
     projected onto the body-frame vertical w = Rᵀ e_z, so that the magnetometer only turns
@@ -91,19 +114,14 @@ cdef class UKF(Estimator):
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
     # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
+    gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
         self.rest = RestDetector(p)
         self.magd = MagDetector(p)
-        self.motion_rate = p["motion_rate"]
-        self.gyro_noise = p["gyro_noise"]
-        self.bias_noise = p["bias_noise"]
-        self.acc_noise = p["acc_noise"]
-        self.mag_noise = p["mag_noise"]
-        self.q_init_std = p["q_init_std"]
-        self.bias_init_std = p["bias_init_std"]
+        self.kalman = p
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
@@ -118,13 +136,13 @@ cdef class UKF(Estimator):
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
-        cdef double sq = 2.0 * self.q_init_std     # quaternion-component std -> angle std
+        cdef double sq = 2.0 * self.kalman.q_init_std     # quaternion-component std -> angle std
         for i in range(36):
             self.P[i] = 0.0
         for i in range(3):
             self.P[i * 7] = sq * sq
         for i in range(3, 6):
-            self.P[i * 7] = self.bias_init_std * self.bias_init_std
+            self.P[i * 7] = self.kalman.bias_init_std * self.kalman.bias_init_std
         self.b[0] = 0.0
         self.b[1] = 0.0
         self.b[2] = 0.0
@@ -191,23 +209,9 @@ cdef class UKF(Estimator):
             Y[i * 6 + 3] = x[3]
             Y[i * 6 + 4] = x[4]
             Y[i * 6 + 5] = x[5]
-        for k in range(6):
-            s = WM0 * Y[k]
-            for i in range(1, NS):
-                s += WI * Y[i * 6 + k]
-            mean[k] = s
-        for i in range(NS):
-            for k in range(6):
-                Y[i * 6 + k] -= mean[k]
-        qg = self.gyro_noise * self.gyro_noise * dt
-        qb = self.bias_noise * self.bias_noise * dt
-        for j in range(6):
-            for k in range(j, 6):
-                s = WC0 * Y[j] * Y[k]
-                for i in range(1, NS):
-                    s += WI * Y[i * 6 + j] * Y[i * 6 + k]
-                P[j * 6 + k] = s
-                P[k * 6 + j] = s
+        sigma_mean_cov(Y, 6, mean, P)
+        qg = self.kalman.gyro_noise * self.kalman.gyro_noise * dt
+        qb = self.kalman.bias_noise * self.kalman.bias_noise * dt
         for j in range(3):
             P[j * 7] += qg
             P[(j + 3) * 7] += qb
@@ -232,21 +236,8 @@ cdef class UKF(Estimator):
         cdef double* P = self.P
         cdef double s
         cdef int i, j, k
-        for k in range(3):
-            s = WM0 * Z[k]
-            for i in range(1, NS):
-                s += WI * Z[i * 3 + k]
-            zh[k] = s
-        for i in range(NS):
-            for k in range(3):
-                D[i * 3 + k] = Z[i * 3 + k] - zh[k]
-        for j in range(3):
-            for k in range(j, 3):
-                s = WC0 * D[j] * D[k]
-                for i in range(1, NS):
-                    s += WI * D[i * 3 + j] * D[i * 3 + k]
-                S[j * 3 + k] = s
-                S[k * 3 + j] = s
+        memcpy(D, Z, NS * 3 * sizeof(double))
+        sigma_mean_cov(D, 3, zh, S)
         S[0] += r
         S[4] += r
         S[8] += r
@@ -343,43 +334,47 @@ cdef class UKF(Estimator):
                 P[(3 + i) * 6 + 3 + j] = s
                 P[(3 + j) * 6 + 3 + i] = s
 
-    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
-        cdef double X[NS * 6]
-        cdef double Z[NS * 3]
-        cdef double z[3]
+    cdef void sigma_attitudes(self, double* X, double* Qs) noexcept nogil:
+        """X (13 x 6) the sigma points, Qs (13 x 4) their attitudes q̂ ⊗ δq(p_i): what each
+        measurement model is evaluated at."""
         cdef double dq[4]
-        cdef double qi[4]
-        cdef double sa = self.acc_noise / G0
         cdef int i
         self.sigma_points(X)
         for i in range(NS):
             err_to_quat(X + i * 6, dq)
-            quat_mul(self.q, dq, qi)
-            up_in_body(qi, Z + i * 3)
+            quat_mul(self.q, dq, Qs + i * 4)
+
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
+        cdef double X[NS * 6]
+        cdef double Qs[NS * 4]
+        cdef double Z[NS * 3]
+        cdef double z[3]
+        cdef double sa = self.kalman.acc_noise / G0
+        cdef int i
+        self.sigma_attitudes(X, Qs)
+        for i in range(NS):
+            up_in_body(Qs + i * 4, Z + i * 3)
         unit3(acc, z)
         self.correct(X, Z, z, sa * sa / dt)
 
     cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil:
         cdef double X[NS * 6]
+        cdef double Qs[NS * 4]
         cdef double Z[NS * 3]
         cdef double z[3]
         cdef double n[3]
-        cdef double dq[4]
-        cdef double qi[4]
         cdef int i
         unit3(mag, z)
         rot_to_nav(self.q, z, n)
         if sqrt(n[0] * n[0] + n[1] * n[1]) < 1e-9:     # field vertical: no heading information
             return
-        self.sigma_points(X)
+        self.sigma_attitudes(X, Qs)
         for i in range(NS):
-            err_to_quat(X + i * 6, dq)
-            quat_mul(self.q, dq, qi)
-            rot_to_nav(qi, z, n)
+            rot_to_nav(Qs + i * 4, z, n)
             n[1] = sqrt(n[0] * n[0] + n[1] * n[1])     # folded onto north
             n[0] = 0.0
-            rot_to_body(qi, n, Z + i * 3)
-        self.correct(X, Z, z, self.mag_noise * self.mag_noise / dt)
+            rot_to_body(Qs + i * 4, n, Z + i * 3)
+        self.correct(X, Z, z, self.kalman.mag_noise * self.kalman.mag_noise / dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -392,7 +387,7 @@ cdef class UKF(Estimator):
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL
         measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
-        v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured, self.motion_rate)
+        v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured, self.kalman.motion_rate)
         if gyr != NULL:
             self.predict(gyr, dt)
         if v > 0.0:
