@@ -8,17 +8,6 @@ cdef extern from *:
     """
     double SQRT_HALF "FUSION_SQRT_HALF"
 
-# The noise and recovery parameters of the Kalman filters (ekf family, ukf), one struct: set
-# from the checked parameters at once (self.kalman = p), read in Python by KALMAN_PROPERTIES
-cdef struct KalmanNoise:
-    double gyro_noise       # rad/s/√Hz
-    double bias_noise       # rad/s/√s
-    double acc_noise        # m/s²/√Hz
-    double mag_noise        # 1/√Hz, relative to the field norm
-    double q_init_std       # initial std of each quaternion component
-    double bias_init_std    # rad/s
-    double motion_rate      # rad/s: rate std over unmeasured time (recovery, docs/robustness.md)
-
 cdef class Prefilter:
     """A per-sample filter on one 3-vector sensor stream (Butterworth, sliding mean, ...)."""
     cdef void apply(self, double* v) noexcept nogil    # in place

@@ -157,16 +157,6 @@ def struct_fields(view, checks=None, prefix=""):
     return out
 
 
-def _of_kalman(name):
-    return property(lambda e: e.kalman[name], doc=f"The {name} parameter (PARAMS[{name!r}]).")
-
-
-#: The Kalman filters' noise parameters, read from their `kalman` struct: in the class body,
-#: ``gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES``
-KALMAN_PROPERTIES = tuple(_of_kalman(n) for n in ("gyro_noise", "bias_noise", "acc_noise", "mag_noise",
-                                                  "q_init_std", "bias_init_std", "motion_rate"))
-
-
 cdef list _fields_of(Estimator e):
     """The estimator's state fields followed by those of its prefilters ("pre_acc.z1", ...)."""
     fields = e._state_fields()

@@ -1,7 +1,4 @@
-from fusion._core cimport Estimator, KalmanNoise
-from fusion._magdist cimport MagDetector
-from fusion._rest cimport RestDetector
-from fusion._acclp cimport AccLowpass
+from fusion._kalman cimport KalmanFilter
 
 # the ekf's state besides the attitude (the base class's q): the batch loop copies it in and
 # out whole, state() / load_state() list its members (fusion._core.struct_fields)
@@ -10,17 +7,11 @@ cdef struct EKFState:
     double P[49]            # covariance of [q, b], row-major 7x7
     double t_unmeasured     # s: the current run of unmeasured time (recovery, docs/robustness.md)
 
-cdef class EKF(Estimator):
-    cdef readonly KalmanNoise kalman  # its noise and recovery parameters
+cdef class EKF(KalmanFilter):
     cdef EKFState s
     # the vector updates' gains (_ekf.pyx GAIN_*): mag_update="heading", acc_update="tilt"
     cdef int acc_gain, mag_gain
-    # acc_lowpass (s, 0: off): the accelerometer low-passed in a gyro-integrated frame
-    cdef readonly double acc_lowpass
-    cdef AccLowpass acc_lp
     cdef bint own_step        # _step is EKF's (not a subclass's): _run_batch may inline it
-    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
-    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
     # the parts of _step, on this filter's state, for subclasses (aekf) and holders (cf-ekf's core)
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil

@@ -4,23 +4,20 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
-from fusion._magdist cimport MagDetector, magd_check, magd_clear
-from fusion._magdist import MAGDIST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._rest cimport rest_detect
+from fusion._magdist cimport magd_check
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._kalman cimport KalmanFilter
+from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
-from fusion._core import KALMAN_PROPERTIES, check_fs, struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
+from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
 from fusion._constants cimport GRAVITY as G0
-
-# struct_fields' checks of an EKFState
-EKF_CHECKS = {"b": BIAS, "P": COV, "t_unmeasured": TIMER}
 
 # the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
 # error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
@@ -399,7 +396,7 @@ cdef inline void ekf_batch_step(Estimator e, double* q, void* s, const double* g
     ekf_step(<EKF>e, q, <EKFState*>s, gyr, acc, mag, dt)
 
 
-cdef class EKF(Estimator):
+cdef class EKF(KalmanFilter):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
@@ -421,33 +418,22 @@ cdef class EKF(Estimator):
               "corrects the inclination (and the bias across the vertical) only, so that a linear "
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)
-    # the rest parameters and counts, read from the detector it holds (fusion._rest)
-    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
-    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
-    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
-    gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
-        self.rest = RestDetector(p)
-        self.magd = MagDetector(p)
+        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
-        self.kalman = p
-        # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
-        self.acc_lowpass = p.get("acc_lowpass", 0.0)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _filter_fields(self):
-        return struct_fields(<EKFState[:1]>&self.s, EKF_CHECKS)
+        return struct_fields(<EKFState[:1]>&self.s, STATE_CHECKS)
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + self._filter_fields()
-                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self.magd.fields())
+        return Estimator._state_fields(self) + self._filter_fields() + self.parts_fields()
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
@@ -456,9 +442,7 @@ cdef class EKF(Estimator):
             self.s.P[i * 8] = self.kalman.q_init_std * self.kalman.q_init_std
         for i in range(4, 7):
             self.s.P[i * 8] = self.kalman.bias_init_std * self.kalman.bias_init_std
-        rest_clear(self.rest)
-        magd_clear(self.magd)
-        acc_lowpass_clear(&self.acc_lp)
+        self.clear_parts()
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:

@@ -4,15 +4,15 @@ that "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 20
 compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
-from libc.string cimport memcpy
+from libc.string cimport memcpy, memset
 
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
-from fusion._magdist cimport MagDetector, magd_check, magd_clear
-from fusion._magdist import MAGDIST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._rest cimport rest_detect
+from fusion._magdist cimport magd_check
+from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._kalman cimport KalmanFilter
+from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
-from fusion._core import KALMAN_PROPERTIES, struct_fields, BIAS, COV, TIMER, ACC_LP_CHECKS
+from fusion._core import struct_fields
 from fusion._ekf import EKF as _EKF
 from fusion.params import table
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
@@ -98,7 +98,7 @@ cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
         K[9 + j] = w[0] * c; K[12 + j] = w[1] * c; K[15 + j] = w[2] * c
 
 
-cdef class UKF(Estimator):
+cdef class UKF(KalmanFilter):
     """Unscented Kalman filter: 13 sigma points on the 6-D error [attitude (4 x modified
     Rodrigues parameters, body frame), gyro bias]; gyro process and accelerometer /
     north-folded magnetometer measurements as the `ekf`."""
@@ -110,52 +110,34 @@ cdef class UKF(Estimator):
                    _EKF.PARAMS["gyro_noise"].but(default=0.01),
                    _EKF.PARAMS["bias_noise"].but(allow_zero=False),
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
-    # the rest parameters and counts, read from the detector it holds (fusion._rest)
-    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
-    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
-    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
-    gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = KALMAN_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
-        self.rest = RestDetector(p)
-        self.magd = MagDetector(p)
-        self.kalman = p
+        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_heading = p["mag_update"] == "heading"
-        self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
-                                                ("P", <double[:36]>self.P, COV),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
-                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self.magd.fields())
+        return (Estimator._state_fields(self) + struct_fields(<UKFState[:1]>&self.s, STATE_CHECKS)
+                + self.parts_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
         cdef double sq = 2.0 * self.kalman.q_init_std     # quaternion-component std -> angle std
-        for i in range(36):
-            self.P[i] = 0.0
+        memset(&self.s, 0, sizeof(UKFState))
         for i in range(3):
-            self.P[i * 7] = sq * sq
+            self.s.P[i * 7] = sq * sq
         for i in range(3, 6):
-            self.P[i * 7] = self.kalman.bias_init_std * self.kalman.bias_init_std
-        self.b[0] = 0.0
-        self.b[1] = 0.0
-        self.b[2] = 0.0
-        self.t_run = 0.0
-        rest_clear(self.rest)
-        magd_clear(self.magd)
-        acc_lowpass_clear(&self.acc_lp)
+            self.s.P[i * 7] = self.kalman.bias_init_std * self.kalman.bias_init_std
+        self.clear_parts()
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
         gives a zero column)."""
         cdef double L[36]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double d, s
         cdef int i, j, k
         for i in range(36):
@@ -190,9 +172,9 @@ cdef class UKF(Estimator):
         cdef double dq[4]
         cdef double ei[4]
         cdef double t[4]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double* x
-        cdef double w0x = gyr[0] - self.b[0], w0y = gyr[1] - self.b[1], w0z = gyr[2] - self.b[2]
+        cdef double w0x = gyr[0] - self.s.b[0], w0y = gyr[1] - self.s.b[1], w0z = gyr[2] - self.s.b[2]
         cdef double s, wgt, qg, qb
         cdef int i, j, k
         self.sigma_points(X)
@@ -233,7 +215,7 @@ cdef class UKF(Estimator):
         cdef double dx[6]
         cdef double dq[4]
         cdef double qn[4]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double s
         cdef int i, j, k
         memcpy(D, Z, NS * 3 * sizeof(double))
@@ -266,9 +248,9 @@ cdef class UKF(Estimator):
         self.q[2] = qn[2]
         self.q[3] = qn[3]
         quat_normalise(self.q)
-        self.b[0] += dx[3]
-        self.b[1] += dx[4]
-        self.b[2] += dx[5]
+        self.s.b[0] += dx[3]
+        self.s.b[1] += dx[4]
+        self.s.b[2] += dx[5]
         if self.heading_gain:
             # the projected gain is not the Kalman gain: P - K Pxzᵀ - Pxz Kᵀ + K Pzz Kᵀ
             for i in range(6):
@@ -302,7 +284,7 @@ cdef class UKF(Estimator):
         cdef double A[9]      # I - Kb
         cdef double T[18]     # rows of [Ppb; Pbb] times (I - Kb)ᵀ, 6x3
         cdef double y[3]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double r = self.rest.noise * self.rest.noise / dt
         cdef double s
         cdef int i, j, k
@@ -310,7 +292,7 @@ cdef class UKF(Estimator):
             for j in range(3):
                 S[i * 3 + j] = P[(3 + i) * 6 + 3 + j]
             S[i * 4] += r
-            y[i] = gyr[i] - self.b[i]
+            y[i] = gyr[i] - self.s.b[i]
         sym3_inverse(S, Si)
         for i in range(3):
             for j in range(3):
@@ -318,7 +300,7 @@ cdef class UKF(Estimator):
                                  + P[(3 + i) * 6 + 5] * Si[6 + j])
                 A[i * 3 + j] = (1.0 if i == j else 0.0) - Kb[i * 3 + j]
         for i in range(3):
-            self.b[i] += Kb[i * 3] * y[0] + Kb[i * 3 + 1] * y[1] + Kb[i * 3 + 2] * y[2]
+            self.s.b[i] += Kb[i * 3] * y[0] + Kb[i * 3 + 1] * y[1] + Kb[i * 3 + 2] * y[2]
         for i in range(6):          # T = P[:, 3:6] Aᵀ
             for j in range(3):
                 T[i * 3 + j] = P[i * 6 + 3] * A[j * 3] + P[i * 6 + 4] * A[j * 3 + 1] + P[i * 6 + 5] * A[j * 3 + 2]
@@ -387,20 +369,20 @@ cdef class UKF(Estimator):
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL
         measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
-        v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured, self.kalman.motion_rate)
+        v = unobserved_variance(&self.s.t_unmeasured, dt, self.dt_nominal, measured, self.kalman.motion_rate)
         if gyr != NULL:
             self.predict(gyr, dt)
         if v > 0.0:
-            self.P[0] += v
-            self.P[7] += v
-            self.P[14] += v
+            self.s.P[0] += v
+            self.s.P[7] += v
+            self.s.P[14] += v
         if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
         if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
             acc_lowpass_clear(&self.acc_lp)
         if acc != NULL and self.acc_lowpass > 0.0:
             acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
-                             gyr, self.b, acc, dt, af)
+                             gyr, self.s.b, acc, dt, af)
             acc = af
         if acc != NULL:
             self._acc_correct(acc, dt)
@@ -418,10 +400,10 @@ cdef class UKF(Estimator):
     @property
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
-        return np.array([self.b[0], self.b[1], self.b[2]])
+        return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
 
     @property
     def covariance(self):
         """6x6 covariance of the error [attitude (rad, body frame: the same in ENU and NED),
         gyro bias (rad/s)]."""
-        return np.array([self.P[i] for i in range(36)]).reshape(6, 6)
+        return np.array([self.s.P[i] for i in range(36)]).reshape(6, 6)
