@@ -55,6 +55,22 @@ cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double
     return gyr == NULL or sat or dt > 2.0 * dt_nominal
 
 
+cdef inline const double* acc_lowpassed(double tau, AccLowpass* s, const double* gyr, bint sat,
+                                        const double* b, const double* acc, double dt,
+                                        double dt_nominal, double* out) noexcept nogil:
+    """The accelerometer sample a filter corrects with: low-passed (into out) when tau > 0,
+    acc itself otherwise (NULL stays NULL); the low-pass restarts first when the gyro frame
+    is lost (acc_lowpass_lost; sat: the gyro sample is saturated)."""
+    if tau <= 0.0:
+        return acc
+    if acc_lowpass_lost(gyr, sat, dt, dt_nominal):
+        acc_lowpass_clear(s)
+    if acc == NULL:
+        return NULL
+    acc_gyro_lowpass(tau, s, gyr, b, acc, dt, out)
+    return out
+
+
 cdef inline void acc_lowpass_clear(AccLowpass* s) noexcept nogil:
     s.lp[0] = 0.0
     s.lp[1] = 0.0

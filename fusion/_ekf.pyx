@@ -6,7 +6,7 @@ from libc.string cimport memcpy, memset
 
 from fusion._rest cimport rest_detect
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport acc_lowpassed
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
@@ -336,10 +336,10 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
 
 
-cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
-                          double dt, double* out) noexcept nogil:
-    """acc_lowpass (fusion/_acclp.pxd) on the ekf's state, out of line."""
-    acc_gyro_lowpass(e.acc_lowpass, &e.acc_lp, gyr, b, acc, dt, out)
+cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
+                                   const double* acc, double dt, double* out) noexcept nogil:
+    """acc_lowpassed (fusion/_acclp.pxd) on the ekf's state, out of line."""
+    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
 
 
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
@@ -376,13 +376,10 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
     sat = gyr != NULL and saturated(gyr, e.gyro_range_)
     ekf_propagate(e, q, s, gyr, dt, sat)
-    if e.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, e.dt_nominal):
-        acc_lowpass_clear(&e.acc_lp)
     if e.rest.time > 0.0:
         ekf_rest(e, q, s, gyr, acc, dt)
-    if acc != NULL and e.acc_lowpass > 0.0:
-        acc_nav_lowpass(e, gyr, s.b, acc, dt, af)
-        acc = af
+    if e.acc_lowpass > 0.0:
+        acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
     if mag != NULL and magd_check(e.magd, q, mag, gyr, dt):

@@ -12,7 +12,7 @@ from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_
                             saturated)
 from fusion._magdist cimport MagDetector, magd_check, magd_clear
 from fusion._magdist import MAGDIST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
+from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -85,12 +85,8 @@ cdef class Madgwick(Estimator):
         cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
         if mag != NULL and not magd_check(self.magd, q, mag, gyr, dt):
             mag = NULL
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(&self.acc_lp)
-        if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
-                             gyr, self.s.bw, acc, dt, af)
-            acc = af
+        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, sat, self.s.bw, acc, dt,
+                            self.dt_nominal, af)
         if gyr != NULL:
             quat_propagate(q, gyr[0] - self.s.bw[0], gyr[1] - self.s.bw[1], gyr[2] - self.s.bw[2], dt)
         g[0] = 0.0

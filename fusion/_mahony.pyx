@@ -12,7 +12,7 @@ from fusion._magdist cimport MagDetector, magd_check, magd_clear
 from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -209,15 +209,15 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
-cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, const double* acc,
-                             double dt, double* out) noexcept nogil:
+cdef const double* mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, bint sat,
+                                      const double* acc, double dt, double* out) noexcept nogil:
     """acc_lowpass (fusion/_acclp.pxd) with the integral term's bias, -ki eint (out of line:
     the batch loop keeps its inlined step)."""
     cdef double b[3]
     b[0] = -e.ki * eint[0]
     b[1] = -e.ki * eint[1]
     b[2] = -e.ki * eint[2]
-    acc_gyro_lowpass(e.acc_lowpass, &e.acc_lp, gyr, b, acc, dt, out)
+    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
 
 
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
@@ -242,13 +242,10 @@ cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double
     cdef double af[3]
     if mag != NULL and not magd_check((<Mahony>e).magd, q, mag, gyr, dt):
         mag = NULL
-    if (<Mahony>e).acc_lowpass > 0.0 and acc_lowpass_lost(gyr, False, dt, e.dt_nominal):
-        acc_lowpass_clear(&(<Mahony>e).acc_lp)
     if (<Mahony>e).rest.time > 0.0:
         mahony_rest(<Mahony>e, eint, gyr, acc, dt)
     if (<Mahony>e).acc_lowpass > 0.0:
-        mahony_acc_lowpass(<Mahony>e, eint, gyr, acc, dt, af)
-        acc = af
+        acc = mahony_acc_lowpass(<Mahony>e, eint, gyr, False, acc, dt, af)
     mahony_step(q, eint, (<Mahony>e).kp, (<Mahony>e).ki, gyr, acc, mag, dt, (<Mahony>e).mag_heading)
 
 
@@ -316,13 +313,10 @@ cdef class Mahony(Estimator):
         cdef double af[3]
         if mag != NULL and not magd_check(self.magd, self.q, mag, gyr, dt):
             mag = NULL
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(&self.acc_lp)
         if self.rest.time > 0.0:
             mahony_rest(self, self.s.eint, gyr, acc, dt)
-        if acc != NULL and self.acc_lowpass > 0.0:
-            mahony_acc_lowpass(self, self.s.eint, gyr, acc, dt, af)
-            acc = af
+        if self.acc_lowpass > 0.0:
+            acc = mahony_acc_lowpass(self, self.s.eint, gyr, sat, acc, dt, af)
         if f == 1.0:
             mahony_step(self.q, self.s.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading)
             return

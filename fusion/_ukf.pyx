@@ -8,7 +8,7 @@ from libc.string cimport memcpy, memset
 
 from fusion._rest cimport rest_detect
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport acc_lowpassed
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
@@ -378,12 +378,8 @@ cdef class UKF(KalmanFilter):
             self.s.P[14] += v
         if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
-            acc_lowpass_clear(&self.acc_lp)
-        if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, &self.acc_lp,
-                             gyr, self.s.b, acc, dt, af)
-            acc = af
+        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, not measured and gyr != NULL,
+                            self.s.b, acc, dt, self.dt_nominal, af)
         if acc != NULL:
             self._acc_correct(acc, dt)
         if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
