@@ -18,6 +18,7 @@ import numpy as np
 
 import fusion
 from fusion import metrics
+from controllers.plots import new_figure   # the one figure helper, re-exported here
 
 __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
            "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
@@ -196,17 +197,6 @@ def print_written(files, out, seconds):
     for f in files:
         print(f"  {f}")
     print(f"done in {seconds:.1f} s")
-
-
-def new_figure(**kwargs):
-    """A matplotlib ``Figure`` (``kwargs``: its arguments) on its own Agg canvas, apart from
-    pyplot: drawing it neither switches the user's backend nor opens a window, and it is
-    freed with its last reference."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    fig = Figure(**kwargs)
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def plot_errors(panels, path, title, t=None, fs=None):

@@ -614,7 +614,7 @@ def _plot_headline(summary, path):
             return ("No headline figure: the grid has no `truth` estimator, and the figure shows each "
                     "estimator's paired difference against it (add `truth` to --estimators).")
         return "No headline figure: the grid has no estimator besides `truth` to compare with it."
-    from benchmarks.compare import new_figure
+    from controllers.plots import new_figure
     sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
     fig = new_figure(figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4))
     axes = fig.subplots(len(panels), 1,
@@ -632,7 +632,7 @@ def _plot_headline(summary, path):
 def _plot_paths(path_rows, path):
     from matplotlib.patches import Circle
 
-    from benchmarks.compare import new_figure
+    from controllers.plots import new_figure
     fig = new_figure(figsize=(7, 7))
     ax = fig.subplots()
     first = path_rows[0]

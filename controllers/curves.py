@@ -78,7 +78,7 @@ def plot_training_curves(runs, path, title=None) -> list[tuple[str, str]]:
     in rows. Returns the panels drawn."""
     if not runs:
         raise ValueError("plot_training_curves: no runs to draw")
-    from benchmarks.compare import new_figure
+    from controllers.plots import new_figure
     tasks = sorted({r["task"] for r in runs})
     estimators = sorted({r["estimator"] for r in runs}, key=lambda e: (e != "truth", e))
     fig = new_figure(figsize=(4.6 * len(estimators), 3.4 * len(tasks)))

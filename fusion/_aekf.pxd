@@ -10,7 +10,7 @@ cdef class AEKF(EKF):
     cdef double dip_tol_rad
     cdef bint use_quest              # measurement == "quest"
     # magnetic reference: given (mag_norm / mag_dip) or learned from the first samples
-    cdef object mag_norm_param, mag_dip_param
+    cdef readonly object mag_norm, mag_dip     # the parameters (None: learned)
     cdef bint learn_norm, learn_dip, have_ref
     cdef double norm_given, dip_given   # mag_norm, mag_dip (degrees) when given
     cdef long long n_learn, n_learned

@@ -104,16 +104,21 @@ cdef class AEKF(EKF):
         self.learn_time = p["learn_time"]
         self.quest_mag_weight = p["quest_mag_weight"]
         self.use_quest = p["measurement"] == "quest"
-        self.mag_norm_param = p["mag_norm"]
-        self.mag_dip_param = p["mag_dip"]
-        self.learn_norm = self.mag_norm_param is None
-        self.learn_dip = self.mag_dip_param is None
-        self.norm_given = 0.0 if self.learn_norm else self.mag_norm_param
-        self.dip_given = 0.0 if self.learn_dip else self.mag_dip_param
+        self.mag_norm = p["mag_norm"]
+        self.mag_dip = p["mag_dip"]
+        self.learn_norm = self.mag_norm is None
+        self.learn_dip = self.mag_dip is None
+        self.norm_given = 0.0 if self.learn_norm else self.mag_norm
+        self.dip_given = 0.0 if self.learn_dip else self.mag_dip
         fs_ = check_fs(fs)
         self.n_learn = (max(1, int(round(self.learn_time * fs_)))
                         if (self.learn_norm or self.learn_dip) else 0)
         EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
+
+    @property
+    def acc_lowpass(self):
+        """Not an aekf parameter: hidden, as an attribute that meant nothing here would be."""
+        raise AttributeError("'aekf' has no acc_lowpass: it judges the raw accelerometer (docs/aekf.md)")
 
     def __dealloc__(self):
         free(self.log)
@@ -238,13 +243,13 @@ cdef class AEKF(EKF):
                 # Rm: tilt as the accelerometer's, heading (rotation about the predicted up
                 # axis u) as the magnetometer's horizontal part: σa² (I4 - v vᵀ)/4 + σh² v vᵀ/4,
                 # v = Ξ(q) u, σh² = σm² / |u × m̂|²
-                sa = self.acc_noise * self.acc_noise / (G0 * G0 * dt)
-                sm = self.mag_noise * self.mag_noise / (dt * c)
+                sa = self.kalman.acc_noise * self.kalman.acc_noise / (G0 * G0 * dt)
+                sm = self.kalman.mag_noise * self.kalman.mag_noise / (dt * c)
                 v[0] = -self.q[1] * u[0] - self.q[2] * u[1] - self.q[3] * u[2]
                 v[1] = self.q[0] * u[0] - self.q[3] * u[1] + self.q[2] * u[2]
                 v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
                 v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
-                quat_measurement_update(self.q, self.b, self.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
+                quat_measurement_update(self.q, self.s.b, self.s.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
                 self.n_quest += 1
                 self.last_code |= 4
                 quat_normalise(self.q)
@@ -254,7 +259,7 @@ cdef class AEKF(EKF):
             self._acc_correct(acc, dt / self.reject_factor if acc_rej else dt)
         # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
         # re-learned, the document's gate's is not
-        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
             self._mag_correct(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 
@@ -333,11 +338,3 @@ cdef class AEKF(EKF):
     @property
     def measurement(self):
         return "quest" if self.use_quest else "vectors"
-
-    @property
-    def mag_norm(self):
-        return self.mag_norm_param
-
-    @property
-    def mag_dip(self):
-        return self.mag_dip_param

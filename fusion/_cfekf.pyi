@@ -1,5 +1,6 @@
 # Type stubs of the compiled fusion._cfekf (fusion/_cfekf.pyx).
 from fusion._core import Array, Estimator
+from fusion._magdist import _MagdistProperties
 from fusion._rest import _RestProperties
 
 WINDOW_S: float
@@ -8,7 +9,7 @@ CORE_PARAMS: tuple[str, ...]
 
 def default_window(fs: float) -> int: ...
 
-class CFEKF(Estimator, _RestProperties):
+class CFEKF(Estimator, _RestProperties, _MagdistProperties):
     gyro_noise: float
     bias_noise: float
     q_init_std: float

@@ -16,6 +16,7 @@ from fusion._core import FLAG, TIMER
 from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
 from fusion._rest import REST_PROPERTIES
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
@@ -41,20 +42,21 @@ def default_window(fs):
     return max(1, int(round(WINDOW_S * fs)))
 
 
-cdef EKF _core(CFEKF e):
-    """e's EKF core, or a RuntimeError for an object whose __init__ did not run."""
-    if e.core is None:
+def _held(CFEKF e, part):
+    """e's EKF core ("core") or complementary filter ("cf"), or a RuntimeError for an object
+    whose __init__ did not run."""
+    f = e.core if part == "core" else e.cf
+    if f is None:
         raise RuntimeError("CFEKF object was not configured: call the class's __init__ or use fusion.make")
-    return e.core
+    return f
 
 
-def _core_attr(CFEKF e, name):
-    return getattr(_core(e), name)
-
-
-def _of_core(*names):
-    """Read-only properties that read the EKF core's attributes of the same names."""
-    return tuple(property(lambda e, n=n: _core_attr(e, n), doc=f"The EKF core's {n}.") for n in names)
+def _of(part, *names):
+    """Read-only properties that read the attributes of the same names of the filter it holds
+    as part ("core": the EKF, "cf": the complementary filter)."""
+    what = "EKF core" if part == "core" else "complementary filter"
+    return tuple(property(lambda e, n=n: getattr(_held(e, part), n), doc=f"The {what}'s {n}.")
+                 for n in names)
 
 
 cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* acc,
@@ -78,7 +80,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
         # the complementary filter integrates the gyro corrected by the EKF's bias (from
         # before this sample's update)
         for i in range(3):
-            g[i] = gyr[i] - k.b[i]
+            g[i] = gyr[i] - k.s.b[i]
         e.cf.step_flagged(g, acc, mag, dt, sat)
     else:
         e.cf.step_flagged(gyr, acc, mag, dt, sat)
@@ -105,7 +107,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
             else:
                 e.t_quiet += dt
                 learn = e.t_quiet >= LEARN_HOLD
-        quat_measurement_update(k.q, k.b, k.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
+        quat_measurement_update(k.q, k.s.b, k.s.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
     quat_normalise(k.q)
     memcpy(e.q, k.q, 4 * sizeof(double))
 
@@ -138,10 +140,16 @@ cdef class CFEKF(Estimator):
         MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
     # the rest parameters and counts, read from the core's detector (fusion._rest)
     rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    # the disturbance parameters and count, read from the complementary filter's (its magd)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
     # bias] are the core's
-    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of_core(
-        "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
+    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of(
+        "core", "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
+    # its complementary filter's gains and the parts of it that take the accelerometer and
+    # magnetometer (acc_lowpass: fusion/_acclp.pxd; magd: its disturbance detector)
+    kp, ki, mag_weight, mag_update, acc_lowpass, magd = _of("cf", "kp", "ki", "mag_weight", "mag_update",
+                                                            "acc_lowpass", "magd")
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
@@ -209,48 +217,6 @@ cdef class CFEKF(Estimator):
     def window(self):
         """Sliding-mean window, samples."""
         return (<object>self.pre_gyr).window
-
-    @property
-    def mag_rejected(self):
-        """Magnetometer samples the complementary filter rejected as disturbed."""
-        return self.cf.mag_rejected
-
-    @property
-    def mag_update(self):
-        return self.cf.mag_update
-
-    @property
-    def acc_lowpass(self):
-        """s: the complementary filter's accelerometer low-pass (fusion/_acclp.pxd; 0: off)."""
-        return self.cf.acc_lowpass
-
-    @property
-    def magdist_time(self):
-        return self.cf.magdist_time
-
-    @property
-    def magdist_norm_tol(self):
-        return self.cf.magdist_norm_tol
-
-    @property
-    def magdist_dip_tol(self):
-        return self.cf.magdist_dip_tol
-
-    @property
-    def magdist_new_time(self):
-        return self.cf.magdist_new_time
-
-    @property
-    def kp(self):
-        return None if self.cf is None else self.cf.kp     # None: not configured
-
-    @property
-    def ki(self):
-        return None if self.cf is None else self.cf.ki
-
-    @property
-    def mag_weight(self):
-        return None if self.cf is None else self.cf.mag_weight
 
     @property
     def cf_quaternion(self):

@@ -1,5 +1,5 @@
+from libc.string cimport memcpy
 from fusion._qmath cimport vec3_valid, vec3_finite, quat_mul
-from fusion._magdist cimport MagDetector
 
 # sqrt(1/2) to the last bit (the NED frame change)
 cdef extern from *:
@@ -36,8 +36,6 @@ cdef class Estimator:
     cdef bint configured
     # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
     cdef bint busy
-    # magnetic disturbance detection, for the estimators that use the magnetometer (time 0: off)
-    cdef MagDetector magd
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil
@@ -45,7 +43,6 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
-    cdef list _magd_fields(self)
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
     # may override it with a loop that inlines its step (see run_fast). With stop_invalid it
@@ -82,6 +79,64 @@ cdef inline bint sample_fast(Estimator e, const double* g, const double* a,
     """Initialised and every vector valid: _process would only call _step. Otherwise
     (skips, counting, the first attitude) the sample goes through _process."""
     return e.is_init and vec3_finite(g) and vec3_valid(a) and (m == NULL or vec3_valid(m))
+
+# The state's one path through a kernel's batch loop: q and the kernel's state struct (size
+# bytes at own; size 0: none) copied into locals before the loop (batch_enter), back after it
+# (batch_leave), and around each sample the loop leaves to _process (batch_slow_sample).
+
+cdef inline void batch_enter(Estimator e, double* q, void* local, const void* own,
+                             size_t size) noexcept nogil:
+    memcpy(q, e.q, 4 * sizeof(double))
+    if size:
+        memcpy(local, own, size)
+
+cdef inline void batch_leave(Estimator e, const double* q, const void* local, void* own,
+                             size_t size) noexcept nogil:
+    memcpy(e.q, q, 4 * sizeof(double))
+    if size:
+        memcpy(own, local, size)
+
+cdef inline bint batch_slow_sample(Estimator e, double* q, void* local, void* own, size_t size,
+                                   const double* g, const double* a, const double* m, double dt,
+                                   bint stop_invalid) noexcept nogil:
+    """A sample sample_fast refused, through e._process with the locals written back first and
+    read again after. True: the batch stops here (stop_invalid, and the sample is invalid)."""
+    if stop_invalid and not sample_valid(g, a, m):
+        return True
+    batch_leave(e, q, local, own, size)
+    e._process(g, a, m, dt)
+    batch_enter(e, q, local, own, size)
+    return False
+
+# The batch loop itself, one for every kernel with a step of its own: step is the kernel's
+# sample on the local state (local: its struct; q: the attitude), called through a constant
+# pointer, which the compiler inlines into the kernel's _run_batch (no call per sample).
+ctypedef void (*batch_step)(Estimator e, double* q, void* local, const double* g, const double* a,
+                            const double* m, double dt) noexcept nogil
+
+cdef inline Py_ssize_t batch_loop(Estimator e, batch_step step, void* local, void* own, size_t size,
+                                  const double* g, const double* a, const double* m,
+                                  const double* d, double dt, double* o, Py_ssize_t n,
+                                  bint stop_invalid) noexcept nogil:
+    """Estimator._run_batch's loop with the state in locals (stores through o cannot alias
+    them, so the compiler keeps them in registers): the samples sample_fast accepts go to
+    step, the others through batch_slow_sample."""
+    cdef double q[4]
+    cdef bint ned = e.ned
+    cdef Py_ssize_t i
+    cdef const double* mi
+    cdef double h
+    batch_enter(e, q, local, own, size)
+    for i in range(n):
+        mi = m + 3 * i if m != NULL else NULL
+        h = d[i] if d != NULL else dt
+        if sample_fast(e, g + 3 * i, a + 3 * i, mi):
+            step(e, q, local, g + 3 * i, a + 3 * i, mi, h)
+        elif batch_slow_sample(e, q, local, own, size, g + 3 * i, a + 3 * i, mi, h, stop_invalid):
+            return i
+        quat_out(q, ned, o + 4 * i)
+    batch_leave(e, q, local, own, size)
+    return n
 
 cdef inline void quat_out(const double* q, bint ned, double* out) noexcept nogil:
     """The attitude q (ENU) in the public frame: c ⊗ q for NED."""

@@ -58,16 +58,3 @@ class Estimator:
     prefilters: dict[str, Prefilter | None]
     params: dict[str, Any]
     def __reduce__(self) -> tuple[Any, ...]: ...
-
-
-class _KalmanParams:
-    """The process and measurement noise of the Kalman filters (ekf family, ukf)."""
-    gyro_noise: float
-    bias_noise: float
-    acc_noise: float
-    mag_noise: float
-    q_init_std: float
-    bias_init_std: float
-    motion_rate: float
-    bias: Array
-    covariance: Array

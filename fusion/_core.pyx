@@ -4,9 +4,8 @@ import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
-from fusion._magdist cimport magd_clear, magd_set
 from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
-from fusion.checks import number, choice
+from fusion.checks import number, choice, state_header
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -26,7 +25,11 @@ FRAMES = ("ENU", "NED")
 ON_INVALID = ("raise", "skip")
 
 # --- state round trip (docs/estimators.md, "State, pickling, copies") --------------------
-STATE_VERSION = 4     # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover; 3: magnetic disturbance detection; 4: acc_lp_time (the low-pass's running-mean start)
+# 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover;
+# 3: magnetic disturbance detection; 4: rest detection in mahony, cf-ekf composed (an EKF core
+# and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*);
+# 5: the accelerometer low-pass's running-mean start (acc_lp_time)
+STATE_VERSION = 5
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter
@@ -39,6 +42,7 @@ TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
 COV = "cov"
+ACC_LP_CHECKS = {"qg": "unit", "lp_time": TIMER}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
 COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 
@@ -137,6 +141,23 @@ cdef class Prefilter:
         return []
 
 
+def struct_fields(view, checks=None, prefix=""):
+    """The state fields of one C struct, as _state_fields lists them: view is the struct as a
+    typed memoryview of one element (``<S[:1]>&self.s``), whose structured dtype gives every
+    member's name, type and length, so that a member added to the struct is saved, loaded
+    and checked with no other line. Each member is a field prefix + its name, a view onto
+    the struct; its check from checks (name -> check), else None for doubles, FLAG for a
+    bint (C int) and COUNT for a long long (an int member other than a bint must be given)."""
+    a = np.asarray(view)
+    checks = checks or {}
+    out = []
+    for name in a.dtype.names:
+        v = a[name].reshape(-1)
+        default = None if v.dtype.kind == "f" else (FLAG if v.dtype.itemsize == 4 else COUNT)
+        out.append((prefix + name, v, checks.get(name, default)))
+    return out
+
+
 cdef list _fields_of(Estimator e):
     """The estimator's state fields followed by those of its prefilters ("pre_acc.z1", ...)."""
     fields = e._state_fields()
@@ -147,14 +168,7 @@ cdef list _fields_of(Estimator e):
 
 
 def _check_header(state):
-    if not isinstance(state, dict):
-        raise ValueError(f"state must be a dict made by est.state(), got {type(state).__name__}")
-    missing = [k for k in STATE_KEYS if k not in state]
-    if missing:
-        raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from est.state()")
-    v = state["version"]
-    if isinstance(v, bool) or not isinstance(v, int) or v != STATE_VERSION:
-        raise ValueError(f"state version {v!r} is not supported (this build reads version {STATE_VERSION})")
+    state_header(state, STATE_KEYS, STATE_VERSION, "est.state()")
     if not isinstance(state["fields"], dict) or not isinstance(state["params"], dict):
         raise ValueError("state['fields'] and state['params'] must be dicts")
 
@@ -250,6 +264,15 @@ cdef void _release(Estimator e) noexcept:
     _pre_mark(e.pre_mag, False)
 
 
+cdef object _exclusively(Estimator e, f, tuple args):
+    """f(*args) with e claimed for the call (_claim), released however the call ends."""
+    _claim(e)
+    try:
+        return f(*args)
+    finally:
+        _release(e)
+
+
 cdef class Estimator:
     """Base of every attitude estimator. Use fusion.make(name, fs, ...) to build one."""
 
@@ -272,9 +295,10 @@ cdef class Estimator:
     def _take_params(self, params):
         """The parameters: each given one checked by its Param, the defaults for the rest.
         Unknown names, and bad values, are a ValueError naming them and what is accepted.
-        The parts the base class holds (saturation range, magnetic disturbance detection)
-        take theirs here, in the estimators that declare them; a component the kernel holds
-        (rest detection: fusion._rest) is built by the kernel from the values returned."""
+        The part the base class holds (the saturation range) takes its value here, in the
+        estimators that declare it; a component the kernel holds (rest detection:
+        fusion._rest; magnetic disturbance detection: fusion._magdist) is built by the
+        kernel from the values returned."""
         unknown = sorted(set(params) - set(self.PARAMS))
         if unknown:
             accepted = ", ".join(sorted(self.PARAMS)) or "none"
@@ -283,9 +307,6 @@ cdef class Estimator:
         p = {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
         if "gyro_range" in p:
             self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
-        if "magdist_time" in p:
-            magd_set(&self.magd, (p["magdist_time"], p["magdist_norm_tol"], p["magdist_dip_tol"],
-                                  p["magdist_new_time"]))
         return p
 
     # --- kernel hooks -------------------------------------------------------------------
@@ -336,15 +357,6 @@ cdef class Estimator:
         self._step(gyr if gyr_ok else NULL, acc if acc_ok else NULL,
                    mag if mag_ok else NULL, dt)
 
-    cdef list _magd_fields(self):
-        """The magnetic disturbance detector's state, for the estimators that use it."""
-        return [("magd_cur", <double[:2]>self.magd.cur, None), ("magd_ref", <double[:2]>self.magd.ref, None),
-                ("magd_cand", <double[:2]>self.magd.cand, None),
-                ("magd_t", <double[:3]>&self.magd.t_undist, None),
-                ("magd_disturbed", <int[:1]><int*>&self.magd.disturbed, FLAG),
-                ("magd_started", <int[:1]><int*>&self.magd.started, FLAG),
-                ("mag_rejected", <long long[:1]>&self.magd.n, COUNT)]
-
     cdef list _state_fields(self):
         return [("q", <double[:4]>self.q, "unit"), ("q0", <double[:4]>self.q0, "unit"),
                 ("is_init", <int[:1]><int*>&self.is_init, FLAG), ("has_q0", <int[:1]><int*>&self.has_q0, FLAG),
@@ -372,11 +384,7 @@ cdef class Estimator:
     def reset(self, q0=None):
         """Forget everything. q0 ([w, x, y, z] in the estimator's frame) fixes the start
         attitude; without it the first valid accelerometer (+ magnetometer) sample sets it."""
-        _claim(self)
-        try:
-            self._reset(q0)
-        finally:
-            _release(self)
+        _exclusively(self, self._reset, (q0,))
 
     def _reset(self, q0):
         cdef double qin[4]
@@ -408,7 +416,6 @@ cdef class Estimator:
         for pre in (self.pre_gyr, self.pre_acc, self.pre_mag):
             if pre is not None:
                 (<Prefilter>pre).clear()
-        magd_clear(&self.magd)
         self._reset_state()
 
 
@@ -446,11 +453,7 @@ cdef class Estimator:
         """A batch: gyr, acc, mag as (N, 3) arrays (mag None for 6-axis); dt None (1/fs), a
         scalar, or an (N,) array of time steps in s for uneven time stamps. Returns (N, 4)
         quaternions, the same numbers as N calls of update()."""
-        _claim(self)        # the loop below releases the GIL
-        try:
-            return self._run(gyr, acc, mag, dt)
-        finally:
-            _release(self)
+        return _exclusively(self, self._run, (gyr, acc, mag, dt))    # its loop releases the GIL
 
     def _run(self, gyr, acc, mag, dt):
         G = _as_samples(gyr, "gyr")
@@ -537,28 +540,6 @@ cdef class Estimator:
         return self.gyro_range_ if self.gyro_range_ > 0.0 else None
 
     @property
-    def magdist_time(self):
-        return self.magd.time
-
-    @property
-    def magdist_norm_tol(self):
-        return self.magd.norm_tol
-
-    @property
-    def magdist_dip_tol(self):
-        return self.magd.dip_tol_deg
-
-    @property
-    def magdist_new_time(self):
-        return self.magd.new_time
-
-    @property
-    def mag_rejected(self):
-        """Magnetometer samples rejected as disturbed since the last reset (0 where the
-        estimator has no disturbance detection)."""
-        return self.magd.n
-
-    @property
     def frame(self):
         return "NED" if self.ned else "ENU"
 
@@ -592,17 +573,16 @@ cdef class Estimator:
         terms, flags, counters, prefilter histories), with the configuration, as a plain dict
         of Python numbers, lists and strings (picklable, JSON-serialisable, exact).
         est.load_state(s) or Estimator.from_state(s) resumes bit-identically."""
-        _claim(self)
-        try:
-            fields = {}
-            for name, view, check in _fields_of(self):
-                a = np.asarray(view)
-                fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
-            return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
-                    "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
-                    "fields": fields}
-        finally:
-            _release(self)
+        return _exclusively(self, self._state, ())
+
+    def _state(self):
+        fields = {}
+        for name, view, check in _fields_of(self):
+            a = np.asarray(view)
+            fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
+        return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
+                "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
+                "fields": fields}
 
     def load_state(self, state):
         """Restore a state from est.state() of an estimator of the same kind. The dynamic
@@ -611,11 +591,7 @@ cdef class Estimator:
         missing or extra fields, wrong shapes or types, or values out of their ranges (each
         field's in _state_fields: a covariance symmetric positive definite, a bias within
         BIAS_MAX, timers within TIME_MAX, ...)."""
-        _claim(self)
-        try:
-            self._load_state(state)
-        finally:
-            _release(self)
+        _exclusively(self, self._load_state, (state,))
 
     def _load_state(self, state):
         _check_header(state)

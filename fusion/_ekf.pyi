@@ -1,9 +1,7 @@
 # Type stubs of the compiled fusion._ekf (fusion/_ekf.pyx).
-from fusion._core import Estimator, _KalmanParams
-from fusion._rest import _RestProperties
+from fusion._kalman import KalmanFilter
 
-class EKF(Estimator, _KalmanParams, _RestProperties):
-    acc_lowpass: float
+class EKF(KalmanFilter):
     mag_update: str
     acc_update: str
 

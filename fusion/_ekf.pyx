@@ -2,15 +2,16 @@
 """`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
 import numpy as np
 from libc.math cimport sqrt
-from libc.string cimport memcpy
+from libc.string cimport memcpy, memset
 
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
+from fusion._rest cimport rest_detect
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
-from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
+from fusion._acclp cimport acc_lowpassed
+from fusion._kalman cimport KalmanFilter
+from fusion._kalman import STATE_CHECKS
+from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_fs, FLAG, BIAS, COV, TIMER
+from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
@@ -28,17 +29,17 @@ cdef enum:
     GAIN_BIAS = 3
 
 
-cdef inline void ekf_propagate(EKF e, double* q, const double* b, double* P, double* t_run,
-                               const double* gyr, double dt, bint sat) noexcept nogil:
+cdef inline void ekf_propagate(EKF e, double* q, EKFState* s, const double* gyr, double dt,
+                               bint sat) noexcept nogil:
     """The time update of one step: predict with the gyro where there is one, then grow
     the attitude covariance for the motion it did not measure (dropped sample, time gap,
     saturated sample: sat; docs/robustness.md, "Recovery")."""
     cdef bint measured = gyr != NULL and not sat
-    cdef double v = unobserved_variance(t_run, dt, e.dt_nominal, measured, e.motion_rate)
+    cdef double v = unobserved_variance(&s.t_unmeasured, dt, e.dt_nominal, measured, e.kalman.motion_rate)
     if gyr != NULL:
-        ekf_predict(e, q, b, P, gyr, dt)
+        ekf_predict(e, q, s.b, s.P, gyr, dt)
     if v > 0.0:
-        ekf_inflate_attitude(q, P, v)
+        ekf_inflate_attitude(q, s.P, v)
 
 
 cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noexcept nogil:
@@ -96,7 +97,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
             F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
                             + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
     # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
-    gq = 0.25 * dt * e.gyro_noise * e.gyro_noise
+    gq = 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise
     pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
     pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
     pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
@@ -105,7 +106,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
         for j in range(3):
             P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
             P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
-    s = e.bias_noise * e.bias_noise * dt
+    s = e.kalman.bias_noise * e.kalman.bias_noise * dt
     for i in range(4, 7):
         P[i * 8] += s
     memcpy(q, qn, 4 * sizeof(double))
@@ -263,7 +264,7 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     cdef double z[3]
     cdef double h[3]
     cdef double H[12]
-    cdef double sa = e.acc_noise / G0
+    cdef double sa = e.kalman.acc_noise / G0
     unit3(acc, z)
     up_in_body(q, h)
     jac_up_in_body(q, H)
@@ -332,16 +333,16 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
         H[j] += n[0]
         H[4 + j] += n[1]
         H[8 + j] += n[2]
-    ekf_vector_update(q, b, P, z, h, H, e.mag_noise * e.mag_noise / dt, e.mag_gain)
+    ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
 
 
-cdef void acc_nav_lowpass(EKF e, const double* gyr, const double* b, const double* acc,
-                          double dt, double* out) noexcept nogil:
-    """acc_lowpass (fusion/_acclp.pxd) on the ekf's state, out of line."""
-    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time, gyr, b, acc, dt, out)
+cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
+                                   const double* acc, double dt, double* out) noexcept nogil:
+    """acc_lowpassed (fusion/_acclp.pxd) on the ekf's state, out of line."""
+    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
 
 
-cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
+cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
                    const double* acc, double dt) noexcept nogil:
     """Rest detection (fusion/_rest.pxd) and, at rest, the zero-rate update: the gyro sample
     measures the bias, z = gyr, h = b, H = [0 I3], its gain on the bias only
@@ -349,6 +350,8 @@ cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
     cdef double U[21]    # P Hᵀ = P[:, 4:7]
     cdef double S[9]
     cdef double y[3]
+    cdef double* b = st.b
+    cdef double* P = st.P
     cdef int i, j
     if not rest_detect(e.rest, gyr, acc, dt):
         return
@@ -363,32 +366,34 @@ cdef void ekf_rest(EKF e, double* q, double* b, double* P, const double* gyr,
     kalman_apply(q, b, P, U, S, y, GAIN_BIAS)
 
 
-cdef inline void ekf_step(EKF e, double* q, double* b, double* P, double* t_run,
-                          const double* gyr, const double* acc, const double* mag,
-                          double dt) noexcept nogil:
-    """One sample (gyr, acc, mag may be NULL) on the state q, b, P, t_run in place, with e's
+cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, const double* acc,
+                          const double* mag, double dt) noexcept nogil:
+    """One sample (gyr, acc, mag may be NULL) on the state q, s in place, with e's
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
     cdef bint sat
     if gyr != NULL and out_of_range(gyr, e.gyro_range_):
         gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
     sat = gyr != NULL and saturated(gyr, e.gyro_range_)
-    ekf_propagate(e, q, b, P, t_run, gyr, dt, sat)
-    if e.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, e.dt_nominal):
-        acc_lowpass_clear(e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time)
+    ekf_propagate(e, q, s, gyr, dt, sat)
     if e.rest.time > 0.0:
-        ekf_rest(e, q, b, P, gyr, acc, dt)
-    if acc != NULL and e.acc_lowpass > 0.0:
-        acc_nav_lowpass(e, gyr, b, acc, dt, af)
-        acc = af
+        ekf_rest(e, q, s, gyr, acc, dt)
+    if e.acc_lowpass > 0.0:
+        acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
-        ekf_acc_update(e, q, b, P, acc, dt)
-    if mag != NULL and magd_check(&e.magd, q, mag, gyr, dt):
-        ekf_mag_update(e, q, b, P, mag, dt)
+        ekf_acc_update(e, q, s.b, s.P, acc, dt)
+    if mag != NULL and magd_check(e.magd, q, mag, gyr, dt):
+        ekf_mag_update(e, q, s.b, s.P, mag, dt)
     quat_normalise(q)
 
 
-cdef class EKF(Estimator):
+cdef inline void ekf_batch_step(Estimator e, double* q, void* s, const double* gyr,
+                                const double* acc, const double* mag, double dt) noexcept nogil:
+    """ekf_step as fusion/_core.pxd's batch_loop calls it."""
+    ekf_step(<EKF>e, q, <EKFState*>s, gyr, acc, mag, dt)
+
+
+cdef class EKF(KalmanFilter):
     """Quaternion + gyro-bias extended Kalman filter with accelerometer and magnetometer
     vector measurements and the Joseph-form covariance update."""
     name = "ekf"
@@ -412,120 +417,67 @@ cdef class EKF(Estimator):
               "corrects the inclination (and the bias across the vertical) only, so that a linear "
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)
-    # the rest parameters and counts, read from the detector it holds (fusion._rest)
-    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
-        self.rest = RestDetector(p)
-        self.motion_rate = p["motion_rate"]
+        p = self._take_params(params)       # checked; gyro_range taken
+        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
-        self.gyro_noise = p["gyro_noise"]
-        self.bias_noise = p["bias_noise"]
-        self.acc_noise = p["acc_noise"]
-        self.mag_noise = p["mag_noise"]
-        self.q_init_std = p["q_init_std"]
-        self.bias_init_std = p["bias_init_std"]
-        # ekf and iir-ekf (ekf_step); the subclasses with a step of their own do not take it
-        self.acc_lowpass = p.get("acc_lowpass", 0.0)
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _filter_fields(self):
-        return [("b", <double[:3]>self.b, BIAS), ("P", <double[:49]>self.P, COV),
-                ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
+        return struct_fields(<EKFState[:1]>&self.s, STATE_CHECKS)
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + self._filter_fields()
-                + [("acc_lp", <double[:3]>self.acc_lp, None),
-                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                   ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
-                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self.rest.fields() + self._magd_fields())
+        return Estimator._state_fields(self) + self._filter_fields() + self.parts_fields()
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
-        for i in range(49):
-            self.P[i] = 0.0
+        memset(&self.s, 0, sizeof(EKFState))
         for i in range(4):
-            self.P[i * 8] = self.q_init_std * self.q_init_std
+            self.s.P[i * 8] = self.kalman.q_init_std * self.kalman.q_init_std
         for i in range(4, 7):
-            self.P[i * 8] = self.bias_init_std * self.bias_init_std
-        self.b[0] = 0.0
-        self.b[1] = 0.0
-        self.b[2] = 0.0
-        self.t_run = 0.0
-        rest_clear(self.rest)
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+            self.s.P[i * 8] = self.kalman.bias_init_std * self.kalman.bias_init_std
+        self.clear_parts()
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:
-        ekf_propagate(self, self.q, self.b, self.P, &self.t_run, gyr, dt, sat)
+        ekf_propagate(self, self.q, &self.s, gyr, dt, sat)
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
-        ekf_predict(self, self.q, self.b, self.P, gyr, dt)
+        ekf_predict(self, self.q, self.s.b, self.s.P, gyr, dt)
 
     cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
-        ekf_acc_update(self, self.q, self.b, self.P, acc, dt)
+        ekf_acc_update(self, self.q, self.s.b, self.s.P, acc, dt)
 
     cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil:
-        ekf_mag_update(self, self.q, self.b, self.P, mag, dt)
+        ekf_mag_update(self, self.q, self.s.b, self.s.P, mag, dt)
 
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil:
-        ekf_rest(self, self.q, self.b, self.P, gyr, acc, dt)
+        ekf_rest(self, self.q, &self.s, gyr, acc, dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
-        ekf_step(self, self.q, self.b, self.P, &self.t_run, gyr, acc, mag, dt)
+        ekf_step(self, self.q, &self.s, gyr, acc, mag, dt)
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
                                bint stop_invalid) noexcept nogil:
-        # the state lives in locals during the loop, as in Mahony._run_batch: stores through
-        # o cannot alias them, so the compiler keeps q and b in registers and P unreloaded
-        cdef double q[4]
-        cdef double b[3]
-        cdef double P[49]
-        cdef double t_run
-        cdef bint ned = self.ned
-        cdef Py_ssize_t i
-        cdef const double* mi
+        # the state in locals (fusion/_core.pxd batch_loop): the compiler keeps q and b in
+        # registers and P unreloaded
+        cdef EKFState s
         if not (self.own_step and run_fast(self)):
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
-        memcpy(q, self.q, 4 * sizeof(double))
-        memcpy(b, self.b, 3 * sizeof(double))
-        memcpy(P, self.P, 49 * sizeof(double))
-        t_run = self.t_run
-        for i in range(n):
-            mi = m + 3 * i if m != NULL else NULL
-            if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                ekf_step(self, q, b, P, &t_run, g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-            else:
-                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
-                    return i
-                memcpy(self.q, q, 4 * sizeof(double))
-                memcpy(self.b, b, 3 * sizeof(double))
-                memcpy(self.P, P, 49 * sizeof(double))
-                self.t_run = t_run
-                self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-                memcpy(q, self.q, 4 * sizeof(double))
-                memcpy(b, self.b, 3 * sizeof(double))
-                memcpy(P, self.P, 49 * sizeof(double))
-                t_run = self.t_run
-            quat_out(q, ned, o + 4 * i)
-        memcpy(self.q, q, 4 * sizeof(double))
-        memcpy(self.b, b, 3 * sizeof(double))
-        memcpy(self.P, P, 49 * sizeof(double))
-        self.t_run = t_run
-        return n
+        return batch_loop(self, ekf_batch_step, &s, &self.s, sizeof(EKFState), g, a, m, d, dt, o, n,
+                          stop_invalid)
 
     @property
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
-        return np.array([self.b[0], self.b[1], self.b[2]])
+        return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
 
     @property
     def mag_update(self):
@@ -540,7 +492,7 @@ cdef class EKF(Estimator):
     @property
     def covariance(self):
         """7x7 covariance of [q (in the estimator's frame), gyro bias]."""
-        P = np.array([self.P[i] for i in range(49)]).reshape(7, 7)
+        P = np.array([self.s.P[i] for i in range(49)]).reshape(7, 7)
         if self.ned:
             s = np.sqrt(0.5)
             Lc = np.array([[0, -s, -s, 0], [s, 0, 0, s], [s, 0, 0, -s], [0, -s, s, 0]])

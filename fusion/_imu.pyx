@@ -88,6 +88,13 @@ cdef int _read3(object v, double* out, str msg) except -1:
     return 0
 
 
+cdef double _optional(object v, bint* given, double absent=0.0) except? -1.0:
+    """A Python number or None as C: v, or absent for None; given (if not NULL) says which."""
+    if given != NULL:
+        given[0] = v is not None
+    return absent if v is None else v
+
+
 cdef class StepKernel:
     """One IMU's streaming state and constants; see the module docstring."""
 
@@ -103,11 +110,9 @@ cdef class StepKernel:
         self.jitter_s = spec.jitter_s
         self.lim = 0.45 / self.fs
         self.hold = imu._hold
-        pr = imu._physics_rate
-        self.has_prate = pr is not None
-        self.prate = pr if pr is not None else 0.0
-        self.lpf_g = spec.gyro.lpf_hz if spec.gyro.lpf_hz is not None else -1.0
-        self.lpf_acc = spec.acc.lpf_hz if spec.acc.lpf_hz is not None else -1.0
+        self.prate = _optional(imu._physics_rate, &self.has_prate)
+        self.lpf_g = _optional(spec.gyro.lpf_hz, NULL, -1.0)
+        self.lpf_acc = _optional(spec.acc.lpf_hz, NULL, -1.0)
         for i in range(30):
             self.R[i] = imu._R[i]
             self.C[i] = imu._C[i]
@@ -137,8 +142,7 @@ cdef class StepKernel:
             self.mlo = imu._mlo
             self.mhi = imu._mhi
             self.mclip = imu._mclip
-            self.has_mrate = imu._mrate is not None
-            self.mrate = imu._mrate if imu._mrate is not None else 0.0
+            self.mrate = _optional(imu._mrate, &self.has_mrate)
         self.vib = imu._vib is not None
         if self.vib:
             self.vib_w = np.ascontiguousarray(imu._vib_w, dtype=np.float64)
@@ -151,12 +155,10 @@ cdef class StepKernel:
         self.pos = imu._pos
         self.k = imu._k
         self.T_next = imu._T_next
-        self.has_T_prev = imu._T_prev is not None
-        self.T_prev = imu._T_prev if imu._T_prev is not None else 0.0
-        self.has_origin = imu._origin is not None
-        self.origin = imu._origin if imu._origin is not None else 0.0
+        self.T_prev = _optional(imu._T_prev, &self.has_T_prev)
+        self.origin = _optional(imu._origin, &self.has_origin)
         self.steps = imu._steps
-        self.tau_last = imu._tau_last if imu._tau_last is not None else 0.0
+        self.tau_last = _optional(imu._tau_last, NULL)
         for i in range(9):
             self.y_last[i] = imu._y_last[i]
             self.y_prev[i] = imu._y_prev[i]
@@ -170,10 +172,8 @@ cdef class StepKernel:
             for i in range(3):
                 self.mag_held[i] = imu._mag_held[i]
         self.mag_on = -1 if imu._mag_on is None else (1 if imu._mag_on else 0)
-        self.has_lpf_dt = imu._lpf_dt is not None
-        self.lpf_dt = imu._lpf_dt if imu._lpf_dt is not None else 0.0
-        self.has_slot = imu._mag_slot_last is not None
-        self.slot_last = imu._mag_slot_last if imu._mag_slot_last is not None else 0.0
+        self.lpf_dt = _optional(imu._lpf_dt, &self.has_lpf_dt)
+        self.slot_last = _optional(imu._mag_slot_last, &self.has_slot)
         self.live = True
 
     def store(self, imu):

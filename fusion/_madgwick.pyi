@@ -1,8 +1,9 @@
 # Type stubs of the compiled fusion._madgwick (fusion/_madgwick.pyx).
 from fusion._core import Array, Estimator
+from fusion._magdist import _MagdistProperties
 from fusion._rest import RestDetector
 
-class Madgwick(Estimator):
+class Madgwick(Estimator, _MagdistProperties):
     beta: float
     zeta: float
     rest_tau: float

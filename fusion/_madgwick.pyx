@@ -2,17 +2,19 @@
 """`madgwick`: Madgwick's gradient-descent orientation filter (docs/madgwick.md)."""
 import numpy as np
 from libc.math cimport sqrt
+from libc.string cimport memset
 
 from fusion._core cimport Estimator
-from fusion._core import BIAS, RECOVERY, FLAG, TIMER
+from fusion._core import struct_fields, BIAS, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST, REST_PULL
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_lost, acc_lowpass_clear
+from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -48,12 +50,15 @@ cdef class Madgwick(Estimator):
     # the rest properties but rest_noise (no zero-rate update here), read from its detector
     rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
     at_rest, rest_samples = REST_PROPERTIES[4:]
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range and the disturbance detector taken
         self.beta = p["beta"]
         self.zeta = p["zeta"]
+        self.magd = MagDetector(p)
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.rest = RestDetector(p)
@@ -62,20 +67,15 @@ cdef class Madgwick(Estimator):
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("bw", <double[:3]>self.bw, BIAS),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
-                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                 ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
-                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self.rest.fields() + self._magd_fields())
+        return (Estimator._state_fields(self)
+                + struct_fields(<MadgwickState[:1]>&self.s, {"bw": BIAS, "t_recover": RECOVERY})
+                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
+                + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
-        self.bw[0] = 0.0
-        self.bw[1] = 0.0
-        self.bw[2] = 0.0
-        self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+        memset(&self.s, 0, sizeof(MadgwickState))
+        acc_lowpass_clear(&self.acc_lp)
+        magd_clear(self.magd)
         rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
@@ -92,21 +92,17 @@ cdef class Madgwick(Estimator):
         cdef double n2, k
         cdef int i
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
-        cdef double f = recovery_gain(&self.t_recover, sat, dt)
-        if mag != NULL and not magd_check(&self.magd, q, mag, gyr, dt):
+        cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
+        if mag != NULL and not magd_check(self.magd, q, mag, gyr, dt):
             mag = NULL
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         if self.rest.time > 0.0 and rest_detect(self.rest, gyr, acc, dt):
             k = dt / (self.rest_tau + dt)
             for i in range(3):
-                self.bw[i] += k * (gyr[i] - self.bw[i])
-        if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time,
-                             gyr, self.bw, acc, dt, af)
-            acc = af
+                self.s.bw[i] += k * (gyr[i] - self.s.bw[i])
+        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, sat, self.s.bw, acc, dt,
+                            self.dt_nominal, af)
         if gyr != NULL:
-            quat_propagate(q, gyr[0] - self.bw[0], gyr[1] - self.bw[1], gyr[2] - self.bw[2], dt)
+            quat_propagate(q, gyr[0] - self.s.bw[0], gyr[1] - self.s.bw[1], gyr[2] - self.s.bw[2], dt)
         g[0] = 0.0
         g[1] = 0.0
         g[2] = 0.0
@@ -152,9 +148,9 @@ cdef class Madgwick(Estimator):
             g[3] *= k
             if self.zeta > 0.0 and f == 1.0:     # (held while recovering) w_eps = 2 vec(q* ⊗ g) = 2 Xi(q)^T g
                 k = 2.0 * self.zeta * dt
-                self.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
-                self.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
-                self.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
+                self.s.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
+                self.s.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
+                self.s.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
             k = f * self.beta * dt
             q[0] -= k * g[0]
             q[1] -= k * g[1]
@@ -165,7 +161,7 @@ cdef class Madgwick(Estimator):
     @property
     def bias(self):
         """The gyro bias learned at rest and with the zeta gain, rad/s (body frame)."""
-        return np.array([self.bw[0], self.bw[1], self.bw[2]])
+        return np.array([self.s.bw[0], self.s.bw[1], self.s.bw[2]])
 
     @property
     def mag_update(self):

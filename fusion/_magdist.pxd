@@ -5,15 +5,12 @@
 # on the gyro; after `time` s of rejection the current field becomes the reference (a magnet
 # fixed to the sensor is a new hard-iron offset), and a different field that stays steady for
 # `new_time` s while the sensor turns replaces the reference sooner. Each filter skips its
-# magnetometer update when mag_check says so.
+# magnetometer update when magd_check says so. A component (fusion/_magdist.pyx) that the
+# filters using the magnetometer hold, as they hold a RestDetector.
 from libc.math cimport sqrt, asin, M_PI
+from libc.string cimport memset
 
-cdef struct MagDetector:
-    double time         # s of rejection at most, then the reference is re-learned (0: off)
-    double norm_tol     # relative: |norm - reference| < norm_tol * reference
-    double dip_tol      # rad
-    double dip_tol_deg  # the same as given, degrees (the parameter's value)
-    double new_time     # s: a steady new field (while turning) becomes the reference
+cdef struct MagDistState:
     double cur[2]       # the low-passed (norm, dip) of the current sample
     double ref[2]       # the reference
     double cand[2]      # the candidate for a new reference
@@ -22,7 +19,18 @@ cdef struct MagDetector:
     double t_reject     # s of rejection (decays while undisturbed)
     bint disturbed
     bint started
-    long long n         # samples rejected since the reset
+    long long rejected  # samples rejected since the reset
+
+
+cdef class MagDetector:
+    cdef readonly double time         # s of rejection at most, then the reference is re-learned (0: off)
+    cdef readonly double norm_tol     # relative: |norm - reference| < norm_tol * reference
+    cdef readonly double dip_tol_deg  # degrees (the parameter's value)
+    cdef double dip_tol               # the same, rad
+    cdef readonly double new_time     # s: a steady new field (while turning) becomes the reference
+    cdef MagDistState s
+    # its state, as Estimator._state_fields: the holder's _state_fields adds it
+    cdef list fields(self)
 
 
 # fixed time constants and limits, VQF's: the current field's low-pass (s), the reference's
@@ -44,47 +52,33 @@ cdef extern from *:
     double MAGD_DECAY "FUSION_MAGD_DECAY"
 
 
-cdef inline void magd_set(MagDetector* d, tuple p):
-    """The parameters from fusion._core.check_magdist_params (the dip tolerance in degrees)."""
-    d.time, d.norm_tol, d.dip_tol_deg, d.new_time = p
-    d.dip_tol = d.dip_tol_deg * (M_PI / 180.0)
+cdef inline void magd_clear(MagDetector d) noexcept nogil:
+    memset(&d.s, 0, sizeof(MagDistState))
 
 
-cdef inline void magd_clear(MagDetector* d) noexcept nogil:
-    cdef int i
-    for i in range(2):
-        d.cur[i] = 0.0
-        d.ref[i] = 0.0
-        d.cand[i] = 0.0
-    d.t_undist = 0.0
-    d.t_cand = 0.0
-    d.t_reject = 0.0
-    d.disturbed = False
-    d.started = False
-    d.n = 0
-
-
-cdef inline bint magd_close(const double* a, const double* r, MagDetector* d) noexcept nogil:
+cdef inline bint magd_close(const double* a, const double* r, MagDetector d) noexcept nogil:
     """(norm, dip) a within the tolerances of r."""
     cdef double dn = a[0] - r[0], dd = a[1] - r[1]
     return (dn if dn > 0.0 else -dn) < d.norm_tol * r[0] and (dd if dd > 0.0 else -dd) < d.dip_tol
 
 
-cdef inline void magd_relearn(MagDetector* d, const double* x) noexcept nogil:
+cdef inline void magd_relearn(MagDistState* d, const double* x) noexcept nogil:
     d.ref[0] = x[0]
     d.ref[1] = x[1]
     d.disturbed = False
     d.t_undist = MAGD_MIN_UNDIST
 
 
-cdef inline bint magd_check(MagDetector* d, const double* q, const double* mag,
+cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
                             const double* gyr, double dt) noexcept nogil:
     """One magnetometer sample with the attitude q (ENU, body -> navigation) and the gyro
-    sample (NULL: none); True when the filter may use it, False to skip it (counted in d.n)."""
+    sample (NULL: none); True when the filter may use it, False to skip it (counted in
+    m.s.rejected)."""
     cdef double nrm, nz, s, k, g2
     cdef double x[2]
     cdef int i
-    if d.time <= 0.0:
+    cdef MagDistState* d = &m.s
+    if m.time <= 0.0:
         return True
     nrm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
     # the vertical component in the navigation frame: third row of R(q) times mag
@@ -106,7 +100,7 @@ cdef inline bint magd_check(MagDetector* d, const double* q, const double* mag,
     for i in range(2):
         d.cur[i] += k * (x[i] - d.cur[i])
     k = dt / (MAGD_REF_TAU + dt)
-    if magd_close(d.cur, d.ref, d):
+    if magd_close(d.cur, d.ref, m):
         d.t_undist += dt
         if d.t_undist >= MAGD_MIN_UNDIST:
             d.disturbed = False
@@ -116,13 +110,13 @@ cdef inline bint magd_check(MagDetector* d, const double* q, const double* mag,
         d.t_undist = 0.0
         d.disturbed = True
     # a new field: steady while the sensor turns for new_time s
-    if magd_close(d.cur, d.cand, d):
+    if magd_close(d.cur, d.cand, m):
         g2 = 0.0 if gyr == NULL else gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2]
         if g2 >= MAGD_NEW_MIN_GYR * MAGD_NEW_MIN_GYR:
             d.t_cand += dt
         for i in range(2):
             d.cand[i] += k * (d.cur[i] - d.cand[i])
-        if d.disturbed and d.t_cand >= d.new_time:
+        if d.disturbed and d.t_cand >= m.new_time:
             magd_relearn(d, d.cand)
     else:
         d.t_cand = 0.0
@@ -134,10 +128,10 @@ cdef inline bint magd_check(MagDetector* d, const double* q, const double* mag,
             d.t_reject = 0.0
         return True
     d.t_reject += dt
-    if d.t_reject > d.time:     # rejected for too long: this field is the reference now
+    if d.t_reject > m.time:     # rejected for too long: this field is the reference now
         magd_relearn(d, d.cur)
         d.t_reject = 0.0
         return True
-    d.n += 1
+    d.rejected += 1
     return False
 

@@ -1,8 +1,9 @@
 # Type stubs of the compiled fusion._mahony (fusion/_mahony.pyx).
 from fusion._core import Array, Estimator
+from fusion._magdist import _MagdistProperties
 from fusion._rest import RestDetector
 
-class Mahony(Estimator):
+class Mahony(Estimator, _MagdistProperties):
     kp: float
     ki: float
     mag_weight: float

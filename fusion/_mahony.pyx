@@ -3,15 +3,16 @@
 import numpy as np
 from libc.math cimport sqrt
 
-from libc.string cimport memcpy
+from libc.string cimport memcpy, memset
 
-from fusion._core cimport Estimator, run_fast, sample_fast, sample_valid, quat_out
-from fusion._core import FLAG, BIAS_MAX, RECOVERY, TIMER
+from fusion._core cimport Estimator, run_fast, batch_loop
+from fusion._core import struct_fields, BIAS_MAX, RECOVERY, ACC_LP_CHECKS
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST_PULL
-from fusion._magdist cimport magd_check
+from fusion._magdist cimport MagDetector, magd_check, magd_clear
+from fusion._magdist import MAGDIST_PROPERTIES
 from fusion._rest cimport RestDetector, rest_detect, rest_clear
 from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -209,15 +210,15 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         q[0] = q1[0] * n; q[1] = q1[1] * n; q[2] = q1[2] * n; q[3] = q1[3] * n
 
 
-cdef void mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, const double* acc,
-                             double dt, double* out) noexcept nogil:
+cdef const double* mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, bint sat,
+                                      const double* acc, double dt, double* out) noexcept nogil:
     """acc_lowpass (fusion/_acclp.pxd) with the integral term's bias, -ki eint (out of line:
     the batch loop keeps its inlined step)."""
     cdef double b[3]
     b[0] = -e.ki * eint[0]
     b[1] = -e.ki * eint[1]
     b[2] = -e.ki * eint[2]
-    acc_gyro_lowpass(e.acc_lowpass, e.acc_lp, e.acc_qg, &e.acc_lp_started, &e.acc_lp_time, gyr, b, acc, dt, out)
+    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
 
 
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
@@ -232,6 +233,22 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
     k = dt / (e.rest_tau + dt)
     for i in range(3):
         eint[i] += k * (-gyr[i] / e.ki - eint[i])
+
+
+cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double* gyr,
+                                   const double* acc, const double* mag, double dt) noexcept nogil:
+    """step_flagged without recovery (gyro_range unknown), on the batch loop's local state
+    (fusion/_core.pxd batch_loop)."""
+    cdef double* eint = (<MahonyState*>s).eint
+    cdef double af[3]
+    if mag != NULL and not magd_check((<Mahony>e).magd, q, mag, gyr, dt):
+        mag = NULL
+    if (<Mahony>e).rest.time > 0.0:
+        mahony_rest(<Mahony>e, eint, gyr, acc, dt)
+    if (<Mahony>e).acc_lowpass > 0.0:
+        acc = mahony_acc_lowpass(<Mahony>e, eint, gyr, False, acc, dt, af)
+    mahony_step(q, eint, (<Mahony>e).kp, (<Mahony>e).ki, gyr, acc, mag, dt, (<Mahony>e).mag_heading,
+                (<Mahony>e).mag_weight)
 
 
 cdef class Mahony(Estimator):
@@ -258,16 +275,19 @@ cdef class Mahony(Estimator):
     # the rest properties but rest_noise (no zero-rate update here), read from its detector
     rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
     at_rest, rest_samples = REST_PROPERTIES[4:]
+    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
+    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
+        p = self._take_params(params)       # checked; gyro_range taken
         self.kp = p["kp"]
         self.ki = p["ki"]
         self.mag_weight = p["mag_weight"]
         self.mag_heading = p["mag_update"] == "heading"
         self.acc_lowpass = p["acc_lowpass"]
         self.rest = RestDetector(p)
+        self.magd = MagDetector(p)
         self.rest_tau = p["rest_tau"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
@@ -275,21 +295,16 @@ cdef class Mahony(Estimator):
     cdef list _state_fields(self):
         # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
         eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
-        return (Estimator._state_fields(self) + [("eint", <double[:3]>self.eint, eint),
-                                                 ("t_recover", <double[:1]>&self.t_recover, RECOVERY),
-                                                 ("acc_lp", <double[:3]>self.acc_lp, None),
-                                                 ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                                                 ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
-                                                 ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self.rest.fields() + self._magd_fields())
+        return (Estimator._state_fields(self)
+                + struct_fields(<MahonyState[:1]>&self.s, {"eint": eint, "t_recover": RECOVERY})
+                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
+                + self.rest.fields() + self.magd.fields())
 
     cdef void _reset_state(self) noexcept nogil:
-        self.eint[0] = 0.0
-        self.eint[1] = 0.0
-        self.eint[2] = 0.0
-        self.t_recover = 0.0
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+        memset(&self.s, 0, sizeof(MahonyState))
+        acc_lowpass_clear(&self.acc_lp)
         rest_clear(self.rest)
+        magd_clear(self.magd)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -298,20 +313,17 @@ cdef class Mahony(Estimator):
     cdef void step_flagged(self, const double* gyr, const double* acc, const double* mag,
                            double dt, bint sat) noexcept nogil:
         """_step with the saturation test done by the caller (cf-ekf tests its raw samples)."""
-        cdef double f = recovery_gain(&self.t_recover, sat, dt)
+        cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
         cdef double eint[3]
         cdef double af[3]
-        if mag != NULL and not magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and not magd_check(self.magd, self.q, mag, gyr, dt):
             mag = NULL
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, sat, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
         if self.rest.time > 0.0:
-            mahony_rest(self, self.eint, gyr, acc, dt)
-        if acc != NULL and self.acc_lowpass > 0.0:
-            mahony_acc_lowpass(self, self.eint, gyr, acc, dt, af)
-            acc = af
+            mahony_rest(self, self.s.eint, gyr, acc, dt)
+        if self.acc_lowpass > 0.0:
+            acc = mahony_acc_lowpass(self, self.s.eint, gyr, sat, acc, dt, af)
         if f == 1.0:
-            mahony_step(self.q, self.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
+            mahony_step(self.q, self.s.eint, self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
                         self.mag_weight)
             return
         # recovering: the large error is the attitude's, not the gyro's bias. At low rates
@@ -319,55 +331,21 @@ cdef class Mahony(Estimator):
         # most RECOVERY_STEP_MAX of it per step (never below the plain gain)
         if f * self.kp * dt > RECOVERY_STEP_MAX:
             f = max(1.0, RECOVERY_STEP_MAX / (self.kp * dt))
-        memcpy(eint, self.eint, 3 * sizeof(double))
-        mahony_step(self.q, self.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
+        memcpy(eint, self.s.eint, 3 * sizeof(double))
+        mahony_step(self.q, self.s.eint, f * self.kp, self.ki, gyr, acc, mag, dt, self.mag_heading,
                     self.mag_weight)
-        memcpy(self.eint, eint, 3 * sizeof(double))
+        memcpy(self.s.eint, eint, 3 * sizeof(double))
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
                                bint stop_invalid) noexcept nogil:
-        # the state lives in locals during the loop: the compiler keeps them in registers,
-        # which it cannot for self.q (any store through o or eint might alias it)
-        cdef double q[4]
-        cdef double eint[3]
-        cdef double kp = self.kp, ki = self.ki, km = self.mag_weight
-        cdef bint heading = self.mag_heading
-        cdef bint ned = self.ned
-        cdef Py_ssize_t i
-        cdef const double* mi
-        cdef const double* ai
-        cdef double af[3]
+        # the state in locals (fusion/_core.pxd batch_loop): the compiler keeps them in
+        # registers, which it cannot for self.q (any store through o or eint might alias it)
+        cdef MahonyState st
         if not run_fast(self) or self.gyro_range_ > 0.0:     # recovery: step by step
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
-        memcpy(q, self.q, 4 * sizeof(double))
-        memcpy(eint, self.eint, 3 * sizeof(double))
-        for i in range(n):
-            mi = m + 3 * i if m != NULL else NULL
-            if sample_fast(self, g + 3 * i, a + 3 * i, mi):
-                if mi != NULL and not magd_check(&self.magd, q, mi, g + 3 * i, d[i] if d != NULL else dt):
-                    mi = NULL
-                ai = a + 3 * i
-                if self.acc_lowpass > 0.0 and acc_lowpass_lost(g + 3 * i, False, d[i] if d != NULL else dt, self.dt_nominal):
-                    acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
-                if self.rest.time > 0.0:
-                    mahony_rest(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt)
-                if self.acc_lowpass > 0.0:
-                    mahony_acc_lowpass(self, eint, g + 3 * i, ai, d[i] if d != NULL else dt, af)
-                    ai = af
-                mahony_step(q, eint, kp, ki, g + 3 * i, ai, mi, d[i] if d != NULL else dt, heading, km)
-            else:
-                if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
-                    return i
-                memcpy(self.q, q, 4 * sizeof(double))
-                memcpy(self.eint, eint, 3 * sizeof(double))
-                self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-                memcpy(q, self.q, 4 * sizeof(double))
-                memcpy(eint, self.eint, 3 * sizeof(double))
-            quat_out(q, ned, o + 4 * i)
-        memcpy(self.q, q, 4 * sizeof(double))
-        memcpy(self.eint, eint, 3 * sizeof(double))
-        return n
+        return batch_loop(self, mahony_batch_step, &st, &self.s, sizeof(MahonyState), g, a, m, d, dt,
+                          o, n, stop_invalid)
 
     @property
     def mag_update(self):
@@ -377,4 +355,4 @@ cdef class Mahony(Estimator):
     @property
     def bias(self):
         """The gyro bias the integral term has learned, rad/s (body frame)."""
-        return -self.ki * np.array([self.eint[0], self.eint[1], self.eint[2]])
+        return -self.ki * np.array([self.s.eint[0], self.s.eint[1], self.s.eint[2]])

@@ -1,21 +1,17 @@
-from fusion._core cimport Estimator
-from fusion._rest cimport RestDetector
+from fusion._kalman cimport KalmanFilter
 
-cdef class UKF(Estimator):
-    cdef readonly double gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std
-    cdef double b[3]          # gyro bias, rad/s
-    cdef double P[36]         # covariance of the error [p (attitude, body frame), db], 6x6 row-major
-    cdef readonly double motion_rate   # recovery, as the ekf's (fusion/_ekf.pxd)
-    cdef double t_run
+# the ukf's state besides the attitude, one struct (as the ekf's EKFState)
+cdef struct UKFState:
+    double b[3]             # gyro bias, rad/s
+    double P[36]            # covariance of the error [p (attitude, body frame), db], 6x6 row-major
+    double t_unmeasured     # s: the current run of unmeasured time (recovery, as the ekf's)
+
+cdef class UKF(KalmanFilter):
+    cdef UKFState s
     cdef bint mag_heading     # mag_update="heading"
-    cdef readonly double acc_lowpass   # s, 0: off (fusion/_acclp.pxd)
-    cdef double acc_lp[3]
-    cdef double acc_qg[4]
-    cdef bint acc_lp_started
-    cdef double acc_lp_time    # s since its first sample, held at acc_lowpass (the running-mean start)
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
-    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
     cdef void sigma_points(self, double* X) noexcept nogil
+    cdef void sigma_attitudes(self, double* X, double* Qs) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
     cdef void correct(self, const double* X, const double* Z, const double* z,
                       double r) noexcept nogil

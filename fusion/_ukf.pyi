@@ -1,7 +1,5 @@
 # Type stubs of the compiled fusion._ukf (fusion/_ukf.pyx).
-from fusion._core import Estimator, _KalmanParams
-from fusion._rest import _RestProperties
+from fusion._kalman import KalmanFilter
 
-class UKF(Estimator, _KalmanParams, _RestProperties):
-    acc_lowpass: float
+class UKF(KalmanFilter):
     mag_update: str

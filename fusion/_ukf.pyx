@@ -4,13 +4,15 @@ that "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero. Astro., 20
 compares against, with the process and measurement models of `ekf`."""
 import numpy as np
 from libc.math cimport sqrt
+from libc.string cimport memcpy, memset
 
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
+from fusion._rest cimport rest_detect
 from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_gyro_lowpass, acc_lowpass_clear, acc_lowpass_lost
+from fusion._acclp cimport acc_lowpassed
+from fusion._kalman cimport KalmanFilter
+from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
-from fusion._core import FLAG, BIAS, COV, TIMER
+from fusion._core import struct_fields
 from fusion._ekf import EKF as _EKF
 from fusion.params import table
 from fusion._qmath cimport (sym3_inverse, half_angle_terms, quat_mul, quat_normalise, quat_propagate,
@@ -59,6 +61,28 @@ cdef inline void rate_quat(double wx, double wy, double wz, double dt, double* e
     e[3] = s * wz
 
 
+cdef inline void sigma_mean_cov(double* Y, int n, double* mean, double* cov) noexcept nogil:
+    """The unscented mean (n) and covariance (n x n, row-major) of the 13 sigma vectors Y
+    (13 x n, a row each), Y replaced by their deviations from the mean."""
+    cdef double s
+    cdef int i, j, k
+    for k in range(n):
+        s = WM0 * Y[k]
+        for i in range(1, NS):
+            s += WI * Y[i * n + k]
+        mean[k] = s
+    for i in range(NS):
+        for k in range(n):
+            Y[i * n + k] -= mean[k]
+    for j in range(n):
+        for k in range(j, n):
+            s = WC0 * Y[j] * Y[k]
+            for i in range(1, NS):
+                s += WI * Y[i * n + j] * Y[i * n + k]
+            cov[j * n + k] = s
+            cov[k * n + j] = s
+
+
 cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
     """mag_update="heading": the gain's attitude rows (body-frame error) and bias rows (6x3)
     projected onto the body-frame vertical w = Rᵀ e_z, so that the magnetometer only turns
@@ -74,7 +98,7 @@ cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
         K[9 + j] = w[0] * c; K[12 + j] = w[1] * c; K[15 + j] = w[2] * c
 
 
-cdef class UKF(Estimator):
+cdef class UKF(KalmanFilter):
     """Unscented Kalman filter: 13 sigma points on the 6-D error [attitude (4 x modified
     Rodrigues parameters, body frame), gyro bias]; gyro process and accelerometer /
     north-folded magnetometer measurements as the `ekf`."""
@@ -86,56 +110,34 @@ cdef class UKF(Estimator):
                    _EKF.PARAMS["gyro_noise"].but(default=0.01),
                    _EKF.PARAMS["bias_noise"].but(allow_zero=False),
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
-    # the rest parameters and counts, read from the detector it holds (fusion._rest)
-    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range, magdist taken
-        self.rest = RestDetector(p)
-        self.motion_rate = p["motion_rate"]
-        self.gyro_noise = p["gyro_noise"]
-        self.bias_noise = p["bias_noise"]
-        self.acc_noise = p["acc_noise"]
-        self.mag_noise = p["mag_noise"]
-        self.q_init_std = p["q_init_std"]
-        self.bias_init_std = p["bias_init_std"]
+        p = self._take_params(params)       # checked; gyro_range taken
+        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_heading = p["mag_update"] == "heading"
-        self.acc_lowpass = p["acc_lowpass"]
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + [("b", <double[:3]>self.b, BIAS),
-                                                ("P", <double[:36]>self.P, COV),
-                                                ("t_unmeasured", <double[:1]>&self.t_run, TIMER)]
-                + [("acc_lp", <double[:3]>self.acc_lp, None),
-                   ("acc_lp_started", <int[:1]><int*>&self.acc_lp_started, FLAG),
-                   ("acc_lp_time", <double[:1]>&self.acc_lp_time, TIMER),
-                   ("acc_qg", <double[:4]>self.acc_qg, "unit")]
-                + self.rest.fields() + self._magd_fields())
+        return (Estimator._state_fields(self) + struct_fields(<UKFState[:1]>&self.s, STATE_CHECKS)
+                + self.parts_fields())
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
-        cdef double sq = 2.0 * self.q_init_std     # quaternion-component std -> angle std
-        for i in range(36):
-            self.P[i] = 0.0
+        cdef double sq = 2.0 * self.kalman.q_init_std     # quaternion-component std -> angle std
+        memset(&self.s, 0, sizeof(UKFState))
         for i in range(3):
-            self.P[i * 7] = sq * sq
+            self.s.P[i * 7] = sq * sq
         for i in range(3, 6):
-            self.P[i * 7] = self.bias_init_std * self.bias_init_std
-        self.b[0] = 0.0
-        self.b[1] = 0.0
-        self.b[2] = 0.0
-        self.t_run = 0.0
-        rest_clear(self.rest)
-        acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
+            self.s.P[i * 7] = self.kalman.bias_init_std * self.kalman.bias_init_std
+        self.clear_parts()
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
         gives a zero column)."""
         cdef double L[36]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double d, s
         cdef int i, j, k
         for i in range(36):
@@ -170,9 +172,9 @@ cdef class UKF(Estimator):
         cdef double dq[4]
         cdef double ei[4]
         cdef double t[4]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double* x
-        cdef double w0x = gyr[0] - self.b[0], w0y = gyr[1] - self.b[1], w0z = gyr[2] - self.b[2]
+        cdef double w0x = gyr[0] - self.s.b[0], w0y = gyr[1] - self.s.b[1], w0z = gyr[2] - self.s.b[2]
         cdef double s, wgt, qg, qb
         cdef int i, j, k
         self.sigma_points(X)
@@ -189,23 +191,9 @@ cdef class UKF(Estimator):
             Y[i * 6 + 3] = x[3]
             Y[i * 6 + 4] = x[4]
             Y[i * 6 + 5] = x[5]
-        for k in range(6):
-            s = WM0 * Y[k]
-            for i in range(1, NS):
-                s += WI * Y[i * 6 + k]
-            mean[k] = s
-        for i in range(NS):
-            for k in range(6):
-                Y[i * 6 + k] -= mean[k]
-        qg = self.gyro_noise * self.gyro_noise * dt
-        qb = self.bias_noise * self.bias_noise * dt
-        for j in range(6):
-            for k in range(j, 6):
-                s = WC0 * Y[j] * Y[k]
-                for i in range(1, NS):
-                    s += WI * Y[i * 6 + j] * Y[i * 6 + k]
-                P[j * 6 + k] = s
-                P[k * 6 + j] = s
+        sigma_mean_cov(Y, 6, mean, P)
+        qg = self.kalman.gyro_noise * self.kalman.gyro_noise * dt
+        qb = self.kalman.bias_noise * self.kalman.bias_noise * dt
         for j in range(3):
             P[j * 7] += qg
             P[(j + 3) * 7] += qb
@@ -227,24 +215,11 @@ cdef class UKF(Estimator):
         cdef double dx[6]
         cdef double dq[4]
         cdef double qn[4]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double s
         cdef int i, j, k
-        for k in range(3):
-            s = WM0 * Z[k]
-            for i in range(1, NS):
-                s += WI * Z[i * 3 + k]
-            zh[k] = s
-        for i in range(NS):
-            for k in range(3):
-                D[i * 3 + k] = Z[i * 3 + k] - zh[k]
-        for j in range(3):
-            for k in range(j, 3):
-                s = WC0 * D[j] * D[k]
-                for i in range(1, NS):
-                    s += WI * D[i * 3 + j] * D[i * 3 + k]
-                S[j * 3 + k] = s
-                S[k * 3 + j] = s
+        memcpy(D, Z, NS * 3 * sizeof(double))
+        sigma_mean_cov(D, 3, zh, S)
         S[0] += r
         S[4] += r
         S[8] += r
@@ -273,9 +248,9 @@ cdef class UKF(Estimator):
         self.q[2] = qn[2]
         self.q[3] = qn[3]
         quat_normalise(self.q)
-        self.b[0] += dx[3]
-        self.b[1] += dx[4]
-        self.b[2] += dx[5]
+        self.s.b[0] += dx[3]
+        self.s.b[1] += dx[4]
+        self.s.b[2] += dx[5]
         if self.heading_gain:
             # the projected gain is not the Kalman gain: P - K Pxzᵀ - Pxz Kᵀ + K Pzz Kᵀ
             for i in range(6):
@@ -309,7 +284,7 @@ cdef class UKF(Estimator):
         cdef double A[9]      # I - Kb
         cdef double T[18]     # rows of [Ppb; Pbb] times (I - Kb)ᵀ, 6x3
         cdef double y[3]
-        cdef double* P = self.P
+        cdef double* P = self.s.P
         cdef double r = self.rest.noise * self.rest.noise / dt
         cdef double s
         cdef int i, j, k
@@ -317,7 +292,7 @@ cdef class UKF(Estimator):
             for j in range(3):
                 S[i * 3 + j] = P[(3 + i) * 6 + 3 + j]
             S[i * 4] += r
-            y[i] = gyr[i] - self.b[i]
+            y[i] = gyr[i] - self.s.b[i]
         sym3_inverse(S, Si)
         for i in range(3):
             for j in range(3):
@@ -325,7 +300,7 @@ cdef class UKF(Estimator):
                                  + P[(3 + i) * 6 + 5] * Si[6 + j])
                 A[i * 3 + j] = (1.0 if i == j else 0.0) - Kb[i * 3 + j]
         for i in range(3):
-            self.b[i] += Kb[i * 3] * y[0] + Kb[i * 3 + 1] * y[1] + Kb[i * 3 + 2] * y[2]
+            self.s.b[i] += Kb[i * 3] * y[0] + Kb[i * 3 + 1] * y[1] + Kb[i * 3 + 2] * y[2]
         for i in range(6):          # T = P[:, 3:6] Aᵀ
             for j in range(3):
                 T[i * 3 + j] = P[i * 6 + 3] * A[j * 3] + P[i * 6 + 4] * A[j * 3 + 1] + P[i * 6 + 5] * A[j * 3 + 2]
@@ -341,43 +316,47 @@ cdef class UKF(Estimator):
                 P[(3 + i) * 6 + 3 + j] = s
                 P[(3 + j) * 6 + 3 + i] = s
 
-    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
-        cdef double X[NS * 6]
-        cdef double Z[NS * 3]
-        cdef double z[3]
+    cdef void sigma_attitudes(self, double* X, double* Qs) noexcept nogil:
+        """X (13 x 6) the sigma points, Qs (13 x 4) their attitudes q̂ ⊗ δq(p_i): what each
+        measurement model is evaluated at."""
         cdef double dq[4]
-        cdef double qi[4]
-        cdef double sa = self.acc_noise / G0
         cdef int i
         self.sigma_points(X)
         for i in range(NS):
             err_to_quat(X + i * 6, dq)
-            quat_mul(self.q, dq, qi)
-            up_in_body(qi, Z + i * 3)
+            quat_mul(self.q, dq, Qs + i * 4)
+
+    cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
+        cdef double X[NS * 6]
+        cdef double Qs[NS * 4]
+        cdef double Z[NS * 3]
+        cdef double z[3]
+        cdef double sa = self.kalman.acc_noise / G0
+        cdef int i
+        self.sigma_attitudes(X, Qs)
+        for i in range(NS):
+            up_in_body(Qs + i * 4, Z + i * 3)
         unit3(acc, z)
         self.correct(X, Z, z, sa * sa / dt)
 
     cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil:
         cdef double X[NS * 6]
+        cdef double Qs[NS * 4]
         cdef double Z[NS * 3]
         cdef double z[3]
         cdef double n[3]
-        cdef double dq[4]
-        cdef double qi[4]
         cdef int i
         unit3(mag, z)
         rot_to_nav(self.q, z, n)
         if sqrt(n[0] * n[0] + n[1] * n[1]) < 1e-9:     # field vertical: no heading information
             return
-        self.sigma_points(X)
+        self.sigma_attitudes(X, Qs)
         for i in range(NS):
-            err_to_quat(X + i * 6, dq)
-            quat_mul(self.q, dq, qi)
-            rot_to_nav(qi, z, n)
+            rot_to_nav(Qs + i * 4, z, n)
             n[1] = sqrt(n[0] * n[0] + n[1] * n[1])     # folded onto north
             n[0] = 0.0
-            rot_to_body(qi, n, Z + i * 3)
-        self.correct(X, Z, z, self.mag_noise * self.mag_noise / dt)
+            rot_to_body(Qs + i * 4, n, Z + i * 3)
+        self.correct(X, Z, z, self.kalman.mag_noise * self.kalman.mag_noise / dt)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -390,24 +369,20 @@ cdef class UKF(Estimator):
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL
         measured = gyr != NULL and not saturated(gyr, self.gyro_range_)
-        v = unobserved_variance(&self.t_run, dt, self.dt_nominal, measured, self.motion_rate)
+        v = unobserved_variance(&self.s.t_unmeasured, dt, self.dt_nominal, measured, self.kalman.motion_rate)
         if gyr != NULL:
             self.predict(gyr, dt)
         if v > 0.0:
-            self.P[0] += v
-            self.P[7] += v
-            self.P[14] += v
+            self.s.P[0] += v
+            self.s.P[7] += v
+            self.s.P[14] += v
         if rest_detect(self.rest, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
-        if self.acc_lowpass > 0.0 and acc_lowpass_lost(gyr, not measured and gyr != NULL, dt, self.dt_nominal):
-            acc_lowpass_clear(self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time)
-        if acc != NULL and self.acc_lowpass > 0.0:
-            acc_gyro_lowpass(self.acc_lowpass, self.acc_lp, self.acc_qg, &self.acc_lp_started, &self.acc_lp_time,
-                             gyr, self.b, acc, dt, af)
-            acc = af
+        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, not measured and gyr != NULL,
+                            self.s.b, acc, dt, self.dt_nominal, af)
         if acc != NULL:
             self._acc_correct(acc, dt)
-        if mag != NULL and magd_check(&self.magd, self.q, mag, gyr, dt):
+        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
             self.heading_gain = self.mag_heading
             self._mag_correct(mag, dt)
             self.heading_gain = False
@@ -421,10 +396,10 @@ cdef class UKF(Estimator):
     @property
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
-        return np.array([self.b[0], self.b[1], self.b[2]])
+        return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
 
     @property
     def covariance(self):
         """6x6 covariance of the error [attitude (rad, body frame: the same in ENU and NED),
         gyro bias (rad/s)]."""
-        return np.array([self.P[i] for i in range(36)]).reshape(6, 6)
+        return np.array([self.s.P[i] for i in range(36)]).reshape(6, 6)

@@ -20,7 +20,7 @@ import numpy as np
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
 from fusion._core import Estimator, check_dt
-from fusion.checks import integer
+from fusion.checks import integer, state_header
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
@@ -236,15 +236,7 @@ class Bank(BankCore):
 
     @staticmethod
     def _check_header(state):
-        if not isinstance(state, dict):
-            raise ValueError(f"state must be a dict made by bank.state(), got {type(state).__name__}")
-        missing = [k for k in BANK_STATE_KEYS if k not in state]
-        if missing:
-            raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from bank.state()")
-        v = state["version"]
-        if isinstance(v, bool) or not isinstance(v, int) or v != BANK_STATE_VERSION:
-            raise ValueError(f"bank state version {v!r} is not supported (this build reads "
-                             f"version {BANK_STATE_VERSION})")
+        state_header(state, BANK_STATE_KEYS, BANK_STATE_VERSION, "bank.state()")
         fl = state["filters"]
         if not isinstance(fl, list) or len(fl) != state["count"]:
             raise ValueError(f"state['filters'] must be a list of {state['count']!r} filter states")

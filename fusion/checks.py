@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["number", "integer", "choice", "flag", "interval"]
+__all__ = ["number", "integer", "choice", "flag", "interval", "state_header"]
 
 
 def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
@@ -71,6 +71,24 @@ def choice(name: str, value: Any, choices: tuple) -> Any:
     if not any(type(value) is type(c) and value == c for c in choices):
         raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
     return value
+
+
+def state_header(state: Any, keys: tuple, version: int, made_by: str) -> None:
+    """A ValueError unless state is a dict with every key of keys whose "version" is version:
+    a state saved in another format (made_by, e.g. "est.state()", wrote it) is refused by its
+    version with what to do, before any field is read."""
+    if not isinstance(state, dict):
+        raise ValueError(f"state must be a dict made by {made_by}, got {type(state).__name__}")
+    missing = [k for k in keys if k not in state]
+    if missing:
+        raise ValueError(f"state lacks key(s) {', '.join(missing)}; it must come from {made_by}")
+    v = state["version"]
+    if isinstance(v, bool) or not isinstance(v, int) or v != version:
+        when = ("was saved by an older build" if isinstance(v, int) and not isinstance(v, bool) and v < version
+                else "is not a version this build knows")
+        raise ValueError(f"state version {v!r} {when}: this build reads version {version} only (its "
+                         f"fields changed; a state is not converted): make it again with {made_by} "
+                         f"of this build")
 
 
 def flag(name: str, value: Any) -> bool:

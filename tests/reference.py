@@ -239,13 +239,7 @@ class RefEstimator:
     def euler(self):
         return euler_zyx(self.quaternion)
 
-    @property
-    def bias(self):
-        return None
-
-    @property
-    def covariance(self):
-        return None
+    bias = covariance = None        # a filter with either overrides it
 
     # processing
     def _check(self, gyr, acc, mag):
@@ -425,7 +419,20 @@ def make_magdist(est):
     return RefMagDist(est.magdist_time, est.magdist_norm_tol, est.magdist_dip_tol, est.magdist_new_time)
 
 
-class RefMahony(RefEstimator):
+class RestAndMagCounts:
+    """The counts of a filter that holds a rest detector (``rest``) and a magnetic disturbance
+    detector (``magd``)."""
+
+    @property
+    def rest_samples(self):
+        return self.rest.n
+
+    @property
+    def mag_rejected(self):
+        return self.magd.n
+
+
+class RefMahony(RestAndMagCounts, RefEstimator):
     PARAMS = {"kp": 1.0, "ki": 0.01, "mag_weight": 1.0, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
               "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_tau": 1.0,
               **MAGDIST_PARAMS}
@@ -436,14 +443,6 @@ class RefMahony(RefEstimator):
         self.t_recover = 0.0
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, IDENTITY.copy()
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
 
     @property
     def bias(self):
@@ -550,19 +549,6 @@ class RefRest:
             self.n += 1
             return True
         return False
-
-
-class RestAndMagCounts:
-    """The counts of a filter that holds a rest detector (``rest``) and a magnetic disturbance
-    detector (``magd``)."""
-
-    @property
-    def rest_samples(self):
-        return self.rest.n
-
-    @property
-    def mag_rejected(self):
-        return self.magd.n
 
 
 class RefEKF(RestAndMagCounts, RefEstimator):

@@ -119,3 +119,20 @@ def test_the_data_location_is_declared_once():
     hits = [f"{p.relative_to(ROOT)}:{i}" for p in files
             for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert len(hits) == 1 and hits[0].startswith("fusion/datasets.py:"), hits
+
+
+def test_the_library_packages_do_not_import_the_experiments():
+    """fusion, envs and controllers are libraries: none imports benchmarks, scripts or tests
+    (controllers took benchmarks.compare.new_figure, which now lives in controllers.plots)."""
+    lib = ("fusion/", "envs/", "controllers/")
+    hits = []
+    for path in _python_files():
+        rel = path.relative_to(ROOT).as_posix()
+        if not rel.startswith(lib):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), rel)):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            hits += [f"{rel}:{node.lineno} {n}" for n in names
+                     if n.split(".")[0] in ("benchmarks", "scripts", "tests")]
+    assert hits == []

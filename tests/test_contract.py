@@ -75,6 +75,25 @@ def test_rest_properties_exactly_where_rest_is_declared(name):
         assert [p for p in REST_PROPERTIES + ("rest",) if hasattr(est, p)] == []
 
 
+EVERY_PARAM = sorted({p for n in NAMES for p in type(fusion.make(n, FS)).PARAMS})
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_an_attribute_named_after_a_parameter_only_where_it_is_declared(name):
+    """Each parameter an estimator declares reads back as an attribute of that value; a
+    parameter another estimator declares is no attribute of this one (gyro_range, every
+    estimator's, aside): aekf had acc_lowpass (0.0), the base class the magdist_* of its
+    disturbance detector, so gyro.magdist_time read 60."""
+    est = fusion.make(name, FS)
+    declared = type(est).PARAMS
+    given = {p: d.default for p, d in declared.items() if d.default is not None}   # None: resolved
+    assert all(hasattr(est, p) for p in declared) and {p: getattr(est, p) for p in given} == given
+    extra = [p for p in EVERY_PARAM if p not in declared and p != "gyro_range" and hasattr(est, p)]
+    assert extra == []
+    if "magdist_time" not in declared:
+        assert not hasattr(est, "mag_rejected") and not hasattr(est, "magd")
+
+
 # --- run is N updates -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("variant", ["6axis", "9axis", "dt", "skip", "ned"])

@@ -1,0 +1,22 @@
+# Type stubs of the compiled fusion._kalman (fusion/_kalman.pyx).
+from fusion._core import Array, Estimator
+from fusion._magdist import _MagdistProperties
+from fusion._rest import _RestProperties
+
+NOISE: tuple[str, ...]
+NOISE_PROPERTIES: tuple[property, ...]
+STATE_CHECKS: dict[str, object]
+
+class KalmanFilter(Estimator, _RestProperties, _MagdistProperties):
+    """The base of the Kalman filters (ekf family, ukf)."""
+    kalman: dict[str, float]     # the KalmanNoise struct, as a dict
+    gyro_noise: float
+    bias_noise: float
+    acc_noise: float
+    mag_noise: float
+    q_init_std: float
+    bias_init_std: float
+    motion_rate: float
+    acc_lowpass: float
+    bias: Array
+    covariance: Array
