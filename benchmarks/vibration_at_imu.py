@@ -88,7 +88,8 @@ def loop_tilt(episodes):
 
 def bump_table():
     from envs import convergence as cv
-    print("| run | IMU | largest peak 400 / 1600 Hz (m/s^2) | its difference | bump by bump: mean | worst | each bump |")
+    print("| run | IMU | largest peak 400 / 1600 Hz (m/s^2) | its difference | bump by bump: mean | worst "
+          "| each bump |")
     print("|---|---|---|---|---|---|---|")
     for drive in (1.0, 0.6):
         for label, imu in (("ideal", "ideal"), ("MPU-9250 +-2 g", cv.mpu9250_16g(2)), ("+-4 g", cv.mpu9250_16g(4)),
