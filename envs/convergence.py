@@ -63,6 +63,15 @@ def bump_peaks(physics_hz, drive=1.0, imu="ideal", seed=0, bumps=8):
     return np.array(out)
 
 
+def bump_agreement(drive=1.0, imu="ideal", hz=400.0, factor=4):
+    """Each bump's peak (``bump_peaks``) at ``hz`` and at ``factor`` x ``hz``, for the bumps both
+    runs crossed (a bump not reached in the run reads about 1 m/s^2)."""
+    a, b = bump_peaks(hz, drive, imu), bump_peaks(hz * factor, drive, imu)
+    n = min(len(a), len(b))
+    crossed = (a[:n] > 5.0) & (b[:n] > 5.0)
+    return a[:n][crossed], b[:n][crossed]
+
+
 def run(name, physics_hz, seed=0, imu="ideal"):
     """Final position (m), heading (rad), roll peak to peak over the last 2 s (deg), and the
     ideal IMU's |acc| std, gyro-norm std and peak |acc - g| over the run."""

@@ -77,6 +77,14 @@ class RobotParams:
     rolling contacts, 0.001-0.005, "Rolling Resistance", The Engineering ToolBox: no figure
     for a plastic shell was found); ``spinning_friction`` 2e-4 m (torsional friction of the
     small contact patch, mu times a patch radius; docs/envs/robot.md).
+    ``contact_stiffness`` 1e4 N/m, ``contact_damping`` 54 N s/m: the shell's compliant contact
+    with the floor, bumps and ramps, a linear spring-damper on the whole robot (the frame and
+    pendulum ride the axle, rigid vertically). Thin-shell theory bounds the shell's own
+    stiffness at about 1.2e5 N/m (docs/envs/robot.md, "Contact"); bushings, chassis and floor
+    covering in series soften it by an unmeasured amount, and 1e4 N/m is the stiffest the
+    400 Hz step resolves (sqrt(k / m) dt = 0.23: an impact of pi sqrt(m / k) = 34 ms, 13 steps).
+    Damping ratio 0.25 (restitution 0.44), assumed; with 0.5 the damper's force step at
+    touch-down (c v) was as large as the spring's peak, and a bump's peak reading was that step.
 
     Drive vibration (``vib_*``, m/s^2 at top speed): assumptions of the right order, not
     measurements (no published acceleration at the IMU of such a robot was found); the tones
@@ -116,8 +124,8 @@ class RobotParams:
     steer_friction: float = 0.02
     steer_stop: float = math.radians(5.0)
     latency_s: float = 0.01
-    contact_stiffness: float = 3.0e4
-    contact_damping: float = 180.0
+    contact_stiffness: float = 1.0e4
+    contact_damping: float = 54.0
     vib_motor: float = 0.5
     vib_commutation: float = 0.3
     vib_gear: float = 0.3

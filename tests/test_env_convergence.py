@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from envs.convergence import SCENARIOS, compare
+from envs.convergence import SCENARIOS, bump_agreement, compare, mpu9250_16g
 from envs.sphere import SphereRobotEnv
 
 
@@ -26,9 +26,23 @@ def test_default_rate_matches_4x(name):
     assert _rel(c["acc_std"]) < (0.2 if bumps else 0.05), c
     assert _rel(c["gyr_std"]) < 0.05, c
     if bumps:
-        assert c["acc_peak"][1] > 20.0, c           # the bumps were hit
+        assert c["acc_peak"][1] > 10.0, c           # the bumps were hit (flat runs: < 7)
         assert _rel(c["mpu_peak"]) < 0.2, c          # the chip's (DLPF) peak reading
         assert _rel(c["acc_peak"]) < 0.25, c         # point samples of the ideal IMU
+
+
+@pytest.mark.parametrize("drive", [1.0, 0.6])
+def test_each_bump_peak_matches_4x(drive):
+    """Bump by bump, not only the largest peak of a run: every crossing's peak |acc| - g at
+    the IMU within 20 % between 400 and 1600 Hz, for the ideal IMU (point samples of the step
+    mean) and the MPU-9250 at +-16 g (its DLPF). The stiffer, more damped contact of v1's
+    first version (3e4 N/m, zeta 0.5) failed this: worst bumps -31 % / -24 % at full drive,
+    -35 % / -16 % at 0.6 (docs/envs/robot.md, "Contact")."""
+    for imu in ("ideal", mpu9250_16g(16)):
+        a, b = bump_agreement(drive, imu)           # 400 and 1600 Hz, the bumps both crossed
+        assert len(a) >= (7 if drive == 1.0 else 4), (a, b)
+        diff = a / b - 1.0
+        assert np.abs(diff).max() < 0.2, (imu, diff)
 
 
 def test_rocking_after_hard_turn_decays():

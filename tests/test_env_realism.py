@@ -149,3 +149,63 @@ def test_contact_too_soft_to_carry_the_robot_is_refused():
         SphereRobotEnv(robot={"contact_stiffness": 1e-6, "contact_damping": 1e-6})
     p = RobotParams(contact_stiffness=1000.0)          # 11 mm sink under 1.15 kg: accepted
     assert p.total_mass * 9.81 / p.contact_stiffness <= 0.1 * p.shell_radius
+
+
+def _drop(params, hz, height=0.01):
+    """Drop the robot ``height`` onto the floor (PyBullet at ``hz``): its speed at touch-down,
+    the time to full compression, the peak normal force and the rebound's largest upward speed."""
+    import pybullet as p
+
+    from envs.robot import build_robot
+    c = p.connect(p.DIRECT)
+    try:
+        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setTimeStep(1.0 / hz, physicsClientId=c)
+        floor = p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+        body = build_robot(p, c, params, (0.0, 0.0), 0.0)
+        orn = p.getBasePositionAndOrientation(body, c)[1]
+        p.resetBasePositionAndOrientation(body, [0, 0, params.shell_radius + height], orn, physicsClientId=c)
+        vz, force = [], []
+        for _ in range(int(0.1 * hz)):
+            p.stepSimulation(physicsClientId=c)
+            vz.append(p.getBaseVelocity(body, c)[0][2])
+            force.append(sum(cp[9] for cp in p.getContactPoints(body, floor, physicsClientId=c)))
+    finally:
+        p.disconnect(c)
+    vz, force = np.array(vz), np.array(force)
+    i0 = int(np.flatnonzero(force > 0)[0])
+    full = i0 + int(np.flatnonzero(vz[i0:] >= 0)[0])
+    return -vz[i0 - 1], (full - i0 + 0.5) / hz, force.max(), vz[i0:i0 + int(0.06 * hz)].max()
+
+
+def _spring_damper(params, v0, dt=1e-6):
+    """The hand calculation: m x'' = m g - k x - c x' from touch-down at v0 while the force
+    k x + c x' pushes (m the whole robot: frame and pendulum ride the axle, rigid vertically).
+    Time to full compression, peak force, largest upward speed before lift-off."""
+    m, k, c = params.total_mass, params.contact_stiffness, params.contact_damping
+    x, v, t, fmax, t_full, up = 0.0, v0, 0.0, 0.0, None, 0.0
+    while t == 0.0 or k * x + c * v > 0.0:
+        f = k * x + c * v
+        fmax, up = max(fmax, f), max(up, -v)
+        if t_full is None and v <= 0.0:
+            t_full = t
+        v += (9.81 - f / m) * dt
+        x += v * dt
+        t += dt
+    return t_full, fmax, up
+
+
+def test_drop_matches_the_spring_damper_hand_calculation():
+    """The compliant contact is the stated spring-damper on the robot's mass (docs/envs/robot.md,
+    "Contact"): a 1 cm drop at 6400 Hz matches the hand calculation within 3 %, and at the
+    default 400 Hz (one step of contact-detection lag, the implicit solve's damping) the peak
+    force within 10 %. The impact is many steps long: pi sqrt(m / k) = 34 ms, 13 at 400 Hz."""
+    rp = RobotParams()
+    assert math.pi * math.sqrt(rp.total_mass / rp.contact_stiffness) * 400 > 10
+    for hz, tol_t, tol_f, tol_up in ((6400, 0.03, 0.03, 0.03), (400, 0.25, 0.10, 0.35)):
+        v0, t_full, fmax, up = _drop(rp, hz)
+        assert v0 == pytest.approx(math.sqrt(2 * 9.81 * 0.01), rel=0.06)
+        t_ref, f_ref, up_ref = _spring_damper(rp, v0)
+        assert t_full == pytest.approx(t_ref, rel=tol_t), (hz, t_full, t_ref)
+        assert fmax == pytest.approx(f_ref, rel=tol_f), (hz, fmax, f_ref)
+        assert up == pytest.approx(up_ref, rel=tol_up), (hz, up, up_ref)
