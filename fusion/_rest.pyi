@@ -22,3 +22,14 @@ class _RestProperties:
     rest_noise: float
     at_rest: bool
     rest_samples: int
+
+class _RestPullProperties:
+    """The rest properties of the complementary filters that declare fusion.params.REST_PULL
+    (mahony, madgwick): no zero-rate update, so no rest_noise; rest_tau instead."""
+    rest: RestDetector
+    rest_time: float
+    rest_gyro_tol: float
+    rest_acc_tol: float
+    rest_tau: float
+    at_rest: bool
+    rest_samples: int
