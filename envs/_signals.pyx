@@ -86,7 +86,7 @@ cdef class Loop:
     cdef bint has_servo
     cdef double s_stall, s_inv_band, s_kd, i_servo
     cdef int lat
-    cdef double stiction, coulomb, spin, inv_eps, roll_c
+    cdef double stiction, coulomb, spin, inv_eps, roll_c, stick_rate
     # slippery patches (x, y, squared radius), their friction, the floor's, the spin torque on them
     cdef double[:, ::1] patches
     cdef Py_ssize_t npatch
@@ -121,6 +121,7 @@ cdef class Loop:
     cdef object getj
     cdef int drive_joint, n_sub
     cdef double control_hz, cpr, shell_r, half_arena, volt, steer, fix_hz
+    cdef double stuck_speed, stuck_action, stuck_time     # envs.base.STUCK_*
     cdef long long max_steps
     cdef float[::1] obs_lo, obs_hi
     cdef Py_ssize_t n_obs
@@ -154,6 +155,7 @@ cdef class Loop:
         self.lat = env._lat_steps
         self.stiction, self.coulomb = rp.drive_stiction, rp.drive_coulomb
         self.spin, self.inv_eps, self.roll_c = robot.spin_torque(rp), 1.0 / robot.SPIN_EPS, rp.rolling_damping
+        self.stick_rate = robot.STICK_RATE
         self.patches = np.array(env._patches, dtype=np.float64).reshape(-1, 3)
         self.npatch = self.patches.shape[0]
         self.patch_mu, self.lat_mu, self.spin_patch = env.patch_friction, rp.lateral_friction, env._spin_patch
@@ -179,6 +181,8 @@ cdef class Loop:
         self.cpr, self.shell_r = rp.encoder_cpr, rp.shell_radius
         self.half_arena, self.volt, self.steer = 0.5 * env.arena_size, rp.motor_voltage, rp.steer_max
         self.fix_hz = env.position_fix_hz
+        from envs import base
+        self.stuck_speed, self.stuck_action, self.stuck_time = base.STUCK_SPEED, base.STUCK_ACTION, base.STUCK_TIME
         self.obs_lo, self.obs_hi = env._obs_low, env._obs_high
         self.n_obs = self.obs_lo.shape[0]
         self.js_next = None
@@ -466,7 +470,7 @@ cdef class Loop:
                                 -spin * (1.0 if e > 1.0 else (-1.0 if e < -1.0 else e))),
                          self.world, c)             # (physicsClientId: positional is cheaper)
             if self.stiction:
-                stuck = -0.05 < wd < 0.05
+                stuck = -self.stick_rate < wd < self.stick_rate
                 if stuck != self.stuck_gear:
                     self.stuck_gear = stuck
                     self.set_drive_friction(self.p, c, b, self.stiction if stuck else self.coulomb)
@@ -580,12 +584,12 @@ cdef class Loop:
         tr = env._true
         pos, orn, lin = tr[0], tr[1], tr[2]
         out = abs(<double>pos[0]) > self.half_arena or abs(<double>pos[1]) > self.half_arena
-        if _hypot(lin[0], lin[1]) < 0.02 and abs(a0) > 0.5:
+        if _hypot(lin[0], lin[1]) < self.stuck_speed and abs(a0) > self.stuck_action:
             stuck_t = <double>env._stuck_t + 1.0 / self.control_hz
         else:
             stuck_t = 0.0
         env._stuck_t = stuck_t
-        stuck = stuck_t >= 3.0
+        stuck = stuck_t >= self.stuck_time
         terminated = bool(done) or out or stuck
         truncated = (not terminated) and steps >= self.max_steps
         if terminated or truncated:

@@ -24,7 +24,7 @@ from fusion.constants import GRAVITY as G
 
 from envs import _signals
 from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
-                        SPIN_EPS, build_robot, spin_torque, set_drive_friction, set_steer)
+                        SPIN_EPS, STICK_RATE, build_robot, spin_torque, set_drive_friction, set_steer)
 
 __all__ = ["SphereRobotBase", "ESTIMATORS", "BASE_OBS", "obs_layout"]
 
@@ -39,6 +39,9 @@ BUMP_LENGTH = 0.6        # (m) the bumps' cylinder length
 RAMP_TOP, RAMP_WIDTH = 0.5, 0.8   # (m) a ramp's flat top and its width
 START_CLEARANCE = 0.5    # (m) free floor between the start and every bump or ramp
 MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() can take
+# stuck (an episode end): slower than STUCK_SPEED (m/s) while driven harder than STUCK_ACTION
+# (|action[0]|) for STUCK_TIME (s)
+STUCK_SPEED, STUCK_ACTION, STUCK_TIME = 0.02, 0.5, 3.0
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
 #: the methods of step() that the compiled step (envs/_signals.pyx, Loop.control_step) runs in C
@@ -712,7 +715,7 @@ class SphereRobotBase(gym.Env):
                                   p.WORLD_FRAME, physicsClientId=c)
         stiction = rp.drive_stiction
         if stiction:
-            stuck = -0.05 < wd < 0.05
+            stuck = -STICK_RATE < wd < STICK_RATE
             if stuck != self._stuck_gear:
                 self._stuck_gear = stuck
                 set_drive_friction(p, c, b, stiction if stuck else rp.drive_coulomb)
@@ -884,11 +887,11 @@ class SphereRobotBase(gym.Env):
         half = 0.5 * self.arena_size
         out = abs(pos[0]) > half or abs(pos[1]) > half
         speed = math.hypot(lin[0], lin[1])
-        if speed < 0.02 and abs(a0) > 0.5:
+        if speed < STUCK_SPEED and abs(a0) > STUCK_ACTION:
             self._stuck_t += 1.0 / self.control_hz
         else:
             self._stuck_t = 0.0
-        stuck = self._stuck_t >= 3.0
+        stuck = self._stuck_t >= STUCK_TIME
         return bool(done or out or stuck), out, stuck
 
     def _forward_speed(self):

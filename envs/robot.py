@@ -457,6 +457,10 @@ def spin_torque(params):
 #: peak sustained after 20 s; with 1 rad/s it decays to 2.4 deg)
 SPIN_EPS = 1.0
 
+#: (rad/s) below this drive-joint rate the gearbox holds with its stiction (drive_stiction),
+#: above it it slides with its Coulomb friction (drive_coulomb)
+STICK_RATE = 0.05
+
 
 def set_drive_friction(p, client, body, force):
     """The gearbox's friction torque (N m) on the drive joint: a velocity motor held at 0."""
