@@ -406,7 +406,7 @@ cdef class EKF(KalmanFilter):
               "including the linear acceleration a moving body adds (datasheets: about 0.002)"),
         Param("mag_noise", 0.2, "1/√Hz", 1e-4, 10.0, "magnetometer noise density, relative to the "
               "field norm, including disturbances and calibration residue (with gyro_noise it sets the "
-              "heading's time constant, roughly mag_noise / gyro_noise seconds; chosen leave-one-set-out "
+              "heading's time constant, about mag_noise / (gyro_noise cos(dip)) seconds; chosen leave-one-set-out "
               "within the failure scenarios' bounds: docs/accuracy.md)"),
         Param("q_init_std", 0.05, "1", 1e-4, 1.0, "initial std of each quaternion component"),
         Param("bias_init_std", 0.0087, "rad/s", 1e-6, 1.0, "initial std of each gyro bias component "

@@ -266,7 +266,7 @@ cdef class Mahony(Estimator):
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample kp is raised and the "
                        "integral held"),
         Param("mag_weight", 1.0, "1", 1e-6, 1e3, "weight of the magnetometer's error against the "
-              "accelerometer's (1: Mahony's; the heading's time constant is about 1 / (kp mag_weight) s)",
+              "accelerometer's (1: Mahony's; the heading's time constant is about 1 / (kp mag_weight cos²(dip)) s)",
               allow_zero=True),
         MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
         # the shared rest detector; no zero-rate update here, so no rest_noise
