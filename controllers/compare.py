@@ -496,6 +496,55 @@ def _summary_table(task, scenario, rs):
     return lines
 
 
+#: the controllers of the headline table (ppo-truth, the truth policy under each estimator, is in the full tables)
+HEADLINE_CONTROLLERS = ("pid", "ppo")
+
+
+def _signed(x, pct):
+    s = f"{100 * x:+.0f}" if pct else f"{x:+.2f}"
+    return "0" if pct and s in ("+0", "-0") else s
+
+
+def _headline_cell(r, main):
+    """The truth row's value with its interval, or the paired difference against truth."""
+    pct = main in BINARY_METRICS
+    if r["estimator"] == "truth":
+        return _fmt(r[main], r[main + "_lo"], r[main + "_hi"], pct=pct)
+    d, lo, hi = (r["delta_" + main + k] for k in ("", "_lo", "_hi"))
+    if not math.isfinite(d):
+        return "-"
+    unit = " pp" if pct else ""
+    return (f"{_signed(d, pct)}{unit} [{_signed(lo, pct)}, {_signed(hi, pct)}]"
+            + (" *" if r["separated"] else ""))
+
+
+def headline_table(summary):
+    """The README's table: one row per estimator, one column per task x controller x floor
+    (HEADLINE_CONTROLLERS), each the main metric: its value for `truth`, the paired
+    difference against `truth` for the others; rows ranked as the first column's. Markdown
+    lines; [] when the grid has no truth cell to compare with."""
+    order = {name: i for i, name in enumerate(SCENARIOS)}
+    cols = sorted({(r["task"], r["controller"], r["scenario"]) for r in summary
+                   if r["controller"] in HEADLINE_CONTROLLERS},
+                  key=lambda c: (TASKS.index(c[0]), HEADLINE_CONTROLLERS.index(c[1]),
+                                 order.get(c[2], len(order)), c[2]))
+    if not cols or not any(r["estimator"] == "truth" for r in summary):
+        return []
+    cell = {(r["task"], r["controller"], r["scenario"], r["estimator"]): r for r in summary}
+    first = cols[0]
+    ranked = sorted({r["estimator"] for r in summary},
+                    key=lambda e: _rank_key(cell[first + (e,)]) if first + (e,) in cell else (2, math.inf, e))
+    heads, last_task = [], None
+    for task, ctrl, sc in cols:
+        heads.append(f"{task}, {ctrl.upper()}, {sc}" if task != last_task else f"{ctrl.upper()}, {sc}")
+        last_task = task
+    lines = ["| estimator | " + " | ".join(heads) + " |", "|---|" + "---|" * len(cols)]
+    for e in ranked:
+        cells = [_headline_cell(cell[c + (e,)], MAIN_METRIC[c[0]][0]) if c + (e,) in cell else "-" for c in cols]
+        lines.append(f"| `{e}` | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _csv_text(rows, keys):
     buf = io.StringIO(newline="")
     w = csv.DictWriter(buf, fieldnames=keys)
@@ -536,6 +585,14 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
                      f"is detected from {k} failed runs of {n} ({100 * k / n:.0f} percentage points)."
                      if k else f"With {n} episodes per cell no success difference can be detected.")
     lines.append("")
+    head = headline_table(summary)
+    if head:
+        mains = ", ".join(f"{t}: {MAIN_METRIC[t][0]}" for t in TASKS if any(r["task"] == t for r in summary))
+        lines += ["## Headline table", "",
+                  f"The main metric ({mains}): `truth` rows give the value, the others the paired difference "
+                  "against `truth` (same controller, floor and seeds) with its 95 % interval; `*`: the interval "
+                  "excludes 0. Rows in the order of the first column. Also in headline.md.", ""] + head + [""]
+        _write_atomic(out / "headline.md", "\n".join(head) + "\n")
     for task in sorted({r["task"] for r in summary}):
         for sc in sorted({r["scenario"] for r in summary if r["task"] == task}):
             lines += _summary_table(task, sc, [r for r in summary if r["task"] == task and r["scenario"] == sc])
@@ -546,7 +603,8 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     _write_atomic(out / "summary.md", "\n".join(lines))
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
-    log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + ("" if why else ", headline.png")
+    log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + (", headline.md" if head else "")
+        + ("" if why else ", headline.png")
         + (", paths.png" if path_rows else ""))
     return out
 
@@ -685,7 +743,8 @@ _DESCRIPTION = (
 _EPILOG = (
     "Writes <out>/summary.md (the table), summary.csv (<metric>, <metric>_lo, <metric>_hi, "
     "delta_<metric>, ...), episodes.csv, headline.png (estimators ranked by their paired difference "
-    "against truth) and paths.png; finished cells are cached in <out>/cells/. Metrics: "
+    "against truth), headline.md (the README's table: the main metric per estimator, task, controller and floor) "
+    "and paths.png; finished cells are cached in <out>/cells/. Metrics: "
     "docs/envs/sphere_bot_track.md and sphere_bot_waypoints.md.")
 _EXAMPLES = (
     "  spherebot-compare --quick                       # the demo (make demo), a few minutes\n"

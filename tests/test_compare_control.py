@@ -167,6 +167,34 @@ def test_summary_success_intervals_in_range():
     assert newcombe_paired(np.r_[np.zeros(k - 1), np.ones(31 - k)], np.ones(30))[2] >= 0
 
 
+def test_headline_table_is_the_readmes(tmp_path):
+    """One row per estimator ranked by the first column's harm, truth's value and the others'
+    paired differences per task x controller x floor, written to headline.md too."""
+    rows = []
+    for task, metric, base in (("track", "heading_ss", 3.0), ("waypoints", "success", 1.0)):
+        for sc in ("flat", "disturbed"):
+            for ctrl in ("pid", "ppo", "ppo-truth"):
+                for est, harm in (("truth", 0.0), ("gyro", 2.0), ("ekf", 0.5)):
+                    for i in range(8):
+                        v = base + harm + 0.1 * i if task == "track" else float(not (est == "gyro" and i < 4))
+                        r = dict.fromkeys(compare.SHOWN[task], 1.0)
+                        r.update(task=task, scenario=sc, estimator=est, controller=ctrl, episode_seed=i, **{metric: v})
+                        rows.append(r)
+    summary = compare.summarise(rows)
+    lines = compare.headline_table(summary)
+    assert lines[0] == ("| estimator | track, PID, flat | PID, disturbed | PPO, flat | PPO, disturbed | "
+                        "waypoints, PID, flat | PID, disturbed | PPO, flat | PPO, disturbed |")
+    assert [ln.split(" | ")[0] for ln in lines[2:]] == ["| `truth`", "| `ekf`", "| `gyro`"]
+    truth, ekf, gyro = (ln.split(" | ") for ln in lines[2:])
+    assert truth[1].startswith("3.35 [") and truth[5].startswith("100 % [")
+    assert ekf[1].startswith("+0.50 [+0.50, +0.50]") and ekf[1].endswith("*") and ekf[5].startswith("0 pp [")
+    assert gyro[5].startswith("-50 pp [") and "ppo-truth" not in "".join(lines)
+    compare.write_outputs(rows, summary, tmp_path, log=lambda *a: None)
+    assert (tmp_path / "headline.md").read_text().splitlines() == lines
+    assert "\n".join(lines) in (tmp_path / "summary.md").read_text()
+    assert compare.headline_table([r for r in summary if r["estimator"] != "truth"]) == []
+
+
 def test_plan_finds_the_shipped_policies_and_hashes_their_statistics(tmp_path):
     """Every shipped policy gives its PPO cells (the statistics are .vecnormalize.npz since
     the safe-loading change; plan looked for the old .pkl and skipped every PPO cell), and
