@@ -525,7 +525,11 @@ def _clone_pid(model, venv, eval_env, bc_steps, seed, progress, log):
 def _learn(saver, timesteps, callback, ev, reset, progress, n_envs, log):
     """model.learn up to ``timesteps`` in all; Ctrl-C saves a checkpoint first. Returns (wall
     s, steps/s, steps/s of training alone: the evaluation episodes' time taken out)."""
+    from stable_baselines3.common.logger import Logger
     model = saver.model
+    # no printed or written log (the run keeps its learning curve in evaluations.npz): SB3's
+    # default logger would leave an empty folder in the temp directory on every learn()
+    model.set_logger(Logger(None, []))
     remaining = timesteps - model.num_timesteps
     t0, steps0 = time.perf_counter(), model.num_timesteps
     try:

@@ -130,12 +130,17 @@ def test_resume_continues_from_checkpoint(tiny_policy):
         assert np.all(np.diff(d["timesteps"]) > 0)
 
 
-def test_init_from_fine_tunes(tmp_path, tiny_policy):
+def test_init_from_fine_tunes(tmp_path, tiny_policy, monkeypatch):
     stem = tmp_path / "ppo-track-gyro"
+    # training leaves nothing in the temp directory (SB3's default logger makes a folder there)
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
     rl.train("ppo", "track", "gyro", timesteps=300, seed=2, out=stem, n_envs=1, progress=False, init_from=tiny_policy,
              trusted=True, eval_freq=300, checkpoint_freq=300, eval_episodes=1, env_kwargs={"episode_s": 2.0},
              log=lambda *a: None)
     meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
+    assert not any((tmp_path / "tmp").iterdir())
     assert meta["init_from"] == "ppo-track-truth.zip" and meta["estimator"] == "gyro"
     # the starting policy's evaluation is the first point of the learning curve
     with np.load(tmp_path / "ppo-track-gyro.run" / "evaluations.npz") as d:
