@@ -189,7 +189,8 @@ def _checked_field(name, value, view, check):
         v = v.astype(np.float64)
         if not np.isfinite(v).all():
             raise ValueError(f"state field {name!r} must be finite, got {value!r}")
-        if check == "unit" and abs(float(np.sqrt(v @ v)) - 1.0) > 1e-9:
+        # (a component beyond 1 is no unit vector; the test keeps v @ v from overflowing)
+        if check == "unit" and ((np.abs(v) > 1.0 + 1e-9).any() or abs(float(np.sqrt(v @ v)) - 1.0) > 1e-9):
             raise ValueError(f"state field {name!r} must be a unit {'quaternion' if n == 4 else 'vector'}, got {value!r}")
         if check == COV:
             _check_covariance(name, v.reshape(n), value)
