@@ -4,9 +4,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._rest cimport rest_detect
-from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_lowpassed
+from fusion._aided cimport rest_now, mag_accepted, acc_input
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
@@ -338,8 +336,8 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
 
 cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
                                    const double* acc, double dt, double* out) noexcept nogil:
-    """acc_lowpassed (fusion/_acclp.pxd) on the ekf's state, out of line."""
-    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
+    """acc_input (fusion/_aided.pxd) on the ekf's state, out of line."""
+    return acc_input(e, gyr, sat, b, acc, dt, out)
 
 
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
@@ -353,7 +351,7 @@ cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
     cdef double* b = st.b
     cdef double* P = st.P
     cdef int i, j
-    if not rest_detect(e.rest, gyr, acc, dt):
+    if not rest_now(e, gyr, acc, dt):
         return
     for i in range(7):
         for j in range(3):
@@ -382,7 +380,7 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
-    if mag != NULL and magd_check(e.magd, q, mag, gyr, dt):
+    if mag_accepted(e, q, mag, gyr, dt):
         ekf_mag_update(e, q, s.b, s.P, mag, dt)
     quat_normalise(q)
 
@@ -421,27 +419,25 @@ cdef class EKF(KalmanFilter):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
-        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configure(p)                   # noise, rest and disturbance detectors, low-pass; reset
 
     cdef list _filter_fields(self):
         return struct_fields(<EKFState[:1]>&self.s, STATE_CHECKS)
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + self._filter_fields() + self.parts_fields()
+        return KalmanFilter._state_fields(self) + self._filter_fields()
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
+        KalmanFilter._reset_state(self)
         memset(&self.s, 0, sizeof(EKFState))
         for i in range(4):
             self.s.P[i * 8] = self.kalman.q_init_std * self.kalman.q_init_std
         for i in range(4, 7):
             self.s.P[i * 8] = self.kalman.bias_init_std * self.kalman.bias_init_std
-        self.clear_parts()
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:
@@ -478,11 +474,6 @@ cdef class EKF(KalmanFilter):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
-
-    @property
-    def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (the IIR-EKF paper's)."""
-        return "heading" if self.mag_gain == GAIN_HEADING else "vector"
 
     @property
     def acc_update(self):
