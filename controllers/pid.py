@@ -20,12 +20,12 @@ Gains: ``PIDGains`` documents each, and how it was found (docs/controllers.md).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, asdict
 
 import numpy as np
 
 from controllers.base import Controller, obs_batch
+from fusion.checks import number
 
 __all__ = ["PID", "PIDGains"]
 
@@ -51,12 +51,9 @@ class PIDGains:
 
     def __post_init__(self):
         for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"PIDGains.{f.name} must be a finite number >= 0, got {v!r}")
-        for name in ("top_speed", "wp_slow_radius"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"PIDGains.{name} must be > 0, got {getattr(self, name)!r}")
+            # >= 0; the two a division uses > 0
+            number(f"PIDGains.{f.name}", getattr(self, f.name), 0.0,
+                   open_low=f.name in ("top_speed", "wp_slow_radius"))
 
 
 class PID(Controller):
@@ -80,19 +77,14 @@ class PID(Controller):
             gains = PIDGains(**gains)
         elif not isinstance(gains, PIDGains):
             raise ValueError(f"gains must be None, a dict or a PIDGains, got {type(gains).__name__}")
-        if isinstance(control_hz, bool) or not isinstance(control_hz, (int, float)) or \
-                not math.isfinite(control_hz) or control_hz <= 0:
-            raise ValueError(f"control_hz must be a positive number (Hz), got {control_hz!r}")
+        control_hz = number("control_hz", control_hz, 0.0, open_low=True, unit=" Hz")
         if shell_radius is None:
             shell_radius = RobotParams().shell_radius
-        elif isinstance(shell_radius, bool) or not isinstance(shell_radius, (int, float)) or \
-                not math.isfinite(shell_radius) or shell_radius <= 0:
-            raise ValueError(f"shell_radius must be a positive number (m), got {shell_radius!r}")
         self.task = task
         self.obs_index = TASK_CLASSES[task].OBS
         self.gains = gains
-        self.dt = 1.0 / float(control_hz)
-        self.shell_radius = float(shell_radius)
+        self.dt = 1.0 / control_hz
+        self.shell_radius = number("shell_radius", shell_radius, 0.0, open_low=True, unit=" m")
         self._n = None
 
     @classmethod

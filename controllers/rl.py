@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from controllers.base import Controller, obs_batch
-from fusion.checks import choice
+from fusion.checks import choice, integer
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
                                    save_model, save_normalization, vec_normalize)
 
@@ -615,14 +615,11 @@ def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes
     if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
             not np.isfinite(timesteps) or int(timesteps) != timesteps or timesteps < 1:
         raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or not 1 <= n_envs <= 256:
-        raise ValueError(f"n_envs must be an integer in [1, 256], got {n_envs!r}")
+    n_envs = integer("n_envs", n_envs, 1, 256)
     for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
-            raise ValueError(f"{name} must be None or an integer >= 1, got {v!r}")
-    if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, (int, np.integer)) or eval_episodes < 1:
-        raise ValueError(f"eval_episodes must be an integer >= 1, got {eval_episodes!r}")
-    return int(timesteps), int(n_envs)
+        integer(name, v, 1, allow_none=True)
+    integer("eval_episodes", eval_episodes, 1)
+    return int(timesteps), n_envs
 
 
 def _checked_env_kwargs(task, estimator, env_kwargs):
@@ -724,8 +721,8 @@ def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_
     if vec_env not in VEC_ENVS:
         raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
     clone = init_from == TEACHER and not resume
-    if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
-        raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
+    if clone:
+        integer("bc_steps", bc_steps, 1)
     stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
     run_dir = Path(str(stem) + ".run")
     return SimpleNamespace(

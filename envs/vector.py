@@ -39,6 +39,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from fusion.checks import integer
+
 __all__ = ["SphereBotVectorEnv", "SB3VecEnv", "make_track_vec", "make_waypoints_vec"]
 
 
@@ -49,8 +51,7 @@ class SphereBotVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, env_cls, num_envs, **kwargs):
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= 1024:
-            raise ValueError(f"num_envs must be an integer in [1, 1024], got {num_envs!r}")
+        num_envs = integer("num_envs", num_envs, 1, 1024)
         if kwargs.get("render_mode") is not None:
             raise ValueError("render_mode must be None for the batched vector environment")
         kwargs.pop("max_episode_steps", None)       # the episode length is the env's episode_s

@@ -77,7 +77,7 @@ cdef class AEKF(EKF):
         EKF.PARAMS["bias_init_std"].but(default=0.02),
         Param("acc_norm_tol", 1.0, "m/s²", 0.0, None, "accelerometer rejected if | |a| - g | > this; g "
               "is 9.81 until the first rest, then the accelerometer's low-passed norm at rest "
-              "(seed 001's e_a1)", open_low=True),
+              "(the paper's e_a1)", open_low=True),
         Param("acc_pred_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if |a - g u| > this, u "
               "the predicted vertical (e_a2)", open_low=True),
         Param("acc_pred_timeout", 2.0, "s", 0.0, None, "a distance-test failure lasting longer than "

@@ -1,5 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
+"""`ekf`: the 7-state quaternion + gyro-bias EKF of "EKF attitude estimation for a spherical robot"
+(Software Engineering, 2022) and "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero.
+Astro., 2023) (docs/estimators.md)."""
 import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
@@ -411,7 +413,7 @@ cdef class EKF(KalmanFilter):
               "(MEMS turn-on bias; 0.0087 = 0.5 °/s, VQF's, chosen leave-one-set-out: docs/accuracy.md)",
               allow_zero=True),
         GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS,
-        Param("acc_update", "vector", "", doc='"vector": seed 003\'s update; "tilt": the accelerometer '
+        Param("acc_update", "vector", "", doc='"vector": the IIR-EKF paper\'s update; "tilt": the accelerometer '
               "corrects the inclination (and the bias across the vertical) only, so that a linear "
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)

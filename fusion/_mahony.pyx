@@ -1,5 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`mahony`: explicit complementary filter with PI correction (seeds 000 and 004)."""
+"""`mahony`: explicit complementary filter with PI correction, the baseline of "EKF attitude
+estimation for a spherical robot" (Software Engineering, 2022) and the filter inside "Attitude-angle
+solution for a mobile robot" (Chinese patent, 2019)."""
 import numpy as np
 from libc.math cimport sqrt
 
@@ -249,7 +251,8 @@ cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double
 
 
 cdef class Mahony(AidedFilter):
-    """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
+    """Mahony's explicit complementary filter ("Nonlinear complementary filters on the special
+    orthogonal group", IEEE TAC 2008): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain). At
     rest (rest_*) the bias -ki ε is pulled toward the measured rate (with ki > 0 only)."""
