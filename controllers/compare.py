@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fusion.checks import integer
+
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
@@ -131,9 +133,8 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
     controllers = _check_names("controller", controllers, CONTROLLERS)
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; accepted: {', '.join(ROBOTS)}")
-    for name, v in (("episodes", episodes), ("seed", seed)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "episodes" else 0):
-            raise ValueError(f"{name} must be an integer >= {1 if name == 'episodes' else 0}, got {v!r}")
+    integer("episodes", episodes, 1)
+    integer("seed", seed, 0)
     pdir = Path(policy_dir) if policy_dir is not None else POLICY_DIR
     custom = None if pdir.resolve() == POLICY_DIR.resolve() else str(pdir.resolve())
     jobs, missing = [], set()

@@ -20,12 +20,15 @@ Gains: ``PIDGains`` documents each, and how it was found (docs/controllers.md).
 """
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, asdict
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
+from fusion.checks import number
 
 __all__ = ["PID", "PIDGains"]
 
@@ -51,12 +54,9 @@ class PIDGains:
 
     def __post_init__(self):
         for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"PIDGains.{f.name} must be a finite number >= 0, got {v!r}")
-        for name in ("top_speed", "wp_slow_radius"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"PIDGains.{name} must be > 0, got {getattr(self, name)!r}")
+            # >= 0; the two a division uses > 0
+            number(f"PIDGains.{f.name}", getattr(self, f.name), 0.0,
+                   open_low=f.name in ("top_speed", "wp_slow_radius"))
 
 
 class PID(Controller):
@@ -65,7 +65,8 @@ class PID(Controller):
     ``control_hz``: the environment's rate; ``shell_radius`` (m, encoder rate -> ground
     speed): the robot's, default ``RobotParams``'s (``for_env`` reads the environment's)."""
 
-    def __init__(self, task="track", gains=None, control_hz=50.0, shell_radius=None):
+    def __init__(self, task: str = "track", gains: PIDGains | dict[str, float] | None = None,
+                 control_hz: float = 50.0, shell_radius: float | None = None) -> None:
         from envs.robot import RobotParams
         from envs.sphere import TASK_CLASSES
         if task not in TASK_CLASSES:
@@ -80,23 +81,18 @@ class PID(Controller):
             gains = PIDGains(**gains)
         elif not isinstance(gains, PIDGains):
             raise ValueError(f"gains must be None, a dict or a PIDGains, got {type(gains).__name__}")
-        if isinstance(control_hz, bool) or not isinstance(control_hz, (int, float)) or \
-                not math.isfinite(control_hz) or control_hz <= 0:
-            raise ValueError(f"control_hz must be a positive number (Hz), got {control_hz!r}")
+        control_hz = number("control_hz", control_hz, 0.0, open_low=True, unit=" Hz")
         if shell_radius is None:
             shell_radius = RobotParams().shell_radius
-        elif isinstance(shell_radius, bool) or not isinstance(shell_radius, (int, float)) or \
-                not math.isfinite(shell_radius) or shell_radius <= 0:
-            raise ValueError(f"shell_radius must be a positive number (m), got {shell_radius!r}")
         self.task = task
         self.obs_index = TASK_CLASSES[task].OBS
         self.gains = gains
-        self.dt = 1.0 / float(control_hz)
-        self.shell_radius = float(shell_radius)
+        self.dt = 1.0 / control_hz
+        self.shell_radius = number("shell_radius", shell_radius, 0.0, open_low=True, unit=" m")
         self._n = None
 
     @classmethod
-    def for_env(cls, env, gains=None):
+    def for_env(cls, env: Any, gains: PIDGains | dict[str, float] | None = None) -> PID:
         """A PID matching ``env``'s task and control rate (``env`` may be wrapped)."""
         base = env.unwrapped
         return cls(task=base.task, gains=gains, control_hz=base.control_hz, shell_radius=base.robot.shell_radius)
@@ -105,7 +101,7 @@ class PID(Controller):
         return (f"PID(task={self.task!r}, gains={asdict(self.gains)!r}, control_hz={1.0 / self.dt:g}, "
                 f"shell_radius={self.shell_radius:g})")
 
-    def reset(self, index=None):
+    def reset(self, index: int | Sequence[int] | None = None) -> None:
         """Clear the integrators: all rows, or only row(s) ``index`` (a vector env's done envs)."""
         if self._n is None:
             return
@@ -122,7 +118,7 @@ class PID(Controller):
             self._i_head = np.zeros(n)
             self._i_speed = np.zeros(n)
 
-    def act(self, obs):
+    def act(self, obs: ArrayLike) -> np.ndarray:
         o, single = obs_batch(obs)
         self._ensure(o.shape[0])
         g, dt, k = self.gains, self.dt, self.obs_index

@@ -25,12 +25,14 @@ import time
 import warnings
 from importlib import resources
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
-from fusion.checks import choice
+from fusion.checks import choice, integer
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
                                    save_model, save_normalization, vec_normalize)
 
@@ -619,14 +621,11 @@ def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes
     if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
             not np.isfinite(timesteps) or int(timesteps) != timesteps or timesteps < 1:
         raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
-    if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or not 1 <= n_envs <= 256:
-        raise ValueError(f"n_envs must be an integer in [1, 256], got {n_envs!r}")
+    n_envs = integer("n_envs", n_envs, 1, 256)
     for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
-            raise ValueError(f"{name} must be None or an integer >= 1, got {v!r}")
-    if isinstance(eval_episodes, bool) or not isinstance(eval_episodes, (int, np.integer)) or eval_episodes < 1:
-        raise ValueError(f"eval_episodes must be an integer >= 1, got {eval_episodes!r}")
-    return int(timesteps), int(n_envs)
+        integer(name, v, 1, allow_none=True)
+    integer("eval_episodes", eval_episodes, 1)
+    return int(timesteps), n_envs
 
 
 def _checked_env_kwargs(task, estimator, env_kwargs):
@@ -728,8 +727,8 @@ def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_
     if vec_env not in VEC_ENVS:
         raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
     clone = init_from == TEACHER and not resume
-    if clone and (isinstance(bc_steps, bool) or not isinstance(bc_steps, int) or bc_steps < 1):
-        raise ValueError(f"bc_steps must be an integer >= 1, got {bc_steps!r}")
+    if clone:
+        integer("bc_steps", bc_steps, 1)
     stem = Path(out) if out is not None else new_run_stem(algo, task, estimator)
     run_dir = Path(str(stem) + ".run")
     return SimpleNamespace(
@@ -812,10 +811,13 @@ def _publish(p, command, init, start_ckpt, bc_collected, times):
         "eval_time_s": round(eval_time, 1)})
 
 
-def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
-          eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print, trusted=False, vec_env="subproc"):
+def train(algo: str, task: str, estimator: str, timesteps: int | None = None, seed: int = 0,
+          out: str | os.PathLike | None = None, env_kwargs: dict[str, Any] | None = None, resume: bool = False,
+          eval_episodes: int = 5, eval_freq: int | None = None, checkpoint_freq: int | None = None,
+          n_envs: int | None = None, progress: bool = True, command: str | None = None,
+          init_from: str | None = None, overwrite: bool = False, bc_steps: int = 60_000,
+          hyperparams_override: dict[str, Any] | None = None, log: Callable[[str], Any] = print,
+          trusted: bool = False, vec_env: str = "subproc") -> Path:
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
     (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
     written into the package: ``install_policy`` does that).
@@ -901,7 +903,8 @@ class PolicyController(Controller):
     """A trained SB3 policy behind the ``Controller`` interface (deterministic actions,
     observations normalised with the statistics it was trained with)."""
 
-    def __init__(self, model, obs_rms=None, clip_obs=10.0, epsilon=1e-8, meta=None, path=None):
+    def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8,
+                 meta: dict[str, Any] | None = None, path: str | os.PathLike | None = None) -> None:
         self.model = model
         self.obs_rms = obs_rms
         self.clip_obs = clip_obs
@@ -913,7 +916,7 @@ class PolicyController(Controller):
     def __repr__(self):
         return f"PolicyController({str(self.path)!r})"
 
-    def act(self, obs):
+    def act(self, obs: ArrayLike) -> np.ndarray:
         o, single = obs_batch(obs)
         if o.shape[1] != self.model.observation_space.shape[0]:
             raise ValueError(f"policy {self.path} takes observations of size "

@@ -6,11 +6,12 @@ import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, fabs, asin, sin, cos, M_PI, isfinite
 from libc.stdlib cimport realloc, free
+from libc.string cimport memset
 
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
-from fusion._magdist cimport magd_check
-from fusion._core import check_fs, FLAG, COUNT, TIMER, VALUE_MAX
+from fusion._aided cimport mag_accepted
+from fusion._core import check_fs, struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
 from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
@@ -22,6 +23,12 @@ from fusion._constants cimport GRAVITY as G0
 cdef double DEG = M_PI / 180.0
 cdef double UP[3]
 UP[:] = [0.0, 0.0, 1.0]
+
+# struct_fields' checks of AEKFState: those other than a double's magnitude bound, a bint's
+# flag and a long long's count
+AEKF_STATE_CHECKS = {"t_dir": TIMER, "norm_ref": (0.0, VALUE_MAX), "dip_ref": (-M_PI / 2, M_PI / 2),
+                     "ref_field": "unit", "last_code": (0, 7),
+                     "g_ref": (1.0, 100.0)}     # m/s^2: the norm a still sensor reads
 
 # codes of est.decisions / est.last_decision (bits)
 ACC_REJECTED = 1
@@ -70,7 +77,7 @@ cdef class AEKF(EKF):
         EKF.PARAMS["bias_init_std"].but(default=0.02),
         Param("acc_norm_tol", 1.0, "m/s²", 0.0, None, "accelerometer rejected if | |a| - g | > this; g "
               "is 9.81 until the first rest, then the accelerometer's low-passed norm at rest "
-              "(seed 001's e_a1)", open_low=True),
+              "(the paper's e_a1)", open_low=True),
         Param("acc_pred_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if |a - g u| > this, u "
               "the predicted vertical (e_a2)", open_low=True),
         Param("acc_pred_timeout", 2.0, "s", 0.0, None, "a distance-test failure lasting longer than "
@@ -125,38 +132,17 @@ cdef class AEKF(EKF):
 
     cdef list _state_fields(self):
         # the decision log (record_decisions) is a recording, not state
-        return EKF._state_fields(self) + [
-            ("t_dir", <double[:1]>&self.t_dir, TIMER), ("n_learned", <long long[:1]>&self.n_learned, COUNT),
-            ("norm_sum", <double[:1]>&self.norm_sum, None), ("dip_sum", <double[:1]>&self.dip_sum, None),
-            ("norm_ref", <double[:1]>&self.norm_ref, (0.0, VALUE_MAX)),
-            ("dip_ref", <double[:1]>&self.dip_ref, (-M_PI / 2, M_PI / 2)),
-            ("ref_field", <double[:3]>self.ref_field, "unit"), ("have_ref", <int[:1]><int*>&self.have_ref, FLAG),
-            ("n_acc_tested", <long long[:1]>&self.n_acc_tested, COUNT),
-            ("n_acc_rej", <long long[:1]>&self.n_acc_rej, COUNT),
-            ("n_mag_tested", <long long[:1]>&self.n_mag_tested, COUNT),
-            ("n_mag_rej", <long long[:1]>&self.n_mag_rej, COUNT),
-            ("n_quest", <long long[:1]>&self.n_quest, COUNT), ("last_code", <int[:1]>&self.last_code, (0, 7)),
-            ("g_ref", <double[:1]>&self.g_ref, (1.0, 100.0))]   # m/s^2: the norm a still sensor reads
+        return EKF._state_fields(self) + struct_fields(<AEKFState[:1]>&self.ad, AEKF_STATE_CHECKS)
 
     cdef void _reset_state(self) noexcept nogil:
         EKF._reset_state(self)
-        self.g_ref = G0
-        self.n_learned = 0
-        self.t_dir = 0.0
-        self.norm_sum = 0.0
-        self.dip_sum = 0.0
-        self.have_ref = not (self.learn_norm or self.learn_dip)
-        self.norm_ref = 0.0 if self.learn_norm else self.norm_given
-        self.dip_ref = 0.0 if self.learn_dip else self.dip_given * DEG
-        self.ref_field[0] = 0.0
-        self.ref_field[1] = cos(self.dip_ref)
-        self.ref_field[2] = -sin(self.dip_ref)
-        self.n_acc_tested = 0
-        self.n_acc_rej = 0
-        self.n_mag_tested = 0
-        self.n_mag_rej = 0
-        self.n_quest = 0
-        self.last_code = 0
+        memset(&self.ad, 0, sizeof(AEKFState))
+        self.ad.g_ref = G0
+        self.ad.have_ref = not (self.learn_norm or self.learn_dip)
+        self.ad.norm_ref = 0.0 if self.learn_norm else self.norm_given
+        self.ad.dip_ref = 0.0 if self.learn_dip else self.dip_given * DEG
+        self.ad.ref_field[1] = cos(self.ad.dip_ref)
+        self.ad.ref_field[2] = -sin(self.ad.dip_ref)
         self.log_n = 0
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
@@ -177,9 +163,9 @@ cdef class AEKF(EKF):
         if self.rest.n > n_rest:
             # at rest the accelerometer's low-passed norm is this sensor's g (a scale error of
             # a few % would otherwise fail the norm test on every sample of a still sensor)
-            self.g_ref = sqrt(self.rest.acc[0] * self.rest.acc[0] + self.rest.acc[1] * self.rest.acc[1]
-                              + self.rest.acc[2] * self.rest.acc[2])
-        g = self.g_ref
+            self.ad.g_ref = sqrt(self.rest.acc[0] * self.rest.acc[0] + self.rest.acc[1] * self.rest.acc[1]
+                                 + self.rest.acc[2] * self.rest.acc[2])
+        g = self.ad.g_ref
         # the tests: measured readings against those the predicted attitude expects
         up_in_body(self.q, u)
         if acc != NULL:
@@ -189,54 +175,54 @@ cdef class AEKF(EKF):
             dz = acc[2] - g * u[2]
             if fabs(na - g) > self.acc_norm_tol:
                 acc_rej = True
-                self.t_dir = 0.0
+                self.ad.t_dir = 0.0
             elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
                 # quiet by its norm, yet not where the attitude expects it: a linear
                 # acceleration, unless this lasts so long that the estimate must be wrong
-                self.t_dir += dt
-                acc_rej = self.t_dir <= self.acc_pred_timeout
+                self.ad.t_dir += dt
+                acc_rej = self.ad.t_dir <= self.acc_pred_timeout
             else:
-                self.t_dir = 0.0
-            self.n_acc_tested += 1
+                self.ad.t_dir = 0.0
+            self.ad.n_acc_tested += 1
             if acc_rej:
-                self.n_acc_rej += 1
-                self.last_code |= 1
+                self.ad.n_acc_rej += 1
+                self.ad.last_code |= 1
         if mag != NULL:
             nm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
-            if acc != NULL and self.n_learned < self.n_learn:
+            if acc != NULL and self.ad.n_learned < self.n_learn:
                 # learning the reference: running means over the first samples
-                self.n_learned += 1
+                self.ad.n_learned += 1
                 if self.learn_norm:
-                    self.norm_sum += nm
-                    self.norm_ref = self.norm_sum / self.n_learned
+                    self.ad.norm_sum += nm
+                    self.ad.norm_ref = self.ad.norm_sum / self.ad.n_learned
                 if self.learn_dip:
                     c = -(mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / (nm * na)
                     if not isfinite(c):     # |m| |a| over- or underflowed: from unit vectors
                         c = -((mag[0] / nm) * (acc[0] / na) + (mag[1] / nm) * (acc[1] / na)
                               + (mag[2] / nm) * (acc[2] / na))
                     c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
-                    self.dip_sum += asin(c)
-                    self.dip_ref = self.dip_sum / self.n_learned
-                    self.ref_field[1] = cos(self.dip_ref)
-                    self.ref_field[2] = -sin(self.dip_ref)
-                self.have_ref = True
-            if self.have_ref:
+                    self.ad.dip_sum += asin(c)
+                    self.ad.dip_ref = self.ad.dip_sum / self.ad.n_learned
+                    self.ad.ref_field[1] = cos(self.ad.dip_ref)
+                    self.ad.ref_field[2] = -sin(self.ad.dip_ref)
+                self.ad.have_ref = True
+            if self.ad.have_ref:
                 mag_tested = True
                 c = -(mag[0] * u[0] + mag[1] * u[1] + mag[2] * u[2]) / nm
                 c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
-                mag_rej = (fabs(nm / self.norm_ref - 1.0) > self.mag_norm_tol
-                           or fabs(asin(c) - self.dip_ref) > self.dip_tol_rad)
-                self.n_mag_tested += 1
+                mag_rej = (fabs(nm / self.ad.norm_ref - 1.0) > self.mag_norm_tol
+                           or fabs(asin(c) - self.ad.dip_ref) > self.dip_tol_rad)
+                self.ad.n_mag_tested += 1
                 if mag_rej:
-                    self.n_mag_rej += 1
-                    self.last_code |= 2
+                    self.ad.n_mag_rej += 1
+                    self.ad.last_code |= 2
         if self.use_quest and acc != NULL and mag_tested and not acc_rej and not mag_rej:
             unit3(acc, ah)
             unit3(mag, mh)
             # |u × m̂|²: the horizontal share of the field seen from the predicted attitude
             c = ((u[1] * mh[2] - u[2] * mh[1]) ** 2 + (u[2] * mh[0] - u[0] * mh[2]) ** 2
                  + (u[0] * mh[1] - u[1] * mh[0]) ** 2)
-            if c > 1e-18 and quest2(ah, mh, UP, self.ref_field, 1.0 - self.quest_mag_weight,
+            if c > 1e-18 and quest2(ah, mh, UP, self.ad.ref_field, 1.0 - self.quest_mag_weight,
                                     self.quest_mag_weight, qm):
                 if qm[0] * self.q[0] + qm[1] * self.q[1] + qm[2] * self.q[2] + qm[3] * self.q[3] < 0.0:
                     qm[0] = -qm[0]; qm[1] = -qm[1]; qm[2] = -qm[2]; qm[3] = -qm[3]
@@ -250,8 +236,8 @@ cdef class AEKF(EKF):
                 v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
                 v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
                 quat_measurement_update(self.q, self.s.b, self.s.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
-                self.n_quest += 1
-                self.last_code |= 4
+                self.ad.n_quest += 1
+                self.ad.last_code |= 4
                 quat_normalise(self.q)
                 return
         # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
@@ -259,7 +245,7 @@ cdef class AEKF(EKF):
             self._acc_correct(acc, dt / self.reject_factor if acc_rej else dt)
         # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
         # re-learned, the document's gate's is not
-        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
+        if mag_accepted(self, self.q, mag, gyr, dt):
             self._mag_correct(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 
@@ -267,7 +253,7 @@ cdef class AEKF(EKF):
                        double dt) noexcept nogil:
         cdef unsigned char* p
         cdef Py_ssize_t cap
-        self.last_code = 0
+        self.ad.last_code = 0
         Estimator._process(self, gyr, acc, mag, dt)
         if self.logging:
             if self.log_n == self.log_cap:
@@ -278,7 +264,7 @@ cdef class AEKF(EKF):
                     return
                 self.log = p
                 self.log_cap = cap
-            self.log[self.log_n] = <unsigned char>self.last_code
+            self.log[self.log_n] = <unsigned char>self.ad.last_code
             self.log_n += 1
 
     # --- the switching, for figures ------------------------------------------------------
@@ -310,30 +296,30 @@ cdef class AEKF(EKF):
     @property
     def last_decision(self):
         """The code (as in est.decisions) of the last sample processed."""
-        return int(self.last_code)
+        return int(self.ad.last_code)
 
     @property
     def rejected(self):
         """Counts of accelerometer / magnetometer samples rejected since the last reset."""
-        return {"acc": self.n_acc_rej, "mag": self.n_mag_rej}
+        return {"acc": self.ad.n_acc_rej, "mag": self.ad.n_mag_rej}
 
     @property
     def tested(self):
         """Counts of accelerometer / magnetometer samples tested since the last reset."""
-        return {"acc": self.n_acc_tested, "mag": self.n_mag_tested}
+        return {"acc": self.ad.n_acc_tested, "mag": self.ad.n_mag_tested}
 
     @property
     def quest_updates(self):
         """Samples whose measurement was the QUEST quaternion since the last reset."""
-        return self.n_quest
+        return self.ad.n_quest
 
     @property
     def mag_reference(self):
         """(field norm, dip angle in degrees) the magnetometer is tested against, or None
         before it is known (learned from the first samples unless mag_norm / mag_dip given)."""
-        if not self.have_ref:
+        if not self.ad.have_ref:
             return None
-        return (self.norm_ref, self.dip_ref / DEG)
+        return (self.ad.norm_ref, self.ad.dip_ref / DEG)
 
     @property
     def measurement(self):

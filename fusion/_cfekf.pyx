@@ -5,14 +5,14 @@ complementary filter (Mahony) whose quaternion is the measurement of the 7-state
 
 import numpy as np
 
-from libc.string cimport memcpy
+from libc.string cimport memcpy, memset
 
 from fusion._core cimport Estimator
 from fusion._ekf cimport EKF
 from fusion._mahony cimport Mahony
 from fusion._prefilter cimport SlidingMean
 from fusion._prefilter import WINDOW_MAX
-from fusion._core import FLAG, TIMER
+from fusion._core import struct_fields, TIMER
 from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
 from fusion._rest import REST_PROPERTIES
@@ -66,14 +66,14 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
     cdef double z[4]
     cdef double g[3]
     cdef int i
-    cdef bint sat = gyr != NULL and e.sat_left > 0
+    cdef bint sat = gyr != NULL and e.s.sat_left > 0
     cdef bint learn
     cdef double na, c
-    if not e.cf_started:         # the complementary filter starts where the EKF does
+    if not e.s.cf_started:         # the complementary filter starts where the EKF does
         e.cf._reset_state()
         for i in range(4):
             e.cf.q[i] = e.q[i]
-        e.cf_started = True
+        e.s.cf_started = True
     # the EKF's attitude is this estimator's (set by reset, the first sample, load_state)
     memcpy(k.q, e.q, 4 * sizeof(double))
     if gyr != NULL and e.bias_feedback:
@@ -102,11 +102,11 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
             na = G0 if acc == NULL else sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
             c = fabs(z[0] * k.q[0] + z[1] * k.q[1] + z[2] * k.q[2] + z[3] * k.q[3])
             if fabs(na - G0) > LEARN_ACC_TOL or c < LEARN_COS:
-                e.t_quiet = 0.0
+                e.s.t_quiet = 0.0
                 learn = False
             else:
-                e.t_quiet += dt
-                learn = e.t_quiet >= LEARN_HOLD
+                e.s.t_quiet += dt
+                learn = e.s.t_quiet >= LEARN_HOLD
         quat_measurement_update(k.q, k.s.b, k.s.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
     quat_normalise(k.q)
     memcpy(e.q, k.q, 4 * sizeof(double))
@@ -187,16 +187,12 @@ cdef class CFEKF(Estimator):
         # the core's b, P, recovery timer and rest detector under the ekf's names (its
         # attitude is q); the inner complementary filter's whole state, under "cf."
         return (Estimator._state_fields(self) + self.core._filter_fields() + self.rest.fields()
-                + [("cf_started", <int[:1]><int*>&self.cf_started, FLAG),
-                   ("sat_left", <int[:1]>&self.sat_left, (0, self.window)),
-                   ("t_quiet", <double[:1]>&self.t_quiet, TIMER)]
+                + struct_fields(<CFEKFState[:1]>&self.s, {"sat_left": (0, self.window), "t_quiet": TIMER})
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
 
     cdef void _reset_state(self) noexcept nogil:
         self.core._reset_state()
-        self.cf_started = False
-        self.sat_left = 0
-        self.t_quiet = 0.0
+        memset(&self.s, 0, sizeof(CFEKFState))
 
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil:
@@ -204,10 +200,10 @@ cdef class CFEKF(Estimator):
         # not on the rail): flagged while the window holds one
         cdef bint entered = vec3_finite(gyr)     # the prefilter sees valid samples only
         if entered and saturated(gyr, self.gyro_range_):
-            self.sat_left = (<SlidingMean>self.pre_gyr).window
+            self.s.sat_left = (<SlidingMean>self.pre_gyr).window
         Estimator._process(self, gyr, acc, mag, dt)
-        if entered and self.sat_left > 0:
-            self.sat_left -= 1
+        if entered and self.s.sat_left > 0:
+            self.s.sat_left -= 1
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:

@@ -2,7 +2,6 @@
 from fusion._kalman import KalmanFilter
 
 class EKF(KalmanFilter):
-    mag_update: str
     acc_update: str
 
 class IIREKF(EKF):

@@ -1,19 +1,19 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`ekf`: the 7-state quaternion + gyro-bias EKF of seeds 000 and 003 (docs/estimators.md)."""
+"""`ekf`: the 7-state quaternion + gyro-bias EKF of "EKF attitude estimation for a spherical robot"
+(Software Engineering, 2022) and "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero.
+Astro., 2023) (docs/estimators.md)."""
 import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._rest cimport rest_detect
-from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_lowpassed
+from fusion._aided cimport rest_now, mag_accepted, acc_input
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
-from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
+from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
@@ -48,10 +48,7 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
     cdef double X[12]
     cdef double s
     cdef int i, j
-    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    xi_matrix(q, X)
     for i in range(4):
         for j in range(i, 4):
             s = P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
@@ -81,10 +78,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
     cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    xi_matrix(q, X)
     for i in range(12):
         L[i] = -0.5 * dt * X[i]
     # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held
@@ -338,8 +332,8 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
 
 cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
                                    const double* acc, double dt, double* out) noexcept nogil:
-    """acc_lowpassed (fusion/_acclp.pxd) on the ekf's state, out of line."""
-    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
+    """acc_input (fusion/_aided.pxd) on the ekf's state, out of line."""
+    return acc_input(e, gyr, sat, b, acc, dt, out)
 
 
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
@@ -353,7 +347,7 @@ cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
     cdef double* b = st.b
     cdef double* P = st.P
     cdef int i, j
-    if not rest_detect(e.rest, gyr, acc, dt):
+    if not rest_now(e, gyr, acc, dt):
         return
     for i in range(7):
         for j in range(3):
@@ -382,7 +376,7 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
-    if mag != NULL and magd_check(e.magd, q, mag, gyr, dt):
+    if mag_accepted(e, q, mag, gyr, dt):
         ekf_mag_update(e, q, s.b, s.P, mag, dt)
     quat_normalise(q)
 
@@ -413,7 +407,7 @@ cdef class EKF(KalmanFilter):
               "(MEMS turn-on bias; 0.0087 = 0.5 °/s, VQF's, chosen leave-one-set-out: docs/accuracy.md)",
               allow_zero=True),
         GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS,
-        Param("acc_update", "vector", "", doc='"vector": seed 003\'s update; "tilt": the accelerometer '
+        Param("acc_update", "vector", "", doc='"vector": the IIR-EKF paper\'s update; "tilt": the accelerometer '
               "corrects the inclination (and the bias across the vertical) only, so that a linear "
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)
@@ -421,27 +415,25 @@ cdef class EKF(KalmanFilter):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
-        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configure(p)                   # noise, rest and disturbance detectors, low-pass; reset
 
     cdef list _filter_fields(self):
         return struct_fields(<EKFState[:1]>&self.s, STATE_CHECKS)
 
     cdef list _state_fields(self):
-        return Estimator._state_fields(self) + self._filter_fields() + self.parts_fields()
+        return KalmanFilter._state_fields(self) + self._filter_fields()
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
+        KalmanFilter._reset_state(self)
         memset(&self.s, 0, sizeof(EKFState))
         for i in range(4):
             self.s.P[i * 8] = self.kalman.q_init_std * self.kalman.q_init_std
         for i in range(4, 7):
             self.s.P[i * 8] = self.kalman.bias_init_std * self.kalman.bias_init_std
-        self.clear_parts()
 
     # the steps of ekf_step for a subclass (aekf) or a holder (cf-ekf), on this estimator's state
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil:
@@ -478,11 +470,6 @@ cdef class EKF(KalmanFilter):
     def bias(self):
         """Estimated gyro bias, rad/s (body frame)."""
         return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
-
-    @property
-    def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (the IIR-EKF paper's)."""
-        return "heading" if self.mag_gain == GAIN_HEADING else "vector"
 
     @property
     def acc_update(self):

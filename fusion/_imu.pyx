@@ -104,6 +104,12 @@ cdef class StepKernel:
     # -- state in and out of the Python model --------------------------------------------
     def load(self, imu):
         """Take constants and state from the Python ``IMU`` (after reset or simulate)."""
+        self._load_constants(imu)
+        self._load_state(imu)
+        self.live = True
+
+    def _load_constants(self, imu):
+        """The IMU's specification and its derived constants (fixed between resets)."""
         cdef int i, j
         spec = imu._spec
         self.fs = imu._fs
@@ -116,7 +122,6 @@ cdef class StepKernel:
         for i in range(30):
             self.R[i] = imu._R[i]
             self.C[i] = imu._C[i]
-            self.S[i] = imu._S[i]
         for i in range(2):
             self.ident[i] = imu._ident[i]
             for j in range(9):
@@ -150,6 +155,12 @@ cdef class StepKernel:
             self.vib_buf = np.empty_like(self.vib_w)
             for i in range(6):
                 self.vib_amp[i] = imu._vib_amp[i]
+
+    def _load_state(self, imu):
+        """What changes from sample to sample: noise buffer, timing, filters, held magnetometer."""
+        cdef int i
+        for i in range(30):
+            self.S[i] = imu._S[i]
         self.gen = imu._gen
         self.buf = np.ascontiguousarray(imu._buf, dtype=np.float64).reshape(-1, NCOLS)
         self.pos = imu._pos
@@ -174,7 +185,6 @@ cdef class StepKernel:
         self.mag_on = -1 if imu._mag_on is None else (1 if imu._mag_on else 0)
         self.lpf_dt = _optional(imu._lpf_dt, &self.has_lpf_dt)
         self.slot_last = _optional(imu._mag_slot_last, &self.has_slot)
-        self.live = True
 
     def store(self, imu):
         """Write the state back into the Python ``IMU`` (before a ``simulate``)."""

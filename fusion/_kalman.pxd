@@ -1,8 +1,6 @@
-# The base of the Kalman filters (ekf family, ukf): the parameters and parts they both hold.
-from fusion._core cimport Estimator
-from fusion._rest cimport RestDetector
-from fusion._magdist cimport MagDetector
-from fusion._acclp cimport AccLowpass
+# The base of the Kalman filters (ekf family, ukf): their noise parameters, on the parts every
+# filter the accelerometer and magnetometer correct holds (fusion/_aided.pxd).
+from fusion._aided cimport AidedFilter
 
 # their noise and recovery parameters, one struct: set from the checked parameters at once
 # (self.kalman = p), read in Python by the KalmanFilter properties of the same names
@@ -15,14 +13,5 @@ cdef struct KalmanNoise:
     double bias_init_std    # rad/s
     double motion_rate      # rad/s: rate std over unmeasured time (recovery, docs/robustness.md)
 
-cdef class KalmanFilter(Estimator):
+cdef class KalmanFilter(AidedFilter):
     cdef readonly KalmanNoise kalman
-    cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
-    cdef readonly MagDetector magd    # magnetic disturbance detection (fusion/_magdist.pxd), time 0: off
-    cdef readonly double acc_lowpass  # s, 0: off (fusion/_acclp.pxd)
-    cdef AccLowpass acc_lp
-    # the parts from the checked parameters (Estimator._take_params), in the subclass's __init__
-    cdef int hold_parts(self, dict p) except -1
-    # the parts' state fields (after the subclass's own), and their reset
-    cdef list parts_fields(self)
-    cdef void clear_parts(self) noexcept nogil

@@ -1,13 +1,12 @@
 # Type stubs of the compiled fusion._kalman (fusion/_kalman.pyx).
-from fusion._core import Array, Estimator
-from fusion._magdist import _MagdistProperties
-from fusion._rest import _RestProperties
+from fusion._aided import AidedFilter
+from fusion._core import Array
 
 NOISE: tuple[str, ...]
 NOISE_PROPERTIES: tuple[property, ...]
 STATE_CHECKS: dict[str, object]
 
-class KalmanFilter(Estimator, _RestProperties, _MagdistProperties):
+class KalmanFilter(AidedFilter):
     """The base of the Kalman filters (ekf family, ukf)."""
     kalman: dict[str, float]     # the KalmanNoise struct, as a dict
     gyro_noise: float
@@ -17,6 +16,6 @@ class KalmanFilter(Estimator, _RestProperties, _MagdistProperties):
     q_init_std: float
     bias_init_std: float
     motion_rate: float
-    acc_lowpass: float
+    rest_noise: float
     bias: Array
     covariance: Array

@@ -1,11 +1,9 @@
 # Type stubs of the compiled fusion._madgwick (fusion/_madgwick.pyx).
-from fusion._core import Array, Estimator
-from fusion._magdist import _MagdistProperties
-from fusion._rest import _RestPullProperties
+from fusion._aided import AidedFilter
+from fusion._core import Array
 
-class Madgwick(Estimator, _MagdistProperties, _RestPullProperties):
+class Madgwick(AidedFilter):
     beta: float
     zeta: float
-    acc_lowpass: float
-    mag_update: str
+    rest_tau: float
     bias: Array

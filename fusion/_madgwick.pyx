@@ -4,17 +4,13 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memset
 
-from fusion._core cimport Estimator
-from fusion._core import struct_fields, BIAS, RECOVERY, ACC_LP_CHECKS
+from fusion._core import struct_fields, BIAS, RECOVERY
 from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST, REST_PULL
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
-from fusion._magdist cimport MagDetector, magd_check, magd_clear
-from fusion._magdist import MAGDIST_PROPERTIES
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
+from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
+from fusion._rest import REST_TAU_PROPERTY
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
@@ -29,7 +25,7 @@ cdef inline void add_gradient(const double* H, const double* v, const double* s,
         g[k] += H[k] * f0 + H[4 + k] * f1 + H[8 + k] * f2
 
 
-cdef class Madgwick(Estimator):
+cdef class Madgwick(AidedFilter):
     """Madgwick's gradient-descent filter: a fixed-rate step (beta, rad/s) along the
     normalised gradient of the gravity and north-folded field residuals; optional gyro-bias
     learning with gain zeta (rad/s^2). With gyro_range (rad/s) a saturated sample raises
@@ -47,36 +43,22 @@ cdef class Madgwick(Estimator):
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
                        "bias learning held"),
         MAG_UPDATE, ACC_LOWPASS, *MAGDIST, *REST_PULL)
-    # the rest properties but rest_noise (no zero-rate update here), read from its detector
-    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
-    at_rest, rest_samples = REST_PROPERTIES[4:]
-    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
-    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
+    rest_tau = REST_TAU_PROPERTY        # REST_PULL's, read from its rest detector
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range and the disturbance detector taken
+        AidedFilter.__init__(self, fs, frame, on_invalid)
+        p = self._take_params(params)       # checked; gyro_range taken
         self.beta = p["beta"]
         self.zeta = p["zeta"]
-        self.magd = MagDetector(p)
-        self.mag_heading = p["mag_update"] == "heading"
-        self.acc_lowpass = p["acc_lowpass"]
-        self.rest = RestDetector(p)
-        self.rest_tau = p["rest_tau"]
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configure(p)                   # rest and disturbance detectors, low-pass; reset
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self)
-                + struct_fields(<MadgwickState[:1]>&self.s, {"bw": BIAS, "t_recover": RECOVERY})
-                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self.magd.fields())
+        return AidedFilter._state_fields(self) + struct_fields(<MadgwickState[:1]>&self.s,
+                                                              {"bw": BIAS, "t_recover": RECOVERY})
 
     cdef void _reset_state(self) noexcept nogil:
+        AidedFilter._reset_state(self)
         memset(&self.s, 0, sizeof(MadgwickState))
-        acc_lowpass_clear(&self.acc_lp)
-        magd_clear(self.magd)
-        rest_clear(self.rest)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -93,14 +75,13 @@ cdef class Madgwick(Estimator):
         cdef int i
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
         cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
-        if mag != NULL and not magd_check(self.magd, q, mag, gyr, dt):
+        if not mag_accepted(self, q, mag, gyr, dt):
             mag = NULL
-        if self.rest.time > 0.0 and rest_detect(self.rest, gyr, acc, dt):
-            k = dt / (self.rest_tau + dt)
+        if self.rest.time > 0.0 and rest_now(self, gyr, acc, dt):
+            k = dt / (self.rest.tau + dt)
             for i in range(3):
                 self.s.bw[i] += k * (gyr[i] - self.s.bw[i])
-        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, sat, self.s.bw, acc, dt,
-                            self.dt_nominal, af)
+        acc = acc_input(self, gyr, sat, self.s.bw, acc, dt, af)
         if gyr != NULL:
             quat_propagate(q, gyr[0] - self.s.bw[0], gyr[1] - self.s.bw[1], gyr[2] - self.s.bw[2], dt)
         g[0] = 0.0
@@ -162,8 +143,3 @@ cdef class Madgwick(Estimator):
     def bias(self):
         """The gyro bias learned at rest and with the zeta gain, rad/s (body frame)."""
         return np.array([self.s.bw[0], self.s.bw[1], self.s.bw[2]])
-
-    @property
-    def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (Madgwick's)."""
-        return "heading" if self.mag_heading else "vector"

@@ -1,10 +1,10 @@
 # Type stubs of the compiled fusion._mahony (fusion/_mahony.pyx).
-from fusion._core import Array, Estimator
-from fusion._magdist import _MagdistProperties
-from fusion._rest import _RestPullProperties
+from fusion._aided import AidedFilter
+from fusion._core import Array
 
-class Mahony(Estimator, _MagdistProperties, _RestPullProperties):
+class Mahony(AidedFilter):
     kp: float
     ki: float
     mag_weight: float
+    rest_tau: float
     bias: Array

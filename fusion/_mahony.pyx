@@ -1,18 +1,17 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""`mahony`: explicit complementary filter with PI correction (seeds 000 and 004)."""
+"""`mahony`: explicit complementary filter with PI correction, the baseline of "EKF attitude
+estimation for a spherical robot" (Software Engineering, 2022) and the filter inside "Attitude-angle
+solution for a mobile robot" (Chinese patent, 2019)."""
 import numpy as np
 from libc.math cimport sqrt
 
 from libc.string cimport memcpy, memset
 
 from fusion._core cimport Estimator, run_fast, batch_loop
-from fusion._core import struct_fields, BIAS_MAX, RECOVERY, ACC_LP_CHECKS
+from fusion._core import struct_fields, BIAS_MAX, RECOVERY
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST_PULL
-from fusion._magdist cimport MagDetector, magd_check, magd_clear
-from fusion._magdist import MAGDIST_PROPERTIES
-from fusion._rest cimport RestDetector, rest_detect, rest_clear
-from fusion._rest import REST_PROPERTIES
-from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_clear
+from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
+from fusion._rest import REST_TAU_PROPERTY
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
                             saturated)
@@ -212,13 +211,13 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
 
 cdef const double* mahony_acc_lowpass(Mahony e, const double* eint, const double* gyr, bint sat,
                                       const double* acc, double dt, double* out) noexcept nogil:
-    """acc_lowpass (fusion/_acclp.pxd) with the integral term's bias, -ki eint (out of line:
+    """acc_input (fusion/_aided.pxd) with the integral term's bias, -ki eint (out of line:
     the batch loop keeps its inlined step)."""
     cdef double b[3]
     b[0] = -e.ki * eint[0]
     b[1] = -e.ki * eint[1]
     b[2] = -e.ki * eint[2]
-    return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
+    return acc_input(e, gyr, sat, b, acc, dt, out)
 
 
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
@@ -228,9 +227,9 @@ cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* a
     line: the batch loop keeps its inlined step)."""
     cdef double k
     cdef int i
-    if not rest_detect(e.rest, gyr, acc, dt) or e.ki <= 0.0:
+    if not rest_now(e, gyr, acc, dt) or e.ki <= 0.0:
         return
-    k = dt / (e.rest_tau + dt)
+    k = dt / (e.rest.tau + dt)
     for i in range(3):
         eint[i] += k * (-gyr[i] / e.ki - eint[i])
 
@@ -241,7 +240,7 @@ cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double
     (fusion/_core.pxd batch_loop)."""
     cdef double* eint = (<MahonyState*>s).eint
     cdef double af[3]
-    if mag != NULL and not magd_check((<Mahony>e).magd, q, mag, gyr, dt):
+    if not mag_accepted(<Mahony>e, q, mag, gyr, dt):
         mag = NULL
     if (<Mahony>e).rest.time > 0.0:
         mahony_rest(<Mahony>e, eint, gyr, acc, dt)
@@ -251,8 +250,9 @@ cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double
                 (<Mahony>e).mag_weight)
 
 
-cdef class Mahony(Estimator):
-    """Mahony's explicit complementary filter (seeds 000, 004): gravity and magnetic cross-product errors,
+cdef class Mahony(AidedFilter):
+    """Mahony's explicit complementary filter ("Nonlinear complementary filters on the special
+    orthogonal group", IEEE TAC 2008): gravity and magnetic cross-product errors,
     proportional gain kp (1/s) and integral gain ki (1/s^2) on the gyro. With gyro_range
     (rad/s) a saturated sample raises kp and holds the integral for 3 s (recovery_gain). At
     rest (rest_*) the bias -ki ε is pulled toward the measured rate (with ki > 0 only)."""
@@ -271,40 +271,25 @@ cdef class Mahony(Estimator):
         MAG_UPDATE, ACC_LOWPASS, *MAGDIST,
         # the shared rest detector; no zero-rate update here, so no rest_noise
         *REST_PULL)
-
-    # the rest properties but rest_noise (no zero-rate update here), read from its detector
-    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
-    at_rest, rest_samples = REST_PROPERTIES[4:]
-    # the disturbance parameters and count, read from the detector it holds (fusion._magdist)
-    magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
+    rest_tau = REST_TAU_PROPERTY        # REST_PULL's, read from its rest detector
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid)
+        AidedFilter.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
         self.kp = p["kp"]
         self.ki = p["ki"]
         self.mag_weight = p["mag_weight"]
-        self.mag_heading = p["mag_update"] == "heading"
-        self.acc_lowpass = p["acc_lowpass"]
-        self.rest = RestDetector(p)
-        self.magd = MagDetector(p)
-        self.rest_tau = p["rest_tau"]
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configure(p)                   # rest and disturbance detectors, low-pass; reset
 
     cdef list _state_fields(self):
         # the bias learned, -ki eint, within the plausible range (eint is unused at ki = 0)
         eint = (-BIAS_MAX / self.ki, BIAS_MAX / self.ki) if self.ki > 0.0 else None
-        return (Estimator._state_fields(self)
-                + struct_fields(<MahonyState[:1]>&self.s, {"eint": eint, "t_recover": RECOVERY})
-                + struct_fields(<AccLowpass[:1]>&self.acc_lp, ACC_LP_CHECKS, "acc_")
-                + self.rest.fields() + self.magd.fields())
+        return (AidedFilter._state_fields(self)
+                + struct_fields(<MahonyState[:1]>&self.s, {"eint": eint, "t_recover": RECOVERY}))
 
     cdef void _reset_state(self) noexcept nogil:
+        AidedFilter._reset_state(self)
         memset(&self.s, 0, sizeof(MahonyState))
-        acc_lowpass_clear(&self.acc_lp)
-        rest_clear(self.rest)
-        magd_clear(self.magd)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:
@@ -316,7 +301,7 @@ cdef class Mahony(Estimator):
         cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
         cdef double eint[3]
         cdef double af[3]
-        if mag != NULL and not magd_check(self.magd, self.q, mag, gyr, dt):
+        if not mag_accepted(self, self.q, mag, gyr, dt):
             mag = NULL
         if self.rest.time > 0.0:
             mahony_rest(self, self.s.eint, gyr, acc, dt)
@@ -346,11 +331,6 @@ cdef class Mahony(Estimator):
             return Estimator._run_batch(self, g, a, m, d, dt, o, n, stop_invalid)
         return batch_loop(self, mahony_batch_step, &st, &self.s, sizeof(MahonyState), g, a, m, d, dt,
                           o, n, stop_invalid)
-
-    @property
-    def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector" (Mahony's)."""
-        return "heading" if self.mag_heading else "vector"
 
     @property
     def bias(self):

@@ -6,7 +6,8 @@ cdef class RestDetector:
     cdef readonly double time       # s at rest before the gyro measures its bias (0: detection off)
     cdef readonly double gyro_tol   # rad/s: gyro within this of its low-pass, the low-pass within this of 0
     cdef readonly double acc_tol    # m/s^2: accelerometer within this of its low-pass
-    cdef readonly double noise      # rad/s/sqrt(Hz): the zero-rate measurement's noise density
+    cdef readonly double noise      # rad/s/sqrt(Hz): the zero-rate measurement's noise density (REST)
+    cdef readonly double tau        # s: the bias pulled toward the measured rate at rest (REST_PULL)
     cdef double gyr[3]              # the low-passes
     cdef double acc[3]
     cdef double t                   # s at rest so far

@@ -7,29 +7,21 @@ class RestDetector:
     gyro_tol: float
     acc_tol: float
     noise: float
+    tau: float
     at_rest: bool
     samples: int
 
 REST_PROPERTIES: tuple[property, ...]
+REST_TAU_PROPERTY: property
 
 class _RestProperties:
-    """The rest properties of the estimators that declare fusion.params.REST and hold a
-    RestDetector (ekf, iir-ekf, aekf, ukf, cf-ekf)."""
+    """The rest properties of cf-ekf, read from its EKF core's RestDetector (the filters that
+    hold one themselves have them from fusion._aided.AidedFilter, rest_noise from
+    fusion._kalman.KalmanFilter)."""
     rest: RestDetector
     rest_time: float
     rest_gyro_tol: float
     rest_acc_tol: float
     rest_noise: float
-    at_rest: bool
-    rest_samples: int
-
-class _RestPullProperties:
-    """The rest properties of the complementary filters that declare fusion.params.REST_PULL
-    (mahony, madgwick): no zero-rate update, so no rest_noise; rest_tau instead."""
-    rest: RestDetector
-    rest_time: float
-    rest_gyro_tol: float
-    rest_acc_tol: float
-    rest_tau: float
     at_rest: bool
     rest_samples: int

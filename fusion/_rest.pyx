@@ -9,13 +9,16 @@ from fusion._core import FLAG, COUNT, TIMER
 
 cdef class RestDetector:
     """The thresholds and state of the rest detector a filter holds as `est.rest`: time,
-    gyro_tol, acc_tol, noise (the rest_* parameters), at_rest, samples."""
+    gyro_tol, acc_tol, and noise (a Kalman filter's zero-rate update) or tau (the bias pull of
+    mahony and madgwick): the rest_* parameters; at_rest, samples."""
 
     def __init__(self, p):
         """p: the holder's checked parameters (Estimator._take_params), REST's among them."""
         self.time, self.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
-        # a filter without a zero-rate update (mahony) declares no rest_noise
-        self.acc_tol, self.noise = p["rest_acc_tol"], p.get("rest_noise", 0.0)
+        self.acc_tol = p["rest_acc_tol"]
+        # what the holder does at rest: REST's zero-rate update (rest_noise) or REST_PULL's
+        # pull of the bias (rest_tau); the one it does not declare is 0
+        self.noise, self.tau = p.get("rest_noise", 0.0), p.get("rest_tau", 0.0)
         rest_clear(self)
 
     cdef list fields(self):
@@ -50,3 +53,7 @@ REST_PROPERTIES = (
     _of_rest("noise", "rad/s/sqrt(Hz): the zero-rate measurement's noise density."),
     _of_rest("at_rest", "True while the rest detector holds (the last sample was a zero-rate update)."),
     _of_rest("samples", "Zero-rate updates (samples detected at rest) since the last reset."))
+
+#: rest_tau, the bias pull's time constant, of the holders that declare REST_PULL (mahony, madgwick)
+REST_TAU_PROPERTY = _of_rest("tau", "s: at rest the gyro bias is pulled toward the measured rate with "
+                             "this time constant.")

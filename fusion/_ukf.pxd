@@ -8,7 +8,6 @@ cdef struct UKFState:
 
 cdef class UKF(KalmanFilter):
     cdef UKFState s
-    cdef bint mag_heading     # mag_update="heading"
     cdef bint heading_gain    # the update in progress is the magnetometer's, projected
     cdef void sigma_points(self, double* X) noexcept nogil
     cdef void sigma_attitudes(self, double* X, double* Qs) noexcept nogil

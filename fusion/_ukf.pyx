@@ -6,9 +6,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._rest cimport rest_detect
-from fusion._magdist cimport magd_check
-from fusion._acclp cimport acc_lowpassed
+from fusion._aided cimport rest_now, mag_accepted, acc_input
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
@@ -114,24 +112,20 @@ cdef class UKF(KalmanFilter):
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         Estimator.__init__(self, fs, frame, on_invalid)
         p = self._take_params(params)       # checked; gyro_range taken
-        self.hold_parts(p)                  # noise, rest and disturbance detectors, low-pass
-        self.mag_heading = p["mag_update"] == "heading"
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configure(p)                   # noise, rest and disturbance detectors, low-pass; reset
 
     cdef list _state_fields(self):
-        return (Estimator._state_fields(self) + struct_fields(<UKFState[:1]>&self.s, STATE_CHECKS)
-                + self.parts_fields())
+        return KalmanFilter._state_fields(self) + struct_fields(<UKFState[:1]>&self.s, STATE_CHECKS)
 
     cdef void _reset_state(self) noexcept nogil:
         cdef int i
         cdef double sq = 2.0 * self.kalman.q_init_std     # quaternion-component std -> angle std
+        KalmanFilter._reset_state(self)
         memset(&self.s, 0, sizeof(UKFState))
         for i in range(3):
             self.s.P[i * 7] = sq * sq
         for i in range(3, 6):
             self.s.P[i * 7] = self.kalman.bias_init_std * self.kalman.bias_init_std
-        self.clear_parts()
 
     cdef void sigma_points(self, double* X) noexcept nogil:
         """X (13 x 6): 0, +γ L_j, -γ L_j with L L^T = P (Cholesky; a non-positive pivot
@@ -376,22 +370,16 @@ cdef class UKF(KalmanFilter):
             self.s.P[0] += v
             self.s.P[7] += v
             self.s.P[14] += v
-        if rest_detect(self.rest, gyr, acc, dt):
+        if rest_now(self, gyr, acc, dt):
             self.zero_rate_update(gyr, dt)
-        acc = acc_lowpassed(self.acc_lowpass, &self.acc_lp, gyr, not measured and gyr != NULL,
-                            self.s.b, acc, dt, self.dt_nominal, af)
+        acc = acc_input(self, gyr, not measured and gyr != NULL, self.s.b, acc, dt, af)
         if acc != NULL:
             self._acc_correct(acc, dt)
-        if mag != NULL and magd_check(self.magd, self.q, mag, gyr, dt):
+        if mag_accepted(self, self.q, mag, gyr, dt):
             self.heading_gain = self.mag_heading
             self._mag_correct(mag, dt)
             self.heading_gain = False
         quat_normalise(self.q)
-
-    @property
-    def mag_update(self):
-        """"heading" (the magnetometer corrects the heading only) or "vector"."""
-        return "heading" if self.mag_heading else "vector"
 
     @property
     def bias(self):

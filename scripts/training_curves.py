@@ -8,11 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-from controllers.curves import load_run, plot_training_curves  # noqa: E402
+from controllers.curves import load_run, plot_training_curves
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
-"""Code health the linter does not check: no Python function over 60 lines, and the physical
-constants declared once (fusion.constants). The .pyx kernels are not parsed here: their
-per-sample steps are long by nature (one sample's whole maths, kept inline for speed)."""
+"""Code health the linter does not check: no function over 60 lines (Python, and the Cython of
+the kernels outside their per-sample steps, which are long by nature: one sample's whole maths,
+kept inline for speed), and the physical constants declared once (fusion.constants)."""
 import ast
 import re
 import subprocess
@@ -40,6 +40,57 @@ def test_no_function_over_60_lines():
     assert not new, f"functions over {MAX_LINES} lines (split them): {new}"
     grown = {k: (n, long[k]) for k, n in KNOWN_LONG.items() if long.get(k, 0) > n}
     assert not grown, f"listed long functions that grew (listed, now): {grown}"
+
+
+# the kernels' per-sample steps (one sample or one physics step each), the only Cython
+# functions allowed over MAX_LINES: (path, name)
+PER_SAMPLE_STEPS = {
+    ("fusion/_aekf.pyx", "_step"), ("fusion/_madgwick.pyx", "_step"), ("fusion/_mahony.pyx", "mahony_step"),
+    ("fusion/_ukf.pyx", "correct"), ("fusion/_qmath.pxd", "quat_measurement_update"),
+    ("fusion/_wahba.pxd", "quest2"), ("fusion/_magdist.pxd", "magd_check"), ("fusion/_imu.pyx", "step_c"),
+    ("envs/_signals.pyx", "_sense"), ("envs/_signals.pyx", "_advance"), ("envs/_signals.pyx", "_finish"),
+}
+_CYTHON_DEF = re.compile(r"^(\s*)c?p?def\s+(?!class\b|struct\b|enum\b|extern\b|union\b|fused\b)[^(]*?(\w+)\s*\(")
+
+
+def _cython_function_lengths(rel, text):
+    """(name, lines) of every function defined (not only declared) in a .pyx / .pxd: from its
+    def line to its body's last line, the body being the lines indented deeper than the def."""
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        m = _CYTHON_DEF.match(line)
+        if not m:
+            continue
+        depth, j = 0, i
+        while True:         # the signature, to its closing parenthesis
+            depth += lines[j].count("(") - lines[j].count(")")
+            if depth <= 0 or j + 1 == len(lines):
+                break
+            j += 1
+        if not lines[j].split("#")[0].rstrip().endswith(":"):
+            continue        # a declaration (a .pxd's), no body
+        indent, end = len(m.group(1)), j
+        for k in range(j + 1, len(lines)):
+            s = lines[k]
+            if s.strip() and not s.lstrip().startswith("#"):
+                if len(s) - len(s.lstrip()) <= indent:
+                    break
+                end = k
+        yield m.group(2), end - i + 1
+
+
+def test_no_cython_function_over_60_lines_but_the_per_sample_steps():
+    files = [p for pkg in ("fusion", "envs") for ext in ("pyx", "pxd") for p in sorted((ROOT / pkg).glob(f"*.{ext}"))]
+    long = {(p.relative_to(ROOT).as_posix(), name): n for p in files
+            for name, n in _cython_function_lengths(p.name, p.read_text()) if n > MAX_LINES}
+    assert set(long) - PER_SAMPLE_STEPS == set(), f"Cython functions over {MAX_LINES} lines (split them): {long}"
+    assert PER_SAMPLE_STEPS - set(long) == set(), "listed steps now short: take them off PER_SAMPLE_STEPS"
+
+
+def test_the_cython_checker_sees_a_long_function_and_skips_declarations():
+    src = ("cdef inline double f(double x,\n                       double y) noexcept nogil:\n"
+           + "    x += 1\n" * 70 + "\ncdef void g(double x) noexcept nogil\ncdef class C:\n    pass\n")
+    assert list(_cython_function_lengths("x.pyx", src)) == [("f", 72)]
 
 
 def test_the_checker_sees_a_long_function():
@@ -136,3 +187,50 @@ def test_the_library_packages_do_not_import_the_experiments():
             hits += [f"{rel}:{node.lineno} {n}" for n in names
                      if n.split(".")[0] in ("benchmarks", "scripts", "tests")]
     assert hits == []
+
+
+# the public API: the library modules' public functions and the public methods of their public
+# classes (the compiled kernels are typed by their .pyi stubs, checked above)
+TYPED_MODULES = ["fusion", "fusion.bank", "fusion.metrics", "fusion.quat", "fusion.datasets", "fusion.scenarios",
+                 "fusion.imu", "fusion.checks", "fusion.params", "controllers.base", "controllers.pid",
+                 "controllers.rl", "controllers.policy_io", "controllers.curves", "controllers.plots",
+                 "envs.base", "envs.track", "envs.waypoints", "envs.robot", "envs.vector", "envs.sphere"]
+
+
+def _untyped(module):
+    """'name(unannotated parameters) ->?' for each public function of module without full hints."""
+    import importlib
+    import inspect
+    m = importlib.import_module(module)
+    funcs = []
+    for n in getattr(m, "__all__", [n for n in dir(m) if not n.startswith("_")]):
+        o = getattr(m, n)
+        if getattr(o, "__module__", None) != module:
+            continue
+        if inspect.isfunction(o):
+            funcs.append((n, o))
+        elif inspect.isclass(o):
+            for k, v in vars(o).items():
+                f = v.__func__ if isinstance(v, (classmethod, staticmethod)) else v
+                if inspect.isfunction(f) and (not k.startswith("_") or k == "__init__"):
+                    funcs.append((f"{n}.{k}", f))
+    out = []
+    for qn, f in funcs:
+        sig = inspect.signature(f)
+        bare = [p for p, d in sig.parameters.items() if p not in ("self", "cls") and d.annotation is d.empty]
+        if bare or sig.return_annotation is sig.empty:
+            out.append(f"{qn}({', '.join(bare)})" + (" ->?" if sig.return_annotation is sig.empty else ""))
+    return out
+
+
+@pytest.mark.parametrize("module", TYPED_MODULES)
+def test_the_public_api_has_type_hints(module):
+    if module.startswith("envs"):
+        pytest.importorskip("pybullet")
+    assert _untyped(module) == []
+
+
+def test_the_hint_check_sees_a_bare_function(tmp_path, monkeypatch):
+    (tmp_path / "bare_mod.py").write_text("def f(x, y: int):\n    return x\n\ndef g() -> None:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert _untyped("bare_mod") == ["f(x) ->?"]
