@@ -19,6 +19,8 @@ cimport numpy as cnp
 
 from fusion._imu cimport StepKernel
 from fusion._core cimport Estimator, _claim, _release
+from fusion._ekf cimport EKF
+from fusion._ukf cimport UKF
 
 import math
 import numpy as np
@@ -43,6 +45,7 @@ cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: cal
 cdef object _sum = sum
 cdef str NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
+cdef object EKF_BIAS = EKF.bias, UKF_BIAS = UKF.bias    # the properties, read from the kernels' states here
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -554,10 +557,18 @@ cdef class Loop:
         w, x, y, z = q
         psi = _heading(w, x, y, z)
         if est is not None:
-            bias = est.bias
-            if bias is not None:
+            bias_prop = type(est).bias
+            if bias_prop is EKF_BIAS:         # est.bias's numbers without its array (0.6 us)
                 has_bias = True
-                b0, b1, b2 = bias.tolist()
+                b0, b1, b2 = (<EKF>est).s.b[0], (<EKF>est).s.b[1], (<EKF>est).s.b[2]
+            elif bias_prop is UKF_BIAS:
+                has_bias = True
+                b0, b1, b2 = (<UKF>est).s.b[0], (<UKF>est).s.b[1], (<UKF>est).s.b[2]
+            else:
+                bias = est.bias
+                if bias is not None:
+                    has_bias = True
+                    b0, b1, b2 = bias.tolist()
         # _odometry: the encoder (its reading the joint states after the physics when kept)
         js = self.js_next
         angle = js[0][0] if js is not None else self.getj(self.b, self.drive_joint, self.c)[0]

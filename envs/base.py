@@ -894,10 +894,11 @@ class SphereRobotBase(gym.Env):
         stuck = self._stuck_t >= STUCK_TIME
         return bool(done or out or stuck), out, stuck
 
-    def _forward_speed(self):
-        """(m/s) the true velocity along the true heading."""
+    def _forward_speed(self, psi=None):
+        """(m/s) the true velocity along the true heading (``psi``: it, if already computed)."""
         lin = self._true[2]
-        psi = self._heading_true()
+        if psi is None:
+            psi = self._heading_true()
         return lin[0] * math.cos(psi) + lin[1] * math.sin(psi)
 
     # ------------------------------------------------------------------------------------
