@@ -218,8 +218,6 @@ class SphereRobotBase(gym.Env):
         self._client = None
         self._body = None
         self._bodies = []
-        self._shapes = {}           # the world's collision shapes ({name: id}, _shape)
-        self._kept = 0              # resets since the world was last rebuilt (_build_world)
         #: None, or the PyBullet client of a world shared with other robots (envs/vector.py)
         self._shared = None
         self._needs_reset = True
@@ -316,6 +314,8 @@ class SphereRobotBase(gym.Env):
     def _connect(self):
         import pybullet as p
         self._p = p
+        self._shapes = {}           # the world's collision shapes ({name: id}, _shape)
+        self._kept = 0              # resets since the world was last rebuilt (_build_world)
         if self._shared is not None:
             self._client = self._shared
             return
@@ -1076,7 +1076,6 @@ class SphereRobotBase(gym.Env):
         self._client = None
         self._body = None
         self._bodies = []
-        self._shapes = {}
         self._needs_reset = True
 
     def __del__(self):
