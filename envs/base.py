@@ -5,7 +5,8 @@ Documentation: docs/envs/robot.md and the task classes' docstrings.
 
 The physics client is created by the environment (at the first ``reset``), never at
 import, so environments can be built in subprocesses; every ``reset`` empties the world
-(``resetSimulation``) and rebuilds it, so that an episode depends only on the seed.
+but its floor (every 64th, ``resetSimulation``: ``_build_world``) and rebuilds it, so that
+an episode depends only on the seed.
 """
 from __future__ import annotations
 
