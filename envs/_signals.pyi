@@ -1,8 +1,11 @@
 """Type stub of the compiled step (envs/_signals.pyx): the environment's _advance, _sense and
-the base's part of step() (SphereRobotBase.step, _end_step)."""
+the base's part of step() (SphereRobotBase.step, _end_step), with the track task's methods."""
 from typing import Any
 
+TRACK_METHODS: tuple[str, ...]
+
 class Loop:
+    track: bool
     def load(self, env: Any) -> None: ...
     def forget(self) -> None: ...
     def sense(self, env: Any, first: bool = False) -> None: ...

@@ -5,7 +5,7 @@ rate, specific force at the IMU point, the field with the floor's dipole zones, 
 vibration and the robot's own field; then the IMU model's step and the estimator's update)
 and the base's part of ``SphereRobotBase.step`` around them (action check, odometry, episode
 end, observation, info; the task's rewards, observation values and info stay Python methods,
-called from here).
+called from here, except the track task's, inlined too while a class keeps them: TRACK_METHODS).
 
 The Python methods in envs/base.py are the reference: the same arithmetic in the same
 order, compiled without fused multiply-adds, so the trajectories are the same to the last
@@ -14,11 +14,13 @@ environment at every reset; ``advance`` and ``sense`` read the state the environ
 change between calls and write back everything the Python code reads, so the two paths can
 be mixed (the environment falls back to Python while a signal log is on).
 """
-from libc.math cimport sqrt, sin, cos, fmod, copysign, atan2, acos, floor, isfinite
+from libc.math cimport sqrt, sin, cos, fmod, copysign, atan2, acos, floor, isfinite, fabs
 cimport numpy as cnp
 
 from fusion._imu cimport StepKernel
 from fusion._core cimport Estimator, _claim, _release
+from fusion._ekf cimport EKF
+from fusion._ukf cimport UKF
 
 import math
 import numpy as np
@@ -37,12 +39,17 @@ cdef extern from *:
 
 from fusion._constants cimport GRAVITY as G     # envs.base.G
 cdef double TWO_PI = 6.283185307179586
+cdef double PI = 3.141592653589793
+#: the track task's methods (envs/track.py) that _finish runs in C, for a class that keeps them all
+TRACK_METHODS = ("_get_rew", "_task_obs", "_task_info", "_task_step_info", "_command", "_forward_speed",
+                 "_heading_true", "_effort")
 cdef tuple ZERO2 = (0.0, 0.0)        # the unused targets and gains of a torque command
 cdef double RAD2DEG = 180.0 / 3.141592653589793     # math.degrees' factor
 cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: called, not copied)
 cdef object _sum = sum
 cdef str NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
+cdef object EKF_BIAS = EKF.bias, UKF_BIAS = UKF.bias    # the properties, read from the kernels' states here
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -128,6 +135,8 @@ cdef class Loop:
     # the joint states read after advance's last physics step, or None: they are the next
     # advance's first (nothing moves the robot between steps) and the step's encoder reading
     cdef object js_next
+    # the environment is the track task with its methods (TRACK_METHODS): _finish inlines them
+    cdef readonly bint track
 
     def load(self, env):
         """Constants of the episode (call after the world is built, before the first sense)."""
@@ -186,6 +195,9 @@ cdef class Loop:
         self.obs_lo, self.obs_hi = env._obs_low, env._obs_high
         self.n_obs = self.obs_lo.shape[0]
         self.js_next = None
+        from envs.track import SphereBotTrackEnv
+        cls = type(env)
+        self.track = all(getattr(cls, m) is getattr(SphereBotTrackEnv, m) for m in TRACK_METHODS)
 
     def forget(self):
         """The robot's joints may have moved outside advance (the Python path ran)."""
@@ -532,7 +544,7 @@ cdef class Loop:
         """SphereRobotBase._end_step: the same operations in the same order (its methods
         _odometry, _episode_end, _observation and _info inlined), the task's methods called."""
         cdef double w, x, y, z, psi, b0 = 0.0, b1 = 0.0, b2 = 0.0, angle, c, enc_speed, rate_y, step_len
-        cdef double t, qt0, qt1, qt2, qt3, dot, ox, oy, oz, ow, tilt, stuck_t, g0, g1, g2
+        cdef double t, qt0, qt1, qt2, qt3, dot, ox, oy, oz, ow, tilt, stuck_t, g0, g1, g2, psi_t, vc, hc, e_psi
         cdef bint has_bias = False, out, stuck, terminated, truncated
         cdef long long steps, counts, gyr_n
         cdef cnp.npy_intp n = self.n_obs
@@ -554,10 +566,18 @@ cdef class Loop:
         w, x, y, z = q
         psi = _heading(w, x, y, z)
         if est is not None:
-            bias = est.bias
-            if bias is not None:
+            bias_prop = getattr(type(est), "bias", None)
+            if bias_prop is EKF_BIAS:         # est.bias's numbers without its array (0.6 us)
                 has_bias = True
-                b0, b1, b2 = bias.tolist()
+                b0, b1, b2 = (<EKF>est).s.b[0], (<EKF>est).s.b[1], (<EKF>est).s.b[2]
+            elif bias_prop is UKF_BIAS:
+                has_bias = True
+                b0, b1, b2 = (<UKF>est).s.b[0], (<UKF>est).s.b[1], (<UKF>est).s.b[2]
+            else:
+                bias = est.bias
+                if bias is not None:
+                    has_bias = True
+                    b0, b1, b2 = bias.tolist()
         # _odometry: the encoder (its reading the joint states after the physics when kept)
         js = self.js_next
         angle = js[0][0] if js is not None else self.getj(self.b, self.drive_joint, self.c)[0]
@@ -579,10 +599,16 @@ cdef class Loop:
         if self.fix_hz > 0 and t >= <double>env._next_fix - 1e-9:
             env._position_fix()
         # the task's reward; _episode_end
-        terms, done = env._get_rew(a0, a1)
-        reward = float(_sum(terms.values()))
         tr = env._true
         pos, orn, lin = tr[0], tr[1], tr[2]
+        ox, oy, oz, ow = orn
+        psi_t = _heading(ow, ox, oy, oz)
+        if self.track:
+            terms = self._track_rew(env, t, psi_t, lin, a0, a1)
+            done = False
+        else:
+            terms, done = env._get_rew(a0, a1)
+        reward = float(_sum(terms.values()))
         out = abs(<double>pos[0]) > self.half_arena or abs(<double>pos[1]) > self.half_arena
         if _hypot(lin[0], lin[1]) < self.stuck_speed and abs(a0) > self.stuck_action:
             stuck_t = <double>env._stuck_t + 1.0 / self.control_hz
@@ -595,7 +621,14 @@ cdef class Loop:
         if terminated or truncated:
             env._needs_reset = True
         # _observation
-        task = env._task_obs(psi)
+        if self.track:
+            # SphereBotTrackEnv._task_obs
+            cmd = env._cmd
+            vc, hc = cmd[0], cmd[1]
+            e_psi = _pymod(hc - psi + PI, TWO_PI) - PI
+            task = (vc, vc - enc_speed * self.shell_r, sin(e_psi), cos(e_psi))
+        else:
+            task = env._task_obs(psi)
         if len(task) != n - 10:
             raise ValueError(f"the task's observation values must be {n - 10} numbers, got {len(task)}")
         gl = env._gyr_last
@@ -629,7 +662,6 @@ cdef class Loop:
         qt = env._q_true_s
         qt0, qt1, qt2, qt3 = qt
         dot = abs(qt0 * w + qt1 * x + qt2 * y + qt3 * z)
-        ox, oy, oz, ow = orn
         o0, o1 = orn[0], orn[1]
         tilt = 1.0 - 2.0 * <double>(o0 ** 2 + o1 ** 2)     # (Python's float power: libm's pow)
         tilt = tilt if tilt < 1.0 else 1.0
@@ -638,15 +670,37 @@ cdef class Loop:
             "q_true": _f64(qt, 4), "q_est": _f64(q, 4),
             "attitude_error_deg": (2.0 * acos(dot if dot < 1.0 else 1.0)) * RAD2DEG,
             "position": _f64(pos, 3), "velocity": _f64(lin, 3),
-            "heading_true": _heading(ow, ox, oy, oz), "heading_est": psi,
+            "heading_true": psi_t, "heading_est": psi,
             "encoder_speed": enc_speed, "motor_torque": env._tau,
             "reward_terms": terms, "action_clipped": env._clipped,
             "estimator_skipped": skipped,
             "imu_samples": env._n_samples, "t": t,
             "frame_tilt_deg": acos(tilt) * RAD2DEG,
         }
-        env._task_info(info)
+        if self.track:
+            info["command"] = env._cmd              # SphereBotTrackEnv._task_info
+        else:
+            env._task_info(info)
         info["out_of_arena"] = out
         info["stuck"] = stuck
-        env._task_step_info(info, terminated and not out and not stuck)
+        if not self.track:                          # (the track's: the base's, nothing)
+            env._task_step_info(info, terminated and not out and not stuck)
         return obs, reward, terminated, truncated, info
+
+    cdef dict _track_rew(self, env, double t, double psi_t, lin, double a0, double a1):
+        """SphereBotTrackEnv._get_rew (its terms; it never ends the episode) at the time t,
+        with the true heading psi_t and velocity lin."""
+        cdef double vc, hc, v_fwd, e
+        cdef Py_ssize_t i = env._cmd_i, n
+        times = env._cmd_times
+        n = len(times)
+        if i + 1 < n and t >= <double>times[i + 1]:
+            while i + 1 < n and t >= <double>times[i + 1]:
+                i += 1
+            env._cmd_i = i
+            env._cmd = (env._cmd_speed[i], env._cmd_heading[i])
+        cmd = env._cmd
+        vc, hc = cmd[0], cmd[1]
+        v_fwd = <double>lin[0] * cos(psi_t) + <double>lin[1] * sin(psi_t)
+        e = _pymod(psi_t - hc + PI, TWO_PI) - PI
+        return {"speed": -fabs(v_fwd - vc) / 0.5, "heading": -fabs(e) / PI, "effort": -0.01 * (a0 * a0 + a1 * a1)}

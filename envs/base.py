@@ -5,7 +5,8 @@ Documentation: docs/envs/robot.md and the task classes' docstrings.
 
 The physics client is created by the environment (at the first ``reset``), never at
 import, so environments can be built in subprocesses; every ``reset`` empties the world
-(``resetSimulation``) and rebuilds it, so that an episode depends only on the seed.
+but its floor (every 64th, ``resetSimulation``: ``_build_world``) and rebuilds it, so that
+an episode depends only on the seed.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() 
 # (|action[0]|) for STUCK_TIME (s)
 STUCK_SPEED, STUCK_ACTION, STUCK_TIME = 0.02, 0.5, 3.0
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
+REBUILD_EVERY = 64          # resets that keep the floor between two rebuilds of the world (_build_world)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
 #: the methods of step() that the compiled step (envs/_signals.pyx, Loop.control_step) runs in C
 _COMPILED_STEP = ("step", "_begin_step", "_end_step", "_check_action", "_advance", "_encoder_counts", "_odometry",
@@ -322,6 +324,8 @@ class SphereRobotBase(gym.Env):
     def _connect(self):
         import pybullet as p
         self._p = p
+        self._shapes = {}           # the world's collision shapes ({name: id}, _shape)
+        self._kept = 0              # resets since the world was last rebuilt (_build_world)
         if self._shared is not None:
             self._client = self._shared
             return
@@ -358,18 +362,28 @@ class SphereRobotBase(gym.Env):
 
     def _build_world(self, start_xy, start_yaw, bumps, ramps):
         p, c = self._p, self._client
-        if self._shared is None:
-            p.resetSimulation(physicsClientId=c)
-            self._world_settings()
-        else:           # a robot of envs/vector.py's shared world: only its own bodies go
-            for body in self._bodies:
-                p.removeBody(body, physicsClientId=c)
         visual = self.render_mode is not None
-        # the floor: the shared world's one floor is made by envs/vector.py (not removed here)
-        statics = [self._make_floor()] if self._shared is None else []
+        # The floor kept and the other bodies removed: the same episode as in a new world
+        # (tests/test_envs.py), 1.3 ms sooner than resetSimulation and a new floor. PyBullet
+        # frees part of a removed body's memory only in resetSimulation (1-7 kB per reset),
+        # so every REBUILD_EVERY-th reset rebuilds the world. A robot of envs/vector.py's
+        # shared world removes only its own bodies (the one floor is envs/vector.py's).
+        keep = []
+        if self._shared is None and self._bodies and not visual and self._kept < REBUILD_EVERY:
+            keep = self._bodies[:1]
+        if self._shared is None and not keep:
+            p.resetSimulation(physicsClientId=c)
+            self._shapes = {}
+            self._kept = 0
+            self._world_settings()
+        else:
+            self._kept += 1
+            for body in self._bodies[len(keep):]:
+                p.removeBody(body, physicsClientId=c)
+        statics = keep if keep else ([self._make_floor()] if self._shared is None else [])
         for (x, y, yaw) in bumps:
             h = self.bump_height
-            col = p.createCollisionShape(p.GEOM_CAPSULE, radius=h, height=BUMP_LENGTH, physicsClientId=c)
+            col = self._shape("bump", p.GEOM_CAPSULE, radius=h, height=BUMP_LENGTH)
             vis = p.createVisualShape(p.GEOM_CAPSULE, radius=h, length=BUMP_LENGTH, rgbaColor=[0.5, 0.35, 0.2, 1],
                                       physicsClientId=c) if visual else -1
             # capsule axis z turned horizontal (about x by 90 deg), then yawed
@@ -379,7 +393,7 @@ class SphereRobotBase(gym.Env):
             statics.append(p.createMultiBody(0, col, vis, [x, y, 0.0], orn, physicsClientId=c))
         for (x, y, yaw) in ramps:
             verts = self._ramp_verts
-            col = p.createCollisionShape(p.GEOM_MESH, vertices=verts, physicsClientId=c)
+            col = self._shape("ramp", p.GEOM_MESH, vertices=verts)
             vis = -1
             if visual:
                 idx = [0, 1, 2, 0, 2, 3, 4, 6, 5, 4, 7, 6, 0, 4, 5, 0, 5, 1, 1, 5, 6, 1, 6, 2, 2, 6, 7, 2, 7, 3]
@@ -393,8 +407,17 @@ class SphereRobotBase(gym.Env):
                              restitution=0.0, physicsClientId=c)
         if visual:
             self._add_floor_visual()
-        self._body = build_robot(p, c, self.robot, start_xy, start_yaw, visual=visual)
+        self._body = build_robot(p, c, self.robot, start_xy, start_yaw, visual=visual,
+                                 shell_shape=self._shape("shell", p.GEOM_SPHERE, radius=self.robot.shell_radius))
         self._bodies.append(self._body)
+
+    def _shape(self, key, geom, **kw):
+        """The world's collision shape ``key``, made once per world: shapes outlive the bodies
+        removed between episodes (they grew memory 30 kB per reset)."""
+        col = self._shapes.get(key)
+        if col is None:
+            col = self._shapes[key] = self._p.createCollisionShape(geom, physicsClientId=self._client, **kw)
+        return col
 
     def _make_floor(self):
         p, c = self._p, self._client
@@ -904,10 +927,11 @@ class SphereRobotBase(gym.Env):
         stuck = self._stuck_t >= STUCK_TIME
         return bool(done or out or stuck), out, stuck
 
-    def _forward_speed(self):
-        """(m/s) the true velocity along the true heading."""
+    def _forward_speed(self, psi=None):
+        """(m/s) the true velocity along the true heading (``psi``: it, if already computed)."""
         lin = self._true[2]
-        psi = self._heading_true()
+        if psi is None:
+            psi = self._heading_true()
         return lin[0] * math.cos(psi) + lin[1] * math.sin(psi)
 
     # ------------------------------------------------------------------------------------
@@ -1062,6 +1086,7 @@ class SphereRobotBase(gym.Env):
                 pass
         self._client = None
         self._body = None
+        self._bodies = []
         self._needs_reset = True
 
     def __del__(self):

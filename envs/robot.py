@@ -412,13 +412,15 @@ def _robot_dynamics(p, client, body, params):
 
 
 def build_robot(p: Any, client: int, params: RobotParams, position: Sequence[float], yaw: float,
-                visual: bool = False) -> int:
+                visual: bool = False, shell_shape: int | None = None) -> int:
     """Create the robot in ``client`` with the shell's centre at ``position`` (x, y) on the
     floor and heading ``yaw`` (rad, ENU: 0 = facing east). Returns the body id. Joint
     motors: the drive joint is torque-controlled by the caller every physics step; the
-    steering joint is a position servo (``set_steer``)."""
+    steering joint is a position servo (``set_steer``). ``shell_shape``: the shell's
+    collision shape (a sphere of ``shell_radius``) if the caller keeps one, else a new one."""
     r = params.shell_radius
-    col = p.createCollisionShape(p.GEOM_SPHERE, radius=r, physicsClientId=client)
+    col = shell_shape if shell_shape is not None else p.createCollisionShape(p.GEOM_SPHERE, radius=r,
+                                                                             physicsClientId=client)
     vis_shell = vis_frame = vis_pend = -1
     if visual:
         vis_shell, vis_frame, vis_pend = _robot_visuals(p, client, params)

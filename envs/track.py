@@ -89,26 +89,34 @@ class SphereBotTrackEnv(SphereRobotBase):
         speeds = rng.uniform(0.1, 0.6, size=n)
         turns = rng.uniform(-math.pi / 2, math.pi / 2, size=n)
         turns[0] = rng.uniform(-math.pi, math.pi)
-        self._cmd_times = np.concatenate([[0.0], np.cumsum(gaps)])[:n]
-        self._cmd_speed = speeds
-        self._cmd_heading = np.array([_wrap(v) for v in (self._yaw0 + np.cumsum(turns))])
+        # plain floats (the same values): read every step, where numpy's scalars cost 0.5 us
+        self._cmd_times = np.concatenate([[0.0], np.cumsum(gaps)])[:n].tolist()
+        self._cmd_speed = speeds.tolist()
+        self._cmd_heading = [_wrap(v) for v in (self._yaw0 + np.cumsum(turns)).tolist()]
         self._cmd_i = 0
+        self._cmd = (self._cmd_speed[0], self._cmd_heading[0])
 
     def _command(self):
-        return float(self._cmd_speed[self._cmd_i]), float(self._cmd_heading[self._cmd_i])
+        """(speed, heading) commanded now."""
+        return self._cmd
 
     def _task_obs(self, psi):
-        vc, hc = self._command()
+        vc, hc = self._cmd
         e_psi = _wrap(hc - psi)
         v_enc = self._enc_speed * self.robot.shell_radius
         return (vc, vc - v_enc, math.sin(e_psi), math.cos(e_psi))
 
     def _get_rew(self, a0, a1):
-        while self._cmd_i + 1 < len(self._cmd_times) and self._t >= self._cmd_times[self._cmd_i + 1]:
-            self._cmd_i += 1
-        vc, hc = self._command()
-        terms = {"speed": -abs(self._forward_speed() - vc) / 0.5,
-                 "heading": -abs(_wrap(self._heading_true() - hc)) / math.pi,
+        times, i = self._cmd_times, self._cmd_i
+        if i + 1 < len(times) and self._t >= times[i + 1]:
+            while i + 1 < len(times) and self._t >= times[i + 1]:
+                i += 1
+            self._cmd_i = i
+            self._cmd = (self._cmd_speed[i], self._cmd_heading[i])
+        vc, hc = self._cmd
+        psi = self._heading_true()
+        terms = {"speed": -abs(self._forward_speed(psi) - vc) / 0.5,
+                 "heading": -abs(_wrap(psi - hc)) / math.pi,
                  "effort": self._effort(a0, a1)}
         return terms, False
 

@@ -167,6 +167,30 @@ def test_a_subclass_overriding_the_inlined_methods_keeps_them():
         plain.close()
 
 
+def test_the_track_task_inlined_unless_a_subclass_overrides_its_methods():
+    """The compiled step runs the track task's reward, observation values and info in C
+    (envs/_signals.pyx, TRACK_METHODS); a subclass overriding one of them gets its Python
+    methods called (with the override), the rest of the step still compiled."""
+    class Harsh(SphereBotTrackEnv):
+        def _get_rew(self, a0, a1):
+            terms, done = super()._get_rew(a0, a1)
+            return {**terms, "extra": -1.0}, done
+
+    env, plain = Harsh(), SphereBotTrackEnv()
+    try:
+        env.reset(seed=2)
+        plain.reset(seed=2)
+        assert plain._loop.track and not env._loop.track and env._compiled_step
+        a = np.array([0.5, 0.2], np.float32)
+        for _ in range(5):
+            r1, r2 = env.step(a), plain.step(a)
+            assert r1[1] == r2[1] - 1.0
+            assert list(r1[4]["reward_terms"]) == ["speed", "heading", "effort", "extra"]
+    finally:
+        env.close()
+        plain.close()
+
+
 def test_every_estimator_same_through_the_compiled_update():
     """The loop calls each estimator's compiled step directly (no Python update call): the
     same estimates as update() for every estimator."""

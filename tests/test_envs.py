@@ -235,6 +235,38 @@ def test_reset_with_same_seed_in_one_env_repeats():
     assert runs[0].tobytes() == runs[1].tobytes()
 
 
+def _episode(env, seed, n=40):
+    obs, info = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = [obs, info["position"]]
+    for _ in range(n):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1.0, 1.0, 2).astype(np.float32))
+        out += [obs, np.array([r]), info["position"], info["q_est"]]
+        if term or trunc:
+            break
+    return np.concatenate([np.ravel(x).astype(np.float64) for x in out])
+
+
+@pytest.mark.parametrize("kw", [{}, {"bumps": 4, "ramps": 2, "mag_zones": "random", "slippery_patches": 6,
+                                     "arena_size": 6.0}])
+def test_resets_in_one_env_give_the_episodes_of_new_envs(kw, monkeypatch):
+    """reset() keeps the floor and removes the other bodies (rebuilding the whole world every
+    REBUILD_EVERY resets, here 2): every episode is the one a new environment gives, bit for bit."""
+    import envs.base
+    monkeypatch.setattr(envs.base, "REBUILD_EVERY", 2)
+    env = gym.make("SphereBotTrack-v1", estimator="ekf", **kw)
+    kept = []
+    for seed in (3, 4, 3, 5, 6, 7):
+        got = _episode(env, seed)
+        kept.append(env.unwrapped._kept)
+        fresh = gym.make("SphereBotTrack-v1", estimator="ekf", **kw)
+        want = _episode(fresh, seed)
+        fresh.close()
+        assert got.tobytes() == want.tobytes(), f"seed {seed}"
+    env.close()
+    assert kept == [0, 1, 2, 0, 1, 2]       # both ways of resetting ran
+
+
 def test_gymnasium_env_checker():
     from gymnasium.utils.env_checker import check_env
     for task in ("track", "waypoints"):
