@@ -225,6 +225,19 @@ def ratio_chart(results, cells, path):
     return compare.save_figure(fig, path, dpi=100)
 
 
+def worst_trials(results, cells):
+    """The trial with the largest ratio to VQF, per error: total where the cell is judged by
+    it (not INCLINATION_ONLY), inclination in every cell. {error: (ratio, cell key, trial)}."""
+    worst = {}
+    for c in cells:
+        for n, o, v in zip(c.names, results[c.key], c.vqf):
+            for k in ("inclination",) if (c.set, c.mode) in INCLINATION_ONLY else ("total", "inclination"):
+                r = o[k] / v[k]
+                if r > worst.get(k, (-1.0,))[0]:
+                    worst[k] = (r, c.key, n)
+    return worst
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("estimator", nargs="+", help="fusion.available() names")
@@ -258,6 +271,8 @@ def main(argv=None):
             res = results[name] = evaluate(name, base, cells)
             print(f"\n## {name} ({fmt_params(base)}): all {objective(res, cells):.3f}")
             print(table(name, res, cells, args.categories))
+            print("worst single trial against VQF: " + "; ".join(
+                f"{k} {r:.2f}x ({key}, {trial})" for k, (r, key, trial) in worst_trials(res, cells).items()))
     if args.png and results:
         print(f"wrote {ratio_chart(results, cells, Path(args.png))}")
     print(f"total {time.perf_counter() - t0:.0f} s")

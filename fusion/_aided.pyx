@@ -27,7 +27,7 @@ cdef class AidedFilter(Estimator):
     cdef int configure(self, dict p) except -1:
         self.rest = RestDetector(p)
         self.magd = MagDetector(p)
-        self.acc_lowpass = p.get("acc_lowpass", 0.0)    # aekf declares none
+        self.acc_lowpass = p["acc_lowpass"]
         self.mag_heading = p["mag_update"] == "heading"
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()

@@ -52,9 +52,8 @@ def wahba_svd(b, r, w):
 # --- the filter ---------------------------------------------------------------------------
 
 class RefAEKF(ref.RefEKF):
-    PARAMS = dict({k: v for k, v in ref.RefEKF.PARAMS.items() if k != "acc_lowpass"}, acc_noise=1.0,
-                  bias_init_std=0.02, acc_update="tilt", acc_norm_tol=1.0, acc_pred_tol=2.0, acc_pred_timeout=2.0,
-                  mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
+    PARAMS = dict(ref.RefEKF.PARAMS, bias_init_std=0.02, acc_update="tilt", acc_norm_tol=2.0, acc_pred_tol=2.0,
+                  acc_pred_timeout=2.0, mag_norm_tol=0.1, mag_dip_tol=5.0, reject_factor=1e4, mag_norm=None,
                   mag_dip=None, learn_time=1.0, measurement="vectors", quest_mag_weight=0.01)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -126,6 +125,10 @@ class RefAEKF(ref.RefEKF):
         self._rest(gyr, acc, dt)
         if self.rest.n > n_rest:        # at rest: this sensor's g, the low-passed norm
             self.g_ref = float(np.linalg.norm(self.rest.lp[1]))
+        # the sample tested and taken: low-passed in the gyro's frame (the ekf's acc_lowpass)
+        ref.acc_lowpass_lost(self, gyr, ref.is_saturated(gyr, self.gyro_range), dt)
+        if acc is not None and self.acc_lowpass > 0:
+            acc = ref.acc_lowpass_step(self, gyr, self.b, acc, dt)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = self._acc_test(acc, u, dt) if acc is not None else False

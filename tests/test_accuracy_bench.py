@@ -43,3 +43,20 @@ def test_quick_subset_writes_tables_and_figure(tmp_path):
     if any(s == "repoimu_tstick" for s, _ in groups):     # recorded data present
         assert ("repoimu_tstick", "9-axis") in groups and ("ese650", "6-axis") in groups
         assert ("ese650", "9-axis") not in groups          # no magnetometer there
+
+
+def test_loso_worst_trial_is_the_largest_ratio_to_vqf():
+    """benchmarks/loso.py's worst-trial line: per error, the largest ours / VQF ratio over
+    every cell's trials; a cell judged by inclination alone has no total."""
+    from benchmarks import loso
+
+    def cell(set_, mode, names, ours, vqf):
+        c = loso.Cell(set_, mode, names, [None] * len(names))
+        c.vqf = [dict(total=t, inclination=i) for t, i in vqf]
+        return c, [dict(total=t, inclination=i) for t, i in ours]
+
+    a, ra = cell("tstick", "6-axis", ["t1", "t2"], [(2.0, 1.0), (3.0, 0.5)], [(1.0, 1.0), (2.0, 0.1)])
+    b, rb = cell("diodem", "9-axis", ["d1"], [(90.0, 0.6)], [(1.0, 0.3)])
+    worst = loso.worst_trials({a.key: ra, b.key: rb}, [a, b])
+    assert worst["total"] == (2.0, "tstick 6-axis", "t1")          # diodem 9-axis's 90x is not judged
+    assert worst["inclination"] == (5.0, "tstick 6-axis", "t2")

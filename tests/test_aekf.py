@@ -35,13 +35,19 @@ def compare_aekf(est, r):
 
 # --- kernel == reference ------------------------------------------------------------------
 
+# the defaults, and the paper's switching on the raw samples (no low-pass, its e_a1 of 1 m/s²)
+RAW = {"acc_lowpass": 0.0, "acc_norm_tol": 1.0}
+
+
 @pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
 @pytest.mark.parametrize("measurement", MODES)
-def test_kernel_equals_reference(data, measurement, nine_axis):
+@pytest.mark.parametrize("raw", [False, True], ids=["defaults", "raw"])
+def test_kernel_equals_reference(data, measurement, nine_axis, raw):
     _, gyr, acc, mag, burst, dist = data
     m = mag if nine_axis else None
-    est = fusion.make("aekf", FS, measurement=measurement)
-    r = ra.RefAEKF(FS, measurement=measurement)
+    kw = dict(RAW if raw else {}, measurement=measurement)
+    est = fusion.make("aekf", FS, **kw)
+    r = ra.RefAEKF(FS, **kw)
     est.record_decisions()
     q, qr = est.run(gyr, acc, m), r.run(gyr, acc, m)
     assert q.shape == qr.shape == (N, 4)
@@ -51,7 +57,10 @@ def test_kernel_equals_reference(data, measurement, nine_axis):
     assert est.skipped == r.skipped == {"gyr": 0, "acc": 0, "mag": 0}
     # the run exercises what it should: both sensors switch, QUEST is used
     d = est.decisions
-    assert (d[burst] & 1).mean() > 0.5 and (d[~burst] & 1).mean() < 0.2
+    if raw:
+        assert (d[burst] & 1).mean() > 0.5 and (d[~burst] & 1).mean() < 0.2
+    else:   # the low-pass averages most of a burst out before the tests see it
+        assert (d[burst] & 1).mean() > 0.2 and (d[~burst] & 1).mean() < 0.1
     if nine_axis:
         assert (d[dist] & 2).mean() > 0.8 and (d[~dist] & 2).mean() < 0.05
     if measurement == "quest" and nine_axis:
@@ -116,7 +125,7 @@ def test_quiet_body_is_the_ekf():
     _, gyr, acc, mag, *_ = scenario(n=3000, turn=0.3, burst_amp=0.0, disturb=None, mag_noise=0.2)
     a = fusion.make("aekf", FS)
     e = fusion.make("ekf", FS, acc_update=a.acc_update, acc_noise=a.acc_noise, mag_noise=a.mag_noise,
-                    acc_lowpass=0.0, bias_init_std=a.bias_init_std)
+                    acc_lowpass=a.acc_lowpass, bias_init_std=a.bias_init_std)
     qa, qe = a.run(gyr, acc, mag), e.run(gyr, acc, mag)
     assert a.rejected == {"acc": 0, "mag": 0} and a.tested == {"acc": 3000, "mag": 3000}
     assert np.abs(qa - qe).max() < 1e-13
@@ -211,16 +220,22 @@ def test_quest_degenerate_and_scale_free():
 @pytest.mark.parametrize("nine_axis", [False, True], ids=["6axis", "9axis"])
 def test_linear_acceleration_bursts_tilt_the_ekf_not_the_aekf(noise, nine_axis):
     """Strong bursts (up to 8 m/s² per axis, 0.5-2.5 s): with the same noise parameters the
-    ekf's inclination follows the apparent gravity, the aekf's does not."""
+    ekf's inclination follows the apparent gravity, the aekf's much less. The paper's switching
+    on the raw samples (RAW) rejects nearly all of it (6-axis rms 0.46 deg against the ekf's
+    4.51, both without the low-pass); at the defaults, where the tests judge the low-passed
+    sample (which spreads a burst over about acc_lowpass and shrinks it under the norm test),
+    2.28 against 4.32 (VQF: 4.96). Sustained one-way bursts are this scenario's, not a hand's:
+    on the recorded sets the low-pass halves aekf's error to VQF (docs/accuracy.md, fifth pass)."""
     q_true, gyr, acc, mag, burst, _ = scenario(n=12000, seed=7, burst_amp=8.0, n_bursts=25,
                                                disturb=None)
     m = mag if nine_axis else None
     res = {}
-    for name in ("ekf", "aekf"):
-        q = fusion.make(name, FS, **noise).run(gyr, acc, m)
+    for name, kw in (("ekf", {}), ("aekf", {}), ("ekf raw", {"acc_lowpass": 0.0}), ("aekf raw", RAW)):
+        q = fusion.make(name.split()[0], FS, **kw, **noise).run(gyr, acc, m)
         res[name] = errors_deg(q, q_true)[0][1000:]         # after the start-up transient
     print({k: (round(rms(v), 3), round(v.max(), 3)) for k, v in res.items()})
-    assert rms(res["aekf"]) < 0.5 * rms(res["ekf"])
+    assert rms(res["aekf raw"]) < 0.2 * rms(res["ekf raw"])
+    assert rms(res["aekf"]) < 0.6 * rms(res["ekf"])
     assert res["aekf"].max() < 0.5 * res["ekf"].max()
     assert rms(res["ekf"]) > 1.0                            # the bursts do hurt the ekf
 
@@ -301,7 +316,7 @@ def test_params_round_trip_and_defaults():
     est = fusion.make("aekf", 200.0, measurement="quest", mag_dip=60.0, acc_pred_tol=2.0)
     p = est.params
     assert p["measurement"] == "quest" and p["mag_dip"] == 60.0 and p["mag_norm"] is None
-    assert p["acc_pred_tol"] == 2.0 and p["acc_noise"] == 1.0
+    assert p["acc_pred_tol"] == 2.0 and p["acc_noise"] == 0.5 and p["acc_lowpass"] == 1.0
     again = eval(repr(est), {"fusion": fusion})
     assert again.params == p and again.fs == 200.0
     assert set(p) == set(type(est).PARAMS)
@@ -309,14 +324,14 @@ def test_params_round_trip_and_defaults():
 
 
 def test_still_sensor_with_a_scale_error_is_not_rejected():
-    """A still sensor whose accelerometer reads 5 % high (|a| = 10.3 m/s^2, beyond
+    """A still sensor whose accelerometer reads 25 % high (|a| = 12.3 m/s^2, beyond
     acc_norm_tol of 9.81): once at rest (rest_time, 1.5 s) the norm test uses the
     low-passed norm measured there, and no sample after 2 s is rejected; the kernel equals
     its reference (1e-9)."""
     rng = np.random.default_rng(4)
     n = 1000
     q_true = ref.normalise(np.array([0.9, 0.2, -0.3, 0.1]))
-    acc = 1.15 * ref.rotmat(q_true).T @ [0, 0, ref.G] + 0.05 * rng.standard_normal((n, 3))
+    acc = 1.25 * ref.rotmat(q_true).T @ [0, 0, ref.G] + 0.05 * rng.standard_normal((n, 3))
     gyr = 0.002 * rng.standard_normal((n, 3))
     est = fusion.make("aekf", FS)
     est.record_decisions()
