@@ -11,11 +11,12 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 
-def load_run(stem) -> dict:
+def load_run(stem: str | Path) -> dict[str, Any]:
     """The run ``stem`` (``<stem>.json`` and ``<stem>.run/evaluations.npz``): its task,
     estimator, seed, init_from, and per evaluation the timesteps and mean return."""
     stem = Path(stem)
@@ -35,7 +36,7 @@ def load_run(stem) -> dict:
             "init_from": meta.get("init_from"), "timesteps": t, "mean_return": r.mean(axis=1)}
 
 
-def seed_spread(runs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def seed_spread(runs: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(timesteps, mean, min, max) over ``runs`` at the timesteps every run evaluated at."""
     common = sorted(set.intersection(*(set(r["timesteps"].tolist()) for r in runs)))
     table = np.array([[r["mean_return"][r["timesteps"].tolist().index(t)] for t in common] for r in runs])
@@ -73,7 +74,8 @@ def _start_label(runs):
     return ", ".join(sorted(starts))
 
 
-def plot_training_curves(runs, path, title=None) -> list[tuple[str, str]]:
+def plot_training_curves(runs: list[dict[str, Any]], path: str | Path,
+                         title: str | None = None) -> list[tuple[str, str]]:
     """Draw ``runs`` (from ``load_run``) into ``path``: one panel per (task, estimator), tasks
     in rows. Returns the panels drawn."""
     if not runs:

@@ -20,9 +20,12 @@ Gains: ``PIDGains`` documents each, and how it was found (docs/controllers.md).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, asdict
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
 from fusion.checks import number
@@ -62,7 +65,8 @@ class PID(Controller):
     ``control_hz``: the environment's rate; ``shell_radius`` (m, encoder rate -> ground
     speed): the robot's, default ``RobotParams``'s (``for_env`` reads the environment's)."""
 
-    def __init__(self, task="track", gains=None, control_hz=50.0, shell_radius=None):
+    def __init__(self, task: str = "track", gains: PIDGains | dict[str, float] | None = None,
+                 control_hz: float = 50.0, shell_radius: float | None = None) -> None:
         from envs.robot import RobotParams
         from envs.sphere import TASK_CLASSES
         if task not in TASK_CLASSES:
@@ -88,7 +92,7 @@ class PID(Controller):
         self._n = None
 
     @classmethod
-    def for_env(cls, env, gains=None):
+    def for_env(cls, env: Any, gains: PIDGains | dict[str, float] | None = None) -> PID:
         """A PID matching ``env``'s task and control rate (``env`` may be wrapped)."""
         base = env.unwrapped
         return cls(task=base.task, gains=gains, control_hz=base.control_hz, shell_radius=base.robot.shell_radius)
@@ -97,7 +101,7 @@ class PID(Controller):
         return (f"PID(task={self.task!r}, gains={asdict(self.gains)!r}, control_hz={1.0 / self.dt:g}, "
                 f"shell_radius={self.shell_radius:g})")
 
-    def reset(self, index=None):
+    def reset(self, index: int | Sequence[int] | None = None) -> None:
         """Clear the integrators: all rows, or only row(s) ``index`` (a vector env's done envs)."""
         if self._n is None:
             return
@@ -114,7 +118,7 @@ class PID(Controller):
             self._i_head = np.zeros(n)
             self._i_speed = np.zeros(n)
 
-    def act(self, obs):
+    def act(self, obs: ArrayLike) -> np.ndarray:
         o, single = obs_batch(obs)
         self._ensure(o.shape[0])
         g, dt, k = self.gains, self.dt, self.obs_index

@@ -18,7 +18,9 @@ import json
 import os
 import re
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +32,7 @@ class PolicyError(ValueError):
     """A policy file that is missing, corrupt, unsafe or does not fit the environment."""
 
 
-def atomic_write(path, write):
+def atomic_write(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:
     """``write(f)`` into a binary temporary file beside ``path``, fsync it, then rename it
     over ``path`` (and fsync the folder)."""
     path = Path(path)
@@ -56,7 +58,7 @@ def atomic_write(path, write):
         os.close(fd)
 
 
-def save_model(model, path):
+def save_model(model: Any, path: str | os.PathLike) -> None:
     """``model.save`` atomically to ``path`` (a ``.zip``)."""
     atomic_write(path, model.save)
 
@@ -88,7 +90,7 @@ _NORM_FLOATS = ("clip_obs", "clip_reward", "gamma", "epsilon")
 _NORM_FLAGS = ("norm_obs", "norm_reward")
 
 
-def save_normalization(vn, path):
+def save_normalization(vn: Any, path: str | os.PathLike) -> None:
     """The statistics of ``vn`` (a ``VecNormalize``) as plain arrays in ``path`` (``.npz``)."""
     arrays = {"obs_mean": vn.obs_rms.mean, "obs_var": vn.obs_rms.var, "obs_count": vn.obs_rms.count,
               "ret_mean": vn.ret_rms.mean, "ret_var": vn.ret_rms.var, "ret_count": vn.ret_rms.count}
@@ -98,7 +100,7 @@ def save_normalization(vn, path):
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
-def load_normalization(path):
+def load_normalization(path: str | os.PathLike) -> dict[str, Any]:
     """The statistics saved by ``save_normalization``: a dict of float64 arrays (``obs_*``,
     ``ret_*``), floats and bools. ``PolicyError`` for a file that is not such an ``.npz``."""
     path = Path(path)
@@ -132,7 +134,7 @@ def load_normalization(path):
     return res
 
 
-def vec_normalize(stats, venv, training):
+def vec_normalize(stats: dict[str, Any], venv: Any, training: bool) -> Any:
     """A ``VecNormalize`` around ``venv`` with the statistics ``stats`` (``load_normalization``)."""
     from stable_baselines3.common.vec_env import VecNormalize
     vn = VecNormalize(venv, training=training, norm_obs=stats["norm_obs"], norm_reward=stats["norm_reward"],
@@ -177,7 +179,7 @@ def _constant(key, entry):
     return float(m.group(1))
 
 
-def algo_of(data):
+def algo_of(data: dict[str, Any]) -> str:
     """'sac' or 'ppo' from a zip's ``data`` entries (SAC has a replay buffer)."""
     return "sac" if "buffer_size" in data else "ppo"
 
@@ -212,7 +214,8 @@ def _safe_objects(data, algo, extra):
     return cls, objs
 
 
-def load_model(zip_path, env=None, algo=None, extra=None):
+def load_model(zip_path: str | os.PathLike, env: Any = None, algo: str | None = None,
+               extra: dict[str, Any] | None = None) -> Any:
     """An SB3 PPO/SAC model from ``zip_path`` with no pickled entry read (module docstring).
     ``extra``: replacements for entries (e.g. ``{"train_freq": 8}`` to continue training a SAC
     model). ``PolicyError`` for a missing, corrupt or unsafe file."""

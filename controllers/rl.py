@@ -25,9 +25,11 @@ import time
 import warnings
 from importlib import resources
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
 from fusion.checks import choice, integer
@@ -805,10 +807,13 @@ def _publish(p, command, init, start_ckpt, bc_collected, times):
         "eval_time_s": round(eval_time, 1)})
 
 
-def train(algo, task, estimator, timesteps=None, seed=0, out=None, env_kwargs=None, resume=False,
-          eval_episodes=5, eval_freq=None, checkpoint_freq=None, n_envs=None, progress=True,
-          command=None, init_from=None, overwrite=False, bc_steps=60_000, hyperparams_override=None,
-          log=print, trusted=False, vec_env="subproc"):
+def train(algo: str, task: str, estimator: str, timesteps: int | None = None, seed: int = 0,
+          out: str | os.PathLike | None = None, env_kwargs: dict[str, Any] | None = None, resume: bool = False,
+          eval_episodes: int = 5, eval_freq: int | None = None, checkpoint_freq: int | None = None,
+          n_envs: int | None = None, progress: bool = True, command: str | None = None,
+          init_from: str | None = None, overwrite: bool = False, bc_steps: int = 60_000,
+          hyperparams_override: dict[str, Any] | None = None, log: Callable[[str], Any] = print,
+          trusted: bool = False, vec_env: str = "subproc") -> Path:
     """Train ``algo`` on ``task`` with ``estimator`` in the loop; returns the policy stem
     (``out``; default ``new_run_stem(...)``: ``./logs/<algo>/<env-id>_<n>/``; nothing is
     written into the package: ``install_policy`` does that).
@@ -894,7 +899,8 @@ class PolicyController(Controller):
     """A trained SB3 policy behind the ``Controller`` interface (deterministic actions,
     observations normalised with the statistics it was trained with)."""
 
-    def __init__(self, model, obs_rms=None, clip_obs=10.0, epsilon=1e-8, meta=None, path=None):
+    def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8,
+                 meta: dict[str, Any] | None = None, path: str | os.PathLike | None = None) -> None:
         self.model = model
         self.obs_rms = obs_rms
         self.clip_obs = clip_obs
@@ -906,7 +912,7 @@ class PolicyController(Controller):
     def __repr__(self):
         return f"PolicyController({str(self.path)!r})"
 
-    def act(self, obs):
+    def act(self, obs: ArrayLike) -> np.ndarray:
         o, single = obs_batch(obs)
         if o.shape[1] != self.model.observation_space.shape[0]:
             raise ValueError(f"policy {self.path} takes observations of size "

@@ -13,13 +13,17 @@ import math
 import os
 import sys
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 import gymnasium as gym
 from gymnasium import spaces
 
 import fusion
 from fusion import imu as fimu
-from fusion.checks import integer, number
+from fusion.checks import flag, integer, number
 from fusion.constants import GRAVITY as G
 
 from envs import _signals
@@ -50,12 +54,12 @@ _COMPILED_STEP = ("step", "_begin_step", "_end_step", "_check_action", "_advance
                   "_heading_true")
 
 
-def ESTIMATORS():
+def ESTIMATORS() -> list[str]:
     """Names accepted by ``estimator=``: fusion's estimators and "truth"."""
     return list(fusion.available()) + ["truth"]
 
 
-def obs_layout(parts):
+def obs_layout(parts: Sequence[tuple[str, float]]) -> dict[str, int]:
     """{name: index} of an observation assembled from ``parts`` ((name, bound), ...)."""
     return {name: i for i, (name, _) in enumerate(parts)}
 
@@ -162,22 +166,23 @@ class SphereRobotBase(gym.Env):
         super().__init_subclass__(**kw)
         cls.OBS = obs_layout(BASE_OBS + cls.TASK_OBS)
 
-    def __init__(self, estimator="ekf", imu="mpu9250", *, estimator_params=None,
-                 imu_calibrated=True, imu_hz=200.0, physics_hz=400.0, control_hz=50.0,
-                 imu_offset=(0.02, 0.0, 0.03), episode_s=None, robot=None, arena_size=20.0,
-                 bumps=0, bump_height=0.012, ramps=0, ramp_deg=8.0, ramp_height=0.05,
-                 slippery_patches=0, patch_friction=0.05, mag_zones=None, n_mag_zones=3,
-                 earth_field=EARTH_FIELD, realism="real",
-                 render_mode=None, render_size=(320, 240), compiled=True):
+    def __init__(self, estimator: str = "ekf", imu: str | fimu.IMUSpec = "mpu9250", *,
+                 estimator_params: dict[str, Any] | None = None, imu_calibrated: bool = True,
+                 imu_hz: float = 200.0, physics_hz: float = 400.0, control_hz: float = 50.0,
+                 imu_offset: Sequence[float] = (0.02, 0.0, 0.03), episode_s: float | None = None,
+                 robot: RobotParams | dict[str, Any] | None = None, arena_size: float = 20.0,
+                 bumps: int = 0, bump_height: float = 0.012, ramps: int = 0, ramp_deg: float = 8.0,
+                 ramp_height: float = 0.05, slippery_patches: int = 0, patch_friction: float = 0.05,
+                 mag_zones: Sequence[Any] | None = None, n_mag_zones: int = 3,
+                 earth_field: Sequence[float] = EARTH_FIELD, realism: str = "real",
+                 render_mode: str | None = None, render_size: tuple[int, int] = (320, 240),
+                 compiled: bool = True) -> None:
         super().__init__()
         if estimator not in ESTIMATORS():
             raise ValueError(f"unknown estimator {estimator!r}; accepted: {', '.join(ESTIMATORS())}")
         spec = _imu_spec(imu, imu_calibrated)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"unknown render_mode {render_mode!r}; accepted: None, "
-                             f"{', '.join(self.metadata['render_modes'])}")
+        self._check_render(render_mode, render_size)
         self.estimator_name = estimator
-        self.render_mode = render_mode
         self._check_rates(imu_hz, physics_hz, control_hz)
         if realism not in REALISM:
             raise ValueError(f"realism must be one of {', '.join(map(repr, REALISM))}, got {realism!r}")
@@ -194,16 +199,7 @@ class SphereRobotBase(gym.Env):
         self.slippery_patches = integer("slippery_patches", slippery_patches, 0, 1000)
         self.patch_friction = number("patch_friction", patch_friction, 0.0, 1.0)
         self._mag_zone_spec = _mag_zone_spec(mag_zones)
-        try:
-            rw, rh = (int(v) for v in render_size)
-        except (TypeError, ValueError):
-            rw = rh = 0
-        if not (16 <= rw <= 4096 and 16 <= rh <= 4096):
-            raise ValueError(f"render_size must be (width, height), each in [16, 4096], got {render_size!r}")
-        self.render_size = (rw, rh)
-        if not isinstance(compiled, (bool, np.bool_)):
-            raise ValueError(f"compiled must be True or False, got {compiled!r}")
-        self._compiled = bool(compiled)
+        self._compiled = flag("compiled", compiled)
         #: the per-physics-step path in C (envs/_signals.pyx), or None: the Python methods below
         self._loop = _signals.Loop() if self._compiled else None
         #: the rest of step() in C too, unless a subclass overrides one of the methods it inlines
@@ -222,6 +218,19 @@ class SphereRobotBase(gym.Env):
         self._needs_reset = True
         #: None, or a list that receives one tuple per physics step (see enable_signal_log)
         self.signal_log = None
+
+    def _check_render(self, render_mode, render_size):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; accepted: None, "
+                             f"{', '.join(self.metadata['render_modes'])}")
+        self.render_mode = render_mode
+        try:
+            rw, rh = (int(v) for v in render_size)
+        except (TypeError, ValueError):
+            rw = rh = 0
+        if not (16 <= rw <= 4096 and 16 <= rh <= 4096):
+            raise ValueError(f"render_size must be (width, height), each in [16, 4096], got {render_size!r}")
+        self.render_size = (rw, rh)
 
     def _check_rates(self, imu_hz, physics_hz, control_hz):
         # lower bounds: the estimator's fs range starts at 1 Hz here (slower is no IMU), and one
@@ -726,7 +735,8 @@ class SphereRobotBase(gym.Env):
     # ------------------------------------------------------------------------------------
     # Gymnasium API
 
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         self._reset_begin(seed, options)
         self._advance(self._settle_steps, 0.0, 0.0)
         return self._reset_end()
@@ -792,7 +802,7 @@ class SphereRobotBase(gym.Env):
         if "start_yaw" in options:
             self._yaw0 = number("options['start_yaw']", options["start_yaw"])
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._compiled_step and self.signal_log is None:
             return self._loop.control_step(self, action)    # the three calls below, in C
         a0, a1 = self._begin_step(action)
@@ -937,7 +947,7 @@ class SphereRobotBase(gym.Env):
 
     # ------------------------------------------------------------------------------------
 
-    def enable_signal_log(self):
+    def enable_signal_log(self) -> None:
         """Diagnostics: from now on append, at every physics step, a tuple (position,
         orientation [x, y, z, w] (PyBullet order), linear velocity, angular velocity (world),
         true gyro, true specific force, true field (body frame), IMU sample or None) to
@@ -945,10 +955,10 @@ class SphereRobotBase(gym.Env):
         self.signal_log = []
         return self.signal_log
 
-    def disable_signal_log(self):
+    def disable_signal_log(self) -> None:
         self.signal_log = None
 
-    def true_state(self):
+    def true_state(self) -> dict[str, Any]:
         """The simulator's state now: dict of position (m), orientation (the inner frame's
         quaternion [w, x, y, z]), velocity (m/s), body_rate (rad/s, frame axes), shell_rate
         (rad/s, world frame), drive_angle and steer_angle (rad), drive_speed (rad/s)."""
@@ -1026,7 +1036,7 @@ class SphereRobotBase(gym.Env):
 
     # ------------------------------------------------------------------------------------
 
-    def render(self):
+    def render(self) -> np.ndarray | None:
         if self.render_mode is None or self._client is None:
             return None
         p, c = self._p, self._client
@@ -1044,7 +1054,7 @@ class SphereRobotBase(gym.Env):
         rgba = np.asarray(img[2], dtype=np.uint8).reshape(h, w, 4)
         return np.ascontiguousarray(rgba[:, :, :3])
 
-    def close(self):
+    def close(self) -> None:
         if self._client is not None and self._p is not None and self._shared is None:
             try:
                 self._p.disconnect(physicsClientId=self._client)

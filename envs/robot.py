@@ -22,7 +22,9 @@ Sources and reasoning for each number: docs/envs/robot.md and the docstrings bel
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
+from typing import Any
 from fusion.checks import integer, number
 from fusion.constants import GRAVITY
 
@@ -195,18 +197,18 @@ class RobotParams:
             raise ValueError(f"robot.steer_max + robot.steer_stop must be <= 85 deg, got "
                              f"{math.degrees(self.steer_max + self.steer_stop):g} deg")
 
-    def replace(self, **changes):
+    def replace(self, **changes: Any) -> RobotParams:
         return replace(self, **changes)
 
     @classmethod
-    def ideal(cls, **changes):
+    def ideal(cls, **changes: Any) -> RobotParams:
         """The idealised robot of the v0 environments: no gearbox or servo friction, no
         deadband, no battery sag, a stiff servo without end stops (steer_band 0: PyBullet's
         position servo), no latency, rigid contact."""
         return cls(**{**{name: 0.0 for name in _REAL_FIELDS}, **changes})
 
     @classmethod
-    def from_any(cls, value, ideal=False):
+    def from_any(cls, value: RobotParams | dict[str, Any] | None, ideal: bool = False) -> RobotParams:
         """None (defaults), a RobotParams (used as it is), or a dict of field overrides
         (of ``RobotParams.ideal()`` if ``ideal``)."""
         if value is None:
@@ -289,7 +291,7 @@ class DCMotor:
     __slots__ = ("k", "r", "b", "limit", "vmax", "_k_over_r", "_k2_over_r", "deadband", "r_bat", "i_prev",
                  "i_other", "i_signed")
 
-    def __init__(self, params: RobotParams):
+    def __init__(self, params: RobotParams) -> None:
         self.k = params.motor_k
         self.r = params.motor_resistance
         self.b = params.motor_friction
@@ -301,12 +303,12 @@ class DCMotor:
         self.r_bat = params.battery_resistance / params.motor_voltage
         self.reset()
 
-    def reset(self):
+    def reset(self) -> None:
         self.i_prev = 0.0
         self.i_other = 0.0
         self.i_signed = 0.0
 
-    def torque(self, voltage, speed):
+    def torque(self, voltage: float, speed: float) -> float:
         if -self.deadband < voltage < self.deadband:
             voltage = 0.0
         elif self.r_bat:
@@ -322,7 +324,7 @@ class DCMotor:
         self.i_signed = t / self.k
         return t - self.b * speed
 
-    def current(self, voltage, speed):
+    def current(self, voltage: float, speed: float) -> float:
         return (voltage - self.k * speed) / self.r
 
 
@@ -337,13 +339,13 @@ class Servo:
 
     __slots__ = ("stall", "inv_band", "kd", "max")
 
-    def __init__(self, params: RobotParams):
+    def __init__(self, params: RobotParams) -> None:
         self.stall = params.steer_torque
         self.inv_band = 1.0 / params.steer_band if params.steer_band > 0 else 0.0
         self.kd = params.steer_torque / params.steer_speed
         self.max = params.steer_max
 
-    def torque(self, target, angle, speed):
+    def torque(self, target: float, angle: float, speed: float) -> float:
         e = (target - angle) * self.inv_band
         e = 1.0 if e > 1.0 else (-1.0 if e < -1.0 else e)
         t = self.stall * e - self.kd * speed
@@ -409,7 +411,8 @@ def _robot_dynamics(p, client, body, params):
         set_steer(p, client, body, params, 0.0)
 
 
-def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
+def build_robot(p: Any, client: int, params: RobotParams, position: Sequence[float], yaw: float,
+                visual: bool = False) -> int:
     """Create the robot in ``client`` with the shell's centre at ``position`` (x, y) on the
     floor and heading ``yaw`` (rad, ENU: 0 = facing east). Returns the body id. Joint
     motors: the drive joint is torque-controlled by the caller every physics step; the
@@ -442,7 +445,7 @@ def build_robot(p, client, params: RobotParams, position, yaw, visual=False):
     return body
 
 
-def spin_torque(params):
+def spin_torque(params: RobotParams) -> float:
     """(N m) the spinning friction's torque, applied by the caller as an explicit torque on
     the shell about the vertical: PyBullet's own spinningFriction constraint pumps the
     sideways rocking in a turn (roll peak to peak grows to 60-80 deg with 3e-4 m even at

@@ -5,6 +5,8 @@
 new code uses those classes or ``gymnasium.make``."""
 from __future__ import annotations
 
+from typing import Any
+
 from envs.base import BASE_OBS, ESTIMATORS, MAX_SUBSTEPS, SphereRobotBase  # noqa: F401  (re-exported)
 from envs.track import SphereBotTrackEnv
 from envs.waypoints import SphereBotWaypointsEnv
@@ -18,7 +20,7 @@ TASKS = tuple(TASK_CLASSES)
 OBS_NAMES = tuple(name for name, _ in BASE_OBS) + ("task_0", "task_1", "task_2", "task_3")
 
 
-def SphereRobotEnv(task="track", *args, **kwargs):  # noqa: N802  (the old class's name)
+def SphereRobotEnv(task: str = "track", *args: Any, **kwargs: Any) -> SphereRobotBase:  # noqa: N802  (the old class's name)
     """The environment of ``task`` ("track" or "waypoints") built with the other arguments."""
     if task not in TASK_CLASSES:
         raise ValueError(f"unknown task {task!r}; accepted: {', '.join(TASKS)}")

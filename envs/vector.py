@@ -35,11 +35,17 @@ about half of the time, profiled) is not shared by batching.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from fusion.checks import integer
+
+if TYPE_CHECKING:
+    from envs.base import SphereRobotBase
 
 __all__ = ["SphereBotVectorEnv", "SB3VecEnv", "make_track_vec", "make_waypoints_vec"]
 
@@ -50,7 +56,7 @@ class SphereBotVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, env_cls, num_envs, **kwargs):
+    def __init__(self, env_cls: type[SphereRobotBase], num_envs: int, **kwargs: Any) -> None:
         num_envs = integer("num_envs", num_envs, 1, 1024)
         if kwargs.get("render_mode") is not None:
             raise ValueError("render_mode must be None for the batched vector environment")
@@ -98,7 +104,8 @@ class SphereBotVectorEnv(VectorEnv):
                     for (a, la) in mine:
                         p.setCollisionFilterPair(a, b, la, link, 0, physicsClientId=c)
 
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | list[int] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         if self._client is None:
             self._connect()
@@ -171,7 +178,7 @@ class SphereBotVectorEnv(VectorEnv):
             if s is not None:
                 e._on_sample(s, e._est.update(s.gyr, s.acc, s.mag) if e._est is not None else None)
 
-    def step(self, actions):
+    def step(self, actions: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         actions = np.asarray(actions)
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
@@ -202,7 +209,7 @@ class SphereBotVectorEnv(VectorEnv):
             infos = self._add_info(infos, info, i)
         return obs, rew, term, trunc, infos
 
-    def close_extras(self, **kwargs):
+    def close_extras(self, **kwargs: Any) -> None:
         for e in self.envs:
             e.close()
         if self._client is not None:
@@ -210,19 +217,19 @@ class SphereBotVectorEnv(VectorEnv):
         self._client = None
 
 
-def make_track_vec(num_envs, **kwargs):
+def make_track_vec(num_envs: int, **kwargs: Any) -> SphereBotVectorEnv:
     """The ``vector_entry_point`` of ``SphereBotTrack``."""
     from envs.track import SphereBotTrackEnv
     return SphereBotVectorEnv(SphereBotTrackEnv, num_envs, **kwargs)
 
 
-def make_waypoints_vec(num_envs, **kwargs):
+def make_waypoints_vec(num_envs: int, **kwargs: Any) -> SphereBotVectorEnv:
     """The ``vector_entry_point`` of ``SphereBotWaypoints``."""
     from envs.waypoints import SphereBotWaypointsEnv
     return SphereBotVectorEnv(SphereBotWaypointsEnv, num_envs, **kwargs)
 
 
-def SB3VecEnv(venv):  # noqa: N802  (a class factory: SB3 is imported only here)
+def SB3VecEnv(venv: SphereBotVectorEnv) -> Any:  # noqa: N802  (a class factory: SB3 is imported only here)
     """A stable-baselines3 ``VecEnv`` over a ``SphereBotVectorEnv`` (terminal observations
     in ``infos[i]["terminal_observation"]``, ``"TimeLimit.truncated"`` as SB3 expects)."""
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from envs.base import SphereRobotBase
+from fusion.imu import IMUSpec
 from fusion.checks import integer, number
 
 __all__ = ["SphereBotWaypointsEnv"]
@@ -78,8 +80,9 @@ class SphereBotWaypointsEnv(SphereRobotBase):
     REWARD_TERMS = ("progress", "reached", "time", "effort")
     default_episode_s = 60.0
 
-    def __init__(self, estimator="ekf", imu="mpu9250", *, n_waypoints=4, waypoint_radius=0.5,
-                 position_fix_hz=0.0, position_fix_std=0.5, **kwargs):
+    def __init__(self, estimator: str = "ekf", imu: str | IMUSpec = "mpu9250", *, n_waypoints: int = 4,
+                 waypoint_radius: float = 0.5, position_fix_hz: float = 0.0, position_fix_std: float = 0.5,
+                 **kwargs: Any) -> None:
         super().__init__(estimator, imu, **kwargs)
         self.n_waypoints = integer("n_waypoints", n_waypoints, 1, 1000)
         self.waypoint_radius = number("waypoint_radius", waypoint_radius, 0.05, 10.0)

@@ -13,7 +13,7 @@ from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
-from fusion._qmath cimport (sym3_adjugate, phi_matrix, quat_normalise, rot_to_body, rot_to_nav,
+from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, rot_to_body, rot_to_nav,
                             jac_rot_to_body, jac_rot_to_nav, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
@@ -48,10 +48,7 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
     cdef double X[12]
     cdef double s
     cdef int i, j
-    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    xi_matrix(q, X)
     for i in range(4):
         for j in range(i, 4):
             s = P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
@@ -81,10 +78,7 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
     cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
-    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
-    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
-    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+    xi_matrix(q, X)
     for i in range(12):
         L[i] = -0.5 * dt * X[i]
     # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held

@@ -75,6 +75,14 @@ cdef inline void quat_mul(const double* p, const double* q, double* out) noexcep
     out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
     out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
 
+cdef inline void xi_matrix(const double* q, double* X) noexcept nogil:
+    """X (4x3, row-major) = Ξ(q), with q ⊗ [0, w] = Ξ(q) w: how a body rate turns q."""
+    X[0] = -q[1]; X[1] = -q[2]; X[2] = -q[3]
+    X[3] = q[0];  X[4] = -q[3]; X[5] = q[2]
+    X[6] = q[3];  X[7] = q[0];  X[8] = -q[1]
+    X[9] = -q[2]; X[10] = q[1]; X[11] = q[0]
+
+
 cdef inline void rot_to_body(const double* q, const double* v, double* out) noexcept nogil:
     """out = R(q)^T v (navigation -> body), homogeneous form."""
     cdef double w = q[0], x = q[1], y = q[2], z = q[3]

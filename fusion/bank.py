@@ -14,9 +14,11 @@ array of pointers to count kernels.
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
 from fusion._core import Estimator, check_dt
@@ -73,7 +75,7 @@ class Bank(BankCore):
     parameters and state. Build with fusion.make_bank, Bank(estimators) (copies them) or
     Bank.from_state; bank[i] is a copy of filter i."""
 
-    def __init__(self, filters):
+    def __init__(self, filters: Sequence[Estimator]) -> None:
         """A bank of copies of the given estimators (one kind, same fs, frame, on_invalid):
         the bank steps objects no one else holds, so its in-use guard covers them."""
         self._setup([Estimator.from_state(e.state()) if isinstance(e, Estimator) else e
@@ -102,7 +104,8 @@ class Bank(BankCore):
         self._count = len(filters)
 
     # --- stepping (update: BankCore.update, compiled) -------------------------------------
-    def run(self, gyr, acc, mag=None, dt=None):
+    def run(self, gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None = None,
+            dt: float | ArrayLike | None = None) -> np.ndarray:
         """T samples for every filter: gyr, acc, mag (T, count, 3) arrays (mag None: 6-axis);
         dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
         (T, count, 4) quaternions, the same numbers as count separate est.run calls."""
@@ -137,7 +140,7 @@ class Bank(BankCore):
             self._exit()
         return out
 
-    def reset(self, index=None, q0=None):
+    def reset(self, index: int | None = None, q0: ArrayLike | None = None) -> None:
         """Reset every filter (index None) or filter `index` only, as est.reset(q0): q0 None,
         one [w, x, y, z] for all, or with index None a (count, 4) array, one per filter."""
         n = self._count
@@ -226,7 +229,7 @@ class Bank(BankCore):
         return [e.params for e in self._filters]
 
     # --- state, pickling, copies ----------------------------------------------------------
-    def state(self):
+    def state(self) -> dict[str, Any]:
         """The bank's state: a plain dict whose "filters" is the list of count est.state()
         dicts (each with its configuration). bank.load_state(s) / Bank.from_state(s) resume
         bit-identically; pickling and copy.deepcopy go through it."""
@@ -241,7 +244,7 @@ class Bank(BankCore):
         if not isinstance(fl, list) or len(fl) != state["count"]:
             raise ValueError(f"state['filters'] must be a list of {state['count']!r} filter states")
 
-    def load_state(self, state):
+    def load_state(self, state: dict[str, Any]) -> None:
         """Restore every filter from bank.state() of a bank of the same estimator and count.
         Each filter keeps its configuration (est.load_state's rules); all filters' states are
         checked before any is written: a ValueError leaves the bank unchanged."""
@@ -264,7 +267,7 @@ class Bank(BankCore):
             self._exit()
 
     @classmethod
-    def from_state(cls, state):
+    def from_state(cls, state: dict[str, Any]) -> Bank:
         """A new bank with the configurations and states in `state` (from bank.state())."""
         cls._check_header(state)
         filters = []

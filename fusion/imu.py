@@ -24,9 +24,10 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Optional, Tuple, Union
+from typing import Any, NamedTuple, Optional, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from fusion._imu import StepKernel as _StepKernel
 from fusion.checks import integer, number
@@ -169,7 +170,7 @@ class SensorSpec:
         the Allan deviation of the white noise at tau = 1 s, ``noise_density / sqrt(2)``."""
         return self.noise_density / math.sqrt(2.0)
 
-    def density_at(self, rate_hz):
+    def density_at(self, rate_hz: float) -> float:
         """u/sqrt(Hz): the one-sided white-noise density of the output at ``rate_hz``
         (``noise_density`` unless an NBW above about rate_hz / 4 aliases into it)."""
         if self.noise_bw_hz is None:
@@ -183,7 +184,7 @@ class SensorSpec:
         """u: the Allan-deviation floor of the bias instability, 0.664 * bias_instability."""
         return ALLAN_FLOOR * self.bias_instability
 
-    def code_limits(self):
+    def code_limits(self) -> tuple[float, float] | None:
         """(most negative, most positive) output code, or None when not quantised."""
         if not self.lsb > 0:
             return None
@@ -194,7 +195,7 @@ class SensorSpec:
             hi = min(n, 2 ** (self.adc_bits - 1) - 1)
         return -float(lo), float(hi)
 
-    def allan(self, tau, rate_hz=None):
+    def allan(self, tau: ArrayLike, rate_hz: float | None = None) -> np.ndarray:
         """Model Allan deviation (u) at averaging times ``tau`` (s) of a static record.
 
         White noise, bias instability and bias random walk; with ``rate_hz`` the white noise
@@ -334,11 +335,11 @@ class IMUSpec:
         if self.sampling not in _SAMPLING:
             raise ValueError(f"{own}.sampling must be one of {', '.join(_SAMPLING)}, got {self.sampling!r}")
 
-    def replace(self, **changes):
+    def replace(self, **changes: Any) -> IMUSpec:
         """A copy with some fields changed, e.g. ``spec.replace(rate_hz=100.0)``."""
         return replace(self, **changes)
 
-    def calibrated(self):
+    def calibrated(self) -> IMUSpec:
         """A copy with the residuals of a power-on calibration in place of the raw part's
         turn-on biases (gyro static average, accelerometer six-position calibration) and of
         the magnetometer's hard and soft iron (ellipsoid fit), and the scale and cross-axis
@@ -466,12 +467,12 @@ PRESETS = {
 }
 
 
-def available():
+def available() -> list[str]:
     """Preset names accepted by ``preset()`` and ``IMU()``, in a stable order."""
     return list(PRESETS)
 
 
-def preset(name, calibrated=False):
+def preset(name: str, calibrated: bool = False) -> IMUSpec:
     """The ``IMUSpec`` called ``name`` (see ``available()``); ``calibrated=True`` gives
     ``spec.calibrated()``: residual biases and iron after a power-on calibration."""
     try:
@@ -622,7 +623,8 @@ class IMU:
     or by any mix of the two. ``reset()`` starts a new record and redraws the constants.
     """
 
-    def __init__(self, spec_or_preset_name, rng, physics_rate_hz=None, mag_unit="uT", compiled=True):
+    def __init__(self, spec_or_preset_name: IMUSpec | str, rng: np.random.Generator,
+                 physics_rate_hz: float | None = None, mag_unit: str = "uT", compiled: bool = True) -> None:
         if isinstance(spec_or_preset_name, IMUSpec):
             spec = spec_or_preset_name
         elif isinstance(spec_or_preset_name, str):
@@ -715,7 +717,7 @@ class IMU:
             self._pos = 0
         return self._buf[self._pos:self._pos + n]
 
-    def reset(self, rng=None):
+    def reset(self, rng: np.random.Generator | None = None) -> None:
         """Start a new record: redraw the turn-on biases, gain matrices, hard and soft iron,
         vibration tones and initial bias states; the next ``step`` is time 0. With ``rng``
         (a Generator) the IMU is reseeded from it first, as at construction."""
@@ -965,7 +967,8 @@ class IMU:
         return gyr, acc, mag
 
     # -- batch -------------------------------------------------------------------------
-    def simulate(self, t, gyr_true, acc_true, mag_true=None):
+    def simulate(self, t: ArrayLike, gyr_true: ArrayLike, acc_true: ArrayLike,
+                 mag_true: ArrayLike | None = None) -> IMURecord:
         """IMU output for true motion sampled at the physics rate.
 
         t (N,): strictly increasing times (s); gyr_true (N, 3): body rate (rad/s); acc_true
@@ -1166,7 +1169,8 @@ class IMU:
                                  f"got a median step of {med:g} s")
 
     # -- streaming ---------------------------------------------------------------------
-    def step(self, gyr_true, acc_true, mag_true=None, dt=None):
+    def step(self, gyr_true: ArrayLike, acc_true: ArrayLike, mag_true: ArrayLike | None = None,
+             dt: float | None = None) -> IMUSample | None:
         """Advance the physics clock by one step and return an ``IMUSample`` if one is due,
         else None. The first call after ``reset()`` is time 0 (its dt is not used); later
         calls advance by ``dt`` (s), default 1/physics_rate_hz. Arguments as one row of
@@ -1300,7 +1304,7 @@ class IMU:
 # Allan deviation
 
 
-def allan_deviation(x, fs, taus=None):
+def allan_deviation(x: ArrayLike, fs: float, taus: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Overlapping Allan deviation of rate samples.
 
     x (N,) or (N, k): e.g. a static gyro record (rad/s) or accelerometer record (m/s^2);
@@ -1329,7 +1333,8 @@ def allan_deviation(x, fs, taus=None):
     return m / fs, out
 
 
-def allan_summary(taus, adev, fs=None, max_tau=None):
+def allan_summary(taus: ArrayLike, adev: ArrayLike, fs: float | None = None,
+                  max_tau: float | None = None) -> dict[str, float]:
     """Read the usual figures off an Allan-deviation curve (one column).
 
     Returns a dict: ``arw`` (the -1/2-slope line through the short-tau points, read at
@@ -1363,7 +1368,8 @@ def allan_summary(taus, adev, fs=None, max_tau=None):
 # Magnetic disturbances
 
 
-def dipole_field(points, center, moment, min_distance=0.01):
+def dipole_field(points: ArrayLike, center: ArrayLike, moment: ArrayLike,
+                 min_distance: float = 0.01) -> np.ndarray:
     """Field (uT) of a magnetic dipole of ``moment`` (A m^2, (3,)) at ``center`` (m, (3,)), at
     ``points`` (m, (3,) or (N, 3)), in the frame the positions are given in (e.g. ENU):
     ``B = mu0/(4 pi) (3 r (m . r) / |r|^5 - m / |r|^3)``. Distances below ``min_distance`` (m)
@@ -1389,7 +1395,7 @@ def dipole_field(points, center, moment, min_distance=0.01):
     return 1e-7 * (3.0 * rhat * mr - m) / d ** 3 * 1e6
 
 
-def dipole_moment_for(field_ut, distance_m):
+def dipole_moment_for(field_ut: float, distance_m: float) -> float:
     """Dipole moment (A m^2) whose field on its axis at ``distance_m`` is ``field_ut`` (uT):
     ``|m| = field * d^3 / (2e-7 * 1e6)`` (e.g. 20 uT at 0.1 m: 0.1 A m^2)."""
     b = _check_number("dipole_moment_for", "field_ut", field_ut)

@@ -35,8 +35,10 @@ peaks of about 3 rad/s plus linear-acceleration bursts), ``shaking`` (gentle rot
 linear acceleration).
 """
 from dataclasses import dataclass, field as dc_field
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from fusion import imu as imu_model
 from fusion import quat
@@ -169,9 +171,10 @@ def _cumprod_quat(d):
     return p
 
 
-def make_scenario(name="mixed", fs=100.0, duration=60.0, seed=0, *, ideal=False,
-                  gyro_noise=None, acc_noise=None, mag_noise=None, gyro_bias=None,
-                  field=FIELD, g=G, q_start=None, **motion):
+def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0, seed: int = 0, *,
+                  ideal: bool = False, gyro_noise: float | None = None, acc_noise: float | None = None,
+                  mag_noise: float | None = None, gyro_bias: ArrayLike | None = None, field: ArrayLike = FIELD,
+                  g: float = G, q_start: ArrayLike | None = None, **motion: Any) -> Scenario:
     """Generate the scenario ``name`` (one of ``SCENARIOS``) at ``fs`` Hz for ``duration`` s.
 
     ideal: noise-free sensors without gyro bias (the linear acceleration, being motion, stays).
@@ -407,7 +410,8 @@ def _seed_disturbances(cfg, rng, path, tau):
     return a_lin, field, b_dist
 
 
-def seed_scenario(name, seed=0, *, duration=None, imu=None, calibrated=True):
+def seed_scenario(name: str, seed: int = 0, *, duration: float | None = None,
+                  imu: imu_model.IMUSpec | str | None = None, calibrated: bool = True) -> Scenario:
     """The experiment ``name`` (one of ``SEED_SCENARIOS``) through the IMU model: a ``Scenario``.
 
     The true motion is generated at a physics rate (an integer multiple of the IMU rate, 800 Hz
@@ -486,7 +490,7 @@ FAILURE_SCENARIOS = {
 }
 
 
-def failure_scenario(name, duration=60.0, seed=0):
+def failure_scenario(name: str, duration: float = 60.0, seed: int = 0) -> Scenario:
     """The failure scenario ``name`` (one of ``FAILURE_SCENARIOS``): a ``Scenario`` at the
     preset's rate whose readings carry the disturbance (``mag_disturbed`` / ``acc_disturbed``
     mark the samples)."""

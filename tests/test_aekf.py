@@ -11,81 +11,15 @@ import fusion
 import reference as ref
 import reference_aekf as ra
 from fusion._aekf import quest
-from _helpers import compare_state, count_invalid, inject_invalid, integrate_rates, qdiff
+from _helpers import (FS, N, TOL, compare_state, count_invalid, errors_deg, inject_invalid, qdiff, rms,
+                      scenario)
 
-FS = 100.0
-N = 10_000
-TOL = 1e-9
-GYRO_BIAS = np.array([0.01, -0.02, 0.015])
-FIELD = np.array([0.0, 0.4, -0.3])      # ENU, dip 36.9 deg, times MAG_SCALE
-MAG_SCALE = 50.0
-DISTURBANCE = (40.0, 55.0)              # s: a ferrous object near the sensor
 MODES = ["vectors", "quest"]
-
-
-# --- synthetic data -----------------------------------------------------------------------
-
-def hann_bursts(rng, t, centres, dur_range, amp):
-    """Sum of Hann-windowed bursts (navigation frame), each with a random constant vector."""
-    out = np.zeros((len(t), 3))
-    active = np.zeros(len(t), bool)
-    for c in centres:
-        d = rng.uniform(*dur_range)
-        x = (t - c) / d + 0.5
-        inside = (x > 0) & (x < 1)
-        out[inside] += np.sin(np.pi * x[inside])[:, None] ** 2 * rng.uniform(-amp, amp, 3)
-        active |= inside
-    return out, active
-
-
-def scenario(n=N, fs=FS, seed=21, turn=1.0, burst_amp=6.0, n_bursts=14, disturb=DISTURBANCE,
-             disturb_field=(0.3, 0.1, 0.1), acc_noise=0.05, mag_noise=0.5):
-    """A turning body with linear-acceleration bursts and a magnetic disturbance episode.
-
-    Returns (q_true, gyr, acc, mag, burst, dist): readings as in _helpers.synthetic
-    (exact attitude, gyro = rate + bias + noise) with Hann bursts of linear acceleration up to
-    burst_amp per axis, 0.5-2.5 s long, and from disturb[0] to disturb[1] s a disturbing field
-    disturb_field * MAG_SCALE (navigation frame, ramped in and out over 1 s) added to the
-    earth's; burst / dist: boolean masks of the samples concerned.
-    """
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) / fs
-    w = np.zeros((n, 3))
-    for k in range(3):
-        for _ in range(3):
-            w[:, k] += turn * rng.uniform(0.1, 0.5) * np.sin(2 * np.pi * rng.uniform(0.02, 0.3) * t
-                                                            + rng.uniform(0, 2 * np.pi))
-    q = integrate_rates(w, fs)
-    Rt = np.stack([ref.rotmat(qi).T for qi in q])
-    centres = np.sort(rng.uniform(0.03, 0.97, n_bursts)) * t[-1]
-    lin, burst = hann_bursts(rng, t, centres, (0.5, 2.5), burst_amp)
-    d = np.zeros((n, 3))
-    dist = np.zeros(n, bool)
-    if disturb is not None:
-        ramp = np.clip(np.minimum(t - disturb[0], disturb[1] - t), 0.0, 1.0)
-        d = ramp[:, None] * np.asarray(disturb_field) * MAG_SCALE
-        dist = ramp > 0
-    acc = np.einsum("nij,nj->ni", Rt, np.array([0.0, 0.0, ref.G]) + lin) + acc_noise * rng.standard_normal((n, 3))
-    mag = np.einsum("nij,nj->ni", Rt, FIELD * MAG_SCALE + d) + mag_noise * rng.standard_normal((n, 3))
-    gyr = w + GYRO_BIAS + 0.005 * rng.standard_normal((n, 3))
-    return q, gyr, acc, mag, burst, dist
 
 
 @pytest.fixture(scope="module")
 def data():
     return scenario()
-
-
-def errors_deg(q, q_true):
-    """(inclination, heading) errors per sample, degrees (earth-frame error quaternion)."""
-    e = np.array([ref.qmul(a, ref.qconj(b)) for a, b in zip(q, q_true)])
-    incl = 2 * np.arctan2(np.hypot(e[:, 1], e[:, 2]), np.hypot(e[:, 0], e[:, 3]))
-    head = 2 * np.arctan2(np.abs(e[:, 3]), np.abs(e[:, 0]))
-    return np.degrees(incl), np.degrees(head)
-
-
-def rms(x):
-    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def compare_aekf(est, r):

@@ -104,7 +104,8 @@ def test_gravity_has_two_values_for_two_facts():
     assert constants.STANDARD_GRAVITY == 9.80665
 
 
-# copies in modules other branches are changing; they agree until they import fusion.constants
+# the modules' own names for them: aliases of fusion.constants, and the numpy references' copy
+# (tests/reference.py imports nothing of fusion, to stay independent)
 @pytest.mark.parametrize("module, attr, which", [
     ("fusion.scenarios", "G", "GRAVITY"),
     ("fusion.imu", "G0", "STANDARD_GRAVITY"),
@@ -187,3 +188,50 @@ def test_the_library_packages_do_not_import_the_experiments():
             hits += [f"{rel}:{node.lineno} {n}" for n in names
                      if n.split(".")[0] in ("benchmarks", "scripts", "tests")]
     assert hits == []
+
+
+# the public API: the library modules' public functions and the public methods of their public
+# classes (the compiled kernels are typed by their .pyi stubs, checked above)
+TYPED_MODULES = ["fusion", "fusion.bank", "fusion.metrics", "fusion.quat", "fusion.datasets", "fusion.scenarios",
+                 "fusion.imu", "fusion.checks", "fusion.params", "controllers.base", "controllers.pid",
+                 "controllers.rl", "controllers.policy_io", "controllers.curves", "controllers.plots",
+                 "envs.base", "envs.track", "envs.waypoints", "envs.robot", "envs.vector", "envs.sphere"]
+
+
+def _untyped(module):
+    """'name(unannotated parameters) ->?' for each public function of module without full hints."""
+    import importlib
+    import inspect
+    m = importlib.import_module(module)
+    funcs = []
+    for n in getattr(m, "__all__", [n for n in dir(m) if not n.startswith("_")]):
+        o = getattr(m, n)
+        if getattr(o, "__module__", None) != module:
+            continue
+        if inspect.isfunction(o):
+            funcs.append((n, o))
+        elif inspect.isclass(o):
+            for k, v in vars(o).items():
+                f = v.__func__ if isinstance(v, (classmethod, staticmethod)) else v
+                if inspect.isfunction(f) and (not k.startswith("_") or k == "__init__"):
+                    funcs.append((f"{n}.{k}", f))
+    out = []
+    for qn, f in funcs:
+        sig = inspect.signature(f)
+        bare = [p for p, d in sig.parameters.items() if p not in ("self", "cls") and d.annotation is d.empty]
+        if bare or sig.return_annotation is sig.empty:
+            out.append(f"{qn}({', '.join(bare)})" + (" ->?" if sig.return_annotation is sig.empty else ""))
+    return out
+
+
+@pytest.mark.parametrize("module", TYPED_MODULES)
+def test_the_public_api_has_type_hints(module):
+    if module.startswith("envs"):
+        pytest.importorskip("pybullet")
+    assert _untyped(module) == []
+
+
+def test_the_hint_check_sees_a_bare_function(tmp_path, monkeypatch):
+    (tmp_path / "bare_mod.py").write_text("def f(x, y: int):\n    return x\n\ndef g() -> None:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert _untyped("bare_mod") == ["f(x) ->?"]

@@ -4,44 +4,16 @@ import pytest
 
 import fusion
 from fusion.constants import GRAVITY as G
+from _helpers import MAG_N, axis_angle, inclination, qconj, qmul, static_body, to_body
 
 NAMES = fusion.available()
-MAG_N = np.array([0.0, 0.22, -0.42])   # a northern-hemisphere field in ENU (dip about 62 deg)
 C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
-
-
-def qmul(p, q):
-    w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(q, -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
-
-
-def qconj(q):
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def to_body(q, v):
-    """R(q)^T v for unit quaternions q (..., 4)."""
-    qv = np.concatenate([np.zeros(q.shape[:-1] + (1,)), np.broadcast_to(v, q.shape[:-1] + (3,))], -1)
-    return qmul(qmul(qconj(q), qv), q)[..., 1:]
-
-
-def axis_angle(axis, angle):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
 
 
 def angle_between(p, q):
     """Rotation angle (rad) between attitudes, per row (atan2 form: exact near zero)."""
     e = qmul(p, qconj(q))
     return 2 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
-
-
-def inclination(p, q):
-    """Inclination part of the rotation between attitudes (rad), per row."""
-    e = qmul(p, qconj(q))
-    return 2 * np.arctan2(np.hypot(e[..., 1], e[..., 2]), np.hypot(e[..., 0], e[..., 3]))
 
 
 def rotating_body(rate, n, fs, q0=(1.0, 0, 0, 0)):
@@ -61,14 +33,6 @@ def noisy_level(n, seed, sd_gyr=0.3, sd_acc=0.3, sd_mag=0.01):
     rng = np.random.default_rng(seed)
     return (rng.normal(0, sd_gyr, (n, 3)), np.array([0, 0, G]) + rng.normal(0, sd_acc, (n, 3)),
             MAG_N + rng.normal(0, sd_mag, (n, 3)))
-
-
-def static_body(q, n, seed=0, noise=(0.0, 0.0, 0.0), bias=(0, 0, 0)):
-    rng = np.random.default_rng(seed)
-    gyr = np.asarray(bias, float) + noise[0] * rng.standard_normal((n, 3))
-    acc = to_body(q, [0, 0, G]) + noise[1] * rng.standard_normal((n, 3))
-    mag = to_body(q, MAG_N) + noise[2] * rng.standard_normal((n, 3))
-    return gyr, acc, mag
 
 
 # --- analytic cases --------------------------------------------------------------------

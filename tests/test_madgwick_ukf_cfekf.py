@@ -1,4 +1,4 @@
-"""`madgwick`, `ukf` and `cf-ekf` against their plain-numpy references (tests/reference_more.py,
+"""`madgwick`, `ukf` and `cf-ekf` against their plain-numpy references (tests/reference_madgwick_ukf_cfekf.py,
 written from docs/madgwick.md, docs/ukf.md, docs/cfekf.md), against the peer library
 ahrs.filters.Madgwick, and their parameters and composition."""
 import math
@@ -8,7 +8,8 @@ import pytest
 
 import fusion
 import reference as ref
-import reference_more as rm
+import reference_madgwick_ukf_cfekf as rm
+from _helpers import axis_angle, inclination, static_body
 from _helpers import (FS, N, TOL, check_ned_and_given_start, check_skipped, check_uneven_dt, compare_state,
                       inject_invalid, qdiff, recovery_data, rest_data, synthetic)
 
@@ -312,7 +313,6 @@ def test_cf_ekf_bias_feedback_removes_the_complementary_filters_tilt():
     bias the EKF learns. mahony without its rest detection (rest_time 0, as cf-ekf's inner
     filter): the slow integral; with it (its default) the bias is learned at rest, the tilt
     goes as well."""
-    from test_estimators import axis_angle, inclination, static_body
     bias = np.array([0.02, -0.015, 0.01])       # rad/s: 1.5 deg/s horizontal
     q_true = axis_angle([0.2, 0.1, 1.0], 1.0)
     gyr, acc, mag = static_body(q_true, 3000, seed=5, noise=(0.003, 0.05, 0.005), bias=bias)

@@ -7,9 +7,8 @@ import pytest
 import fusion
 import reference as ref
 import reference_aekf as ra
-import reference_more as rm
-from test_aekf import FS, errors_deg, rms, scenario
-from test_reference import qdiff
+import reference_madgwick_ukf_cfekf as rm
+from _helpers import FS, errors_deg, qdiff, rms, scenario
 
 MAGNETIC = ("ekf", "iir-ekf", "aekf", "ukf", "mahony", "madgwick", "cf-ekf")
 REFS = {"ekf": ref.RefEKF, "mahony": ref.RefMahony, "aekf": ra.RefAEKF, "ukf": rm.RefUKF,
