@@ -101,6 +101,7 @@ class SphereBotWaypointsEnv(SphereRobotBase):
             y = min(lim, max(-lim, y + d * math.sin(a)))
             pts.append((x, y))
         self._waypoints = np.array(pts)
+        self._wp_xy = pts       # the same, as floats: read every step (numpy's scalars are slower)
         self._wp_i = 0
 
     def _reset_task(self):
@@ -109,11 +110,11 @@ class SphereBotWaypointsEnv(SphereRobotBase):
 
     def _true_dist(self):
         pos = self._true[0]
-        wx, wy = self._waypoints[self._wp_i]
+        wx, wy = self._wp_xy[self._wp_i]
         return math.hypot(wx - pos[0], wy - pos[1])
 
     def _task_obs(self, psi):
-        tx, ty = self._waypoints[self._wp_i]
+        tx, ty = self._wp_xy[self._wp_i]
         dx, dy = tx - self._pos_est[0], ty - self._pos_est[1]
         c, s = math.cos(psi), math.sin(psi)
         fwd, left = c * dx + s * dy, -s * dx + c * dy

@@ -152,6 +152,8 @@ cdef class AEKF(EKF):
         cdef long long n_rest = self.rest.n
         cdef double g
         cdef double af[3]
+        cdef const double* raw
+        cdef double nr
         cdef bint sat
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL      # not a measurement: held as a dropped sample (ekf_step)
@@ -161,6 +163,7 @@ cdef class AEKF(EKF):
         # the sample the tests judge and the update takes: low-passed in the gyro's frame, so
         # that a shaken or fast-turning body's linear acceleration is averaged out before it
         # is tested (the raw samples of such a body fail the tests nearly all the time)
+        raw = acc           # the reference's dip is learned from the raw samples
         acc = acc_input(self, gyr, sat, self.s.b, acc, dt, af)
         if self.rest.n > n_rest:
             # at rest the accelerometer's low-passed norm is this sensor's g (a scale error of
@@ -176,8 +179,15 @@ cdef class AEKF(EKF):
             dy = acc[1] - g * u[1]
             dz = acc[2] - g * u[2]
             if fabs(na - g) > self.acc_norm_tol:
-                acc_rej = True
-                self.ad.t_dir = 0.0
+                if self.acc_lowpass > 0.0:
+                    # a low-passed sample off g that long is the low-pass's fault (its gyro
+                    # frame drifts with a wrong bias, and only accepted samples correct the
+                    # bias): timed out as the direction test's
+                    self.ad.t_dir += dt
+                    acc_rej = self.ad.t_dir <= self.acc_pred_timeout
+                else:
+                    acc_rej = True
+                    self.ad.t_dir = 0.0
             elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
                 # quiet by its norm, yet not where the attitude expects it: a linear
                 # acceleration, unless this lasts so long that the estimate must be wrong
@@ -198,10 +208,11 @@ cdef class AEKF(EKF):
                     self.ad.norm_sum += nm
                     self.ad.norm_ref = self.ad.norm_sum / self.ad.n_learned
                 if self.learn_dip:
-                    c = -(mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / (nm * na)
+                    nr = sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2])
+                    c = -(mag[0] * raw[0] + mag[1] * raw[1] + mag[2] * raw[2]) / (nm * nr)
                     if not isfinite(c):     # |m| |a| over- or underflowed: from unit vectors
-                        c = -((mag[0] / nm) * (acc[0] / na) + (mag[1] / nm) * (acc[1] / na)
-                              + (mag[2] / nm) * (acc[2] / na))
+                        c = -((mag[0] / nm) * (raw[0] / nr) + (mag[1] / nm) * (raw[1] / nr)
+                              + (mag[2] / nm) * (raw[2] / nr))
                     c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
                     self.ad.dip_sum += asin(c)
                     self.ad.dip_ref = self.ad.dip_sum / self.ad.n_learned

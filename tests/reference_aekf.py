@@ -125,14 +125,16 @@ class RefAEKF(ref.RefEKF):
         self._rest(gyr, acc, dt)
         if self.rest.n > n_rest:        # at rest: this sensor's g, the low-passed norm
             self.g_ref = float(np.linalg.norm(self.rest.lp[1]))
-        # the sample tested and taken: low-passed in the gyro's frame (the ekf's acc_lowpass)
+        # the sample tested and taken: low-passed in the gyro's frame (the ekf's acc_lowpass);
+        # the magnetic reference's dip is learned from the raw one
+        raw = acc
         ref.acc_lowpass_lost(self, gyr, ref.is_saturated(gyr, self.gyro_range), dt)
         if acc is not None and self.acc_lowpass > 0:
             acc = ref.acc_lowpass_step(self, gyr, self.b, acc, dt)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = self._acc_test(acc, u, dt) if acc is not None else False
-        mag_rej, mag_tested = self._mag_test(mag, acc, u) if mag is not None else (False, False)
+        mag_rej, mag_tested = self._mag_test(mag, raw, u) if mag is not None else (False, False)
         # 3a. QUEST measurement when the body is quiet
         if (self.measurement == "quest" and acc is not None and mag_tested and not acc_rej
                 and not mag_rej and self._quest_update(acc, mag, u, dt)):
@@ -158,7 +160,10 @@ class RefAEKF(ref.RefEKF):
         g = self.g_ref
         na = math.sqrt(acc @ acc)
         self.tested["acc"] += 1
-        if abs(na - g) > self.acc_norm_tol:
+        if abs(na - g) > self.acc_norm_tol and self.acc_lowpass > 0:
+            self.t_dir += dt        # the low-pass's fault when it lasts: timed out
+            rej = self.t_dir <= self.acc_pred_timeout
+        elif abs(na - g) > self.acc_norm_tol:
             rej = True
             self.t_dir = 0.0
         elif np.linalg.norm(acc - g * u) > self.acc_pred_tol:

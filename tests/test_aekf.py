@@ -224,7 +224,7 @@ def test_linear_acceleration_bursts_tilt_the_ekf_not_the_aekf(noise, nine_axis):
     on the raw samples (RAW) rejects nearly all of it (6-axis rms 0.46 deg against the ekf's
     4.51, both without the low-pass); at the defaults, where the tests judge the low-passed
     sample (which spreads a burst over about acc_lowpass and shrinks it under the norm test),
-    2.28 against 4.32 (VQF: 4.96). Sustained one-way bursts are this scenario's, not a hand's:
+    2.43 against 4.32 (VQF: 4.96). Sustained one-way bursts are this scenario's, not a hand's:
     on the recorded sets the low-pass halves aekf's error to VQF (docs/accuracy.md, fifth pass)."""
     q_true, gyr, acc, mag, burst, _ = scenario(n=12000, seed=7, burst_amp=8.0, n_bursts=25,
                                                disturb=None)

@@ -104,7 +104,8 @@ def test_gravity_has_two_values_for_two_facts():
     assert constants.STANDARD_GRAVITY == 9.80665
 
 
-# copies in modules other branches are changing; they agree until they import fusion.constants
+# the modules' own names for them: aliases of fusion.constants, and the numpy references' copy
+# (tests/reference.py imports nothing of fusion, to stay independent)
 @pytest.mark.parametrize("module, attr, which", [
     ("fusion.scenarios", "G", "GRAVITY"),
     ("fusion.imu", "G0", "STANDARD_GRAVITY"),
