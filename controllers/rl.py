@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
-from fusion.checks import choice, integer
+from fusion.checks import choice, flag, integer
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
                                    save_model, save_normalization, vec_normalize)
 
@@ -618,9 +618,9 @@ def _write_run_json(stem, best_json, meta):
 
 def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes):
     """(timesteps, n_envs) as ints, or a ValueError naming the argument at fault."""
-    if isinstance(timesteps, bool) or not isinstance(timesteps, (int, float, np.integer, np.floating)) or \
-            not np.isfinite(timesteps) or int(timesteps) != timesteps or timesteps < 1:
-        raise ValueError(f"timesteps must be an integer >= 1, got {timesteps!r}")
+    if isinstance(timesteps, (float, np.floating)) and float(timesteps).is_integer():
+        timesteps = int(timesteps)      # YAML's n_timesteps: 1.0e+5
+    timesteps = integer("timesteps", timesteps, 1)
     n_envs = integer("n_envs", n_envs, 1, 256)
     for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
         integer(name, v, 1, allow_none=True)
@@ -724,8 +724,7 @@ def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_
     timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
                                         default_envs if n_envs is None else n_envs,
                                         eval_freq, checkpoint_freq, eval_episodes)
-    if vec_env not in VEC_ENVS:
-        raise ValueError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
+    choice("vec_env", vec_env, VEC_ENVS)
     clone = init_from == TEACHER and not resume
     if clone:
         integer("bc_steps", bc_steps, 1)
@@ -968,8 +967,7 @@ def load_policy(path: str | os.PathLike, env: Any = None, trusted: bool = False)
         bare = Path(os.fspath(path)).name == os.fspath(path)
         hint = f"; shipped policies: {', '.join(available_policies())}" if bare else ""
         raise PolicyError(f"policy file {zip_path} does not exist{hint}")
-    if not isinstance(trusted, bool):
-        raise ValueError(f"trusted must be True or False, got {trusted!r}")
+    flag("trusted", trusted)
     if not trusted and not _in_package(zip_path):
         warnings.warn(f"loading policy {zip_path} from outside the package: model files can be crafted to run "
                       f"code; it is read with pickled entries refused, but load only files you trust "
