@@ -168,6 +168,11 @@ def test_train_bad_names(tmp_path):
         rl.train("ppo", "track", "kalman", out=tmp_path / "x")
     with pytest.raises(ValueError, match="task"):
         rl.train("ppo", "fly", "truth", out=tmp_path / "x")
+    for bad in (0, 2.5, True, "100", float("nan")):
+        with pytest.raises(ValueError, match="timesteps must be an integer >= 1"):
+            rl.train("ppo", "track", "truth", timesteps=bad, out=tmp_path / "x")
+    with pytest.raises(ValueError, match="vec_env must be one of"):
+        rl.train("ppo", "track", "truth", timesteps=10, vec_env="gpu", out=tmp_path / "x")
 
 
 def test_load_policy_errors(tmp_path, tiny_policy):
