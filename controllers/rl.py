@@ -625,7 +625,7 @@ def _check_run_size(timesteps, n_envs, eval_freq, checkpoint_freq, eval_episodes
     for name, v in (("eval_freq", eval_freq), ("checkpoint_freq", checkpoint_freq)):
         integer(name, v, 1, allow_none=True)
     integer("eval_episodes", eval_episodes, 1)
-    return int(timesteps), n_envs
+    return timesteps, n_envs
 
 
 def _checked_env_kwargs(task, estimator, env_kwargs):
