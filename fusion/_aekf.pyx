@@ -14,7 +14,7 @@ from fusion._aided cimport mag_accepted, acc_input
 from fusion._core import check_fs, struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
-from fusion._qmath cimport quat_normalise, up_in_body, unit3, quat_measurement_update, saturated, out_of_range
+from fusion._qmath cimport quat_normalise, up_in_body, unit3, norm3, quat_measurement_update, saturated, out_of_range
 from fusion._wahba cimport quest2
 
 cnp.import_array()
@@ -148,7 +148,7 @@ cdef class AEKF(EKF):
         cdef double qm[4]
         cdef double v[4]
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
-        cdef bint acc_rej = False, mag_rej = False, mag_tested = False
+        cdef bint acc_rej = False, mag_rej = False, mag_tested = False, off_g
         cdef long long n_rest = self.rest.n
         cdef double g
         cdef double af[3]
@@ -178,18 +178,13 @@ cdef class AEKF(EKF):
             dx = acc[0] - g * u[0]
             dy = acc[1] - g * u[1]
             dz = acc[2] - g * u[2]
-            if fabs(na - g) > self.acc_norm_tol:
-                if self.acc_lowpass > 0.0:
-                    # a low-passed sample off g that long is the low-pass's fault (its gyro
-                    # frame drifts with a wrong bias, and only accepted samples correct the
-                    # bias): timed out as the direction test's
-                    self.ad.t_dir += dt
-                    acc_rej = self.ad.t_dir <= self.acc_pred_timeout
-                else:
-                    acc_rej = True
-                    self.ad.t_dir = 0.0
-            elif sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
-                # quiet by its norm, yet not where the attitude expects it: a linear
+            off_g = fabs(na - g) > self.acc_norm_tol
+            if off_g and self.acc_lowpass <= 0.0:
+                acc_rej = True          # a raw sample off g: the body accelerates
+                self.ad.t_dir = 0.0
+            elif off_g or sqrt(dx * dx + dy * dy + dz * dz) > self.acc_pred_tol:
+                # not where the attitude expects it (or, low-passed, off g: its gyro frame
+                # drifts with a wrong bias, which only accepted samples correct): a linear
                 # acceleration, unless this lasts so long that the estimate must be wrong
                 self.ad.t_dir += dt
                 acc_rej = self.ad.t_dir <= self.acc_pred_timeout
@@ -208,7 +203,7 @@ cdef class AEKF(EKF):
                     self.ad.norm_sum += nm
                     self.ad.norm_ref = self.ad.norm_sum / self.ad.n_learned
                 if self.learn_dip:
-                    nr = sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2])
+                    nr = norm3(raw)
                     c = -(mag[0] * raw[0] + mag[1] * raw[1] + mag[2] * raw[2]) / (nm * nr)
                     if not isfinite(c):     # |m| |a| over- or underflowed: from unit vectors
                         c = -((mag[0] / nm) * (raw[0] / nr) + (mag[1] / nm) * (raw[1] / nr)

@@ -150,6 +150,9 @@ def struct_fields(view, checks=None, prefix=""):
     bint (C int) and COUNT for a long long (an int member other than a bint must be given)."""
     a = np.asarray(view)
     checks = checks or {}
+    unknown = set(checks) - set(a.dtype.names)
+    if unknown:     # a misspelt name would fall back to the default check unnoticed
+        raise ValueError(f"checks for no member of the struct: {sorted(unknown)}; members: {a.dtype.names}")
     out = []
     for name in a.dtype.names:
         v = a[name].reshape(-1)

@@ -160,13 +160,11 @@ class RefAEKF(ref.RefEKF):
         g = self.g_ref
         na = math.sqrt(acc @ acc)
         self.tested["acc"] += 1
-        if abs(na - g) > self.acc_norm_tol and self.acc_lowpass > 0:
-            self.t_dir += dt        # the low-pass's fault when it lasts: timed out
-            rej = self.t_dir <= self.acc_pred_timeout
-        elif abs(na - g) > self.acc_norm_tol:
+        off_g = abs(na - g) > self.acc_norm_tol
+        if off_g and self.acc_lowpass <= 0:
             rej = True
             self.t_dir = 0.0
-        elif np.linalg.norm(acc - g * u) > self.acc_pred_tol:
+        elif off_g or np.linalg.norm(acc - g * u) > self.acc_pred_tol:     # low-passed: timed out too
             self.t_dir += dt
             rej = self.t_dir <= self.acc_pred_timeout
         else:

@@ -53,7 +53,7 @@ PER_SAMPLE_STEPS = {
 _CYTHON_DEF = re.compile(r"^(\s*)c?p?def\s+(?!class\b|struct\b|enum\b|extern\b|union\b|fused\b)[^(]*?(\w+)\s*\(")
 
 
-def _cython_function_lengths(rel, text):
+def _cython_function_lengths(text):
     """(name, lines) of every function defined (not only declared) in a .pyx / .pxd: from its
     def line to its body's last line, the body being the lines indented deeper than the def."""
     lines = text.splitlines()
@@ -82,7 +82,7 @@ def _cython_function_lengths(rel, text):
 def test_no_cython_function_over_60_lines_but_the_per_sample_steps():
     files = [p for pkg in ("fusion", "envs") for ext in ("pyx", "pxd") for p in sorted((ROOT / pkg).glob(f"*.{ext}"))]
     long = {(p.relative_to(ROOT).as_posix(), name): n for p in files
-            for name, n in _cython_function_lengths(p.name, p.read_text()) if n > MAX_LINES}
+            for name, n in _cython_function_lengths(p.read_text()) if n > MAX_LINES}
     assert set(long) - PER_SAMPLE_STEPS == set(), f"Cython functions over {MAX_LINES} lines (split them): {long}"
     assert PER_SAMPLE_STEPS - set(long) == set(), "listed steps now short: take them off PER_SAMPLE_STEPS"
 
@@ -90,7 +90,7 @@ def test_no_cython_function_over_60_lines_but_the_per_sample_steps():
 def test_the_cython_checker_sees_a_long_function_and_skips_declarations():
     src = ("cdef inline double f(double x,\n                       double y) noexcept nogil:\n"
            + "    x += 1\n" * 70 + "\ncdef void g(double x) noexcept nogil\ncdef class C:\n    pass\n")
-    assert list(_cython_function_lengths("x.pyx", src)) == [("f", 72)]
+    assert list(_cython_function_lengths(src)) == [("f", 72)]
 
 
 def test_the_checker_sees_a_long_function():
