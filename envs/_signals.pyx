@@ -47,7 +47,6 @@ cdef tuple ZERO2 = (0.0, 0.0)        # the unused targets and gains of a torque 
 cdef double RAD2DEG = 180.0 / 3.141592653589793     # math.degrees' factor
 cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: called, not copied)
 cdef object _sum = sum
-cdef str NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
 cdef object EKF_BIAS = EKF.bias, UKF_BIAS = UKF.bias    # the properties, read from the kernels' states here
 
@@ -129,6 +128,7 @@ cdef class Loop:
     cdef int drive_joint, n_sub
     cdef double control_hz, cpr, shell_r, half_arena, volt, steer, fix_hz
     cdef double stuck_speed, stuck_action, stuck_time     # envs.base.STUCK_*
+    cdef str needs_reset                                  # envs.base.NEEDS_RESET
     cdef long long max_steps
     cdef float[::1] obs_lo, obs_hi
     cdef Py_ssize_t n_obs
@@ -137,6 +137,10 @@ cdef class Loop:
     cdef object js_next
     # the environment is the track task with its methods (TRACK_METHODS): _finish inlines them
     cdef readonly bint track
+
+    def __cinit__(self):
+        from envs.base import NEEDS_RESET       # (step() may come before the first load)
+        self.needs_reset = NEEDS_RESET
 
     def load(self, env):
         """Constants of the episode (call after the world is built, before the first sense)."""
@@ -500,7 +504,7 @@ cdef class Loop:
         """SphereRobotBase.step on the kernel: _begin_step, _advance, _end_step."""
         cdef double a0, a1
         if env._needs_reset:
-            raise RuntimeError(NEEDS_RESET)
+            raise RuntimeError(self.needs_reset)
         if not self._action(env, action, &a0, &a1):
             a0, a1 = env._check_action(action)
         env._action = (a0, a1)

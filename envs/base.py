@@ -47,6 +47,8 @@ MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() 
 # stuck (an episode end): slower than STUCK_SPEED (m/s) while driven harder than STUCK_ACTION
 # (|action[0]|) for STUCK_TIME (s)
 STUCK_SPEED, STUCK_ACTION, STUCK_TIME = 0.02, 0.5, 3.0
+#: what step() says before the first reset() or after an episode ended
+NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
 REBUILD_EVERY = 64          # resets that keep the floor between two rebuilds of the world (_build_world)
 _JOINTS = (DRIVE_JOINT, STEER_JOINT)
@@ -836,7 +838,7 @@ class SphereRobotBase(gym.Env):
     def _begin_step(self, action):
         """The checked action (a0, a1) of a step, before its physics."""
         if self._needs_reset:
-            raise RuntimeError("call reset() before step() (and after an episode ended)")
+            raise RuntimeError(NEEDS_RESET)
         a0, a1 = self._check_action(action)
         self._action = (a0, a1)
         self._gyr_sum_y, self._gyr_n = 0.0, 0

@@ -61,7 +61,7 @@ class SphereBotVectorEnv(VectorEnv):
         if kwargs.get("render_mode") is not None:
             raise ValueError("render_mode must be None for the batched vector environment")
         kwargs.pop("max_episode_steps", None)       # the episode length is the env's episode_s
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.envs = [env_cls(**kwargs) for _ in range(self.num_envs)]
         e0 = self.envs[0]
         self.single_observation_space = e0.observation_space
