@@ -19,8 +19,6 @@ cimport numpy as cnp
 
 from fusion._imu cimport StepKernel
 from fusion._core cimport Estimator, _claim, _release
-from fusion._ekf cimport EKF
-from fusion._ukf cimport UKF
 
 import math
 import numpy as np
@@ -48,7 +46,7 @@ cdef double RAD2DEG = 180.0 / 3.141592653589793     # math.degrees' factor
 cdef object _hypot = math.hypot      # (its own algorithm, not libm's hypot: called, not copied)
 cdef object _sum = sum
 cdef object SKIPPED = Estimator.skipped      # the property, read from the kernel's counters here
-cdef object EKF_BIAS = EKF.bias, UKF_BIAS = UKF.bias    # the properties, read from the kernels' states here
+cdef object KERNEL_BIAS = Estimator.bias    # the property every kernel's bias comes through (its _bias)
 
 
 cdef inline double _pymod(double a, double m) noexcept nogil:
@@ -558,6 +556,7 @@ cdef class Loop:
         cdef tuple task
         cdef Py_ssize_t i
         cdef Estimator fe
+        cdef double bb[3]
         steps = env._steps + 1
         env._steps = steps
         t = steps / self.control_hz
@@ -570,13 +569,12 @@ cdef class Loop:
         w, x, y, z = q
         psi = _heading(w, x, y, z)
         if est is not None:
-            bias_prop = getattr(type(est), "bias", None)
-            if bias_prop is EKF_BIAS:         # est.bias's numbers without its array (0.6 us)
-                has_bias = True
-                b0, b1, b2 = (<EKF>est).s.b[0], (<EKF>est).s.b[1], (<EKF>est).s.b[2]
-            elif bias_prop is UKF_BIAS:
-                has_bias = True
-                b0, b1, b2 = (<UKF>est).s.b[0], (<UKF>est).s.b[1], (<UKF>est).s.b[2]
+            if isinstance(est, Estimator) and getattr(type(est), "bias", None) is KERNEL_BIAS:
+                # est.bias's numbers without its array (0.6 us)
+                fe = est
+                if fe._bias(bb):
+                    has_bias = True
+                    b0, b1, b2 = bb[0], bb[1], bb[2]
             else:
                 bias = est.bias
                 if bias is not None:

@@ -144,8 +144,8 @@ cdef class CFEKF(Estimator):
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),
     # bias] are the core's
-    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, bias, covariance = _of(
-        "core", "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "bias", "covariance")
+    gyro_noise, bias_noise, q_init_std, bias_init_std, motion_rate, covariance = _of(
+        "core", "gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motion_rate", "covariance")
     # its complementary filter's gains and the parts of it that take the accelerometer and
     # magnetometer (acc_lowpass: fusion/_acclp.pxd; magd: its disturbance detector)
     kp, ki, mag_weight, mag_update, acc_lowpass, magd = _of("cf", "kp", "ki", "mag_weight", "mag_update",
@@ -189,6 +189,10 @@ cdef class CFEKF(Estimator):
         return (Estimator._state_fields(self) + self.core._filter_fields() + self.rest.fields()
                 + struct_fields(<CFEKFState[:1]>&self.s, {"sat_left": (0, self.window), "t_quiet": TIMER})
                 + [("cf." + n, v, c) for n, v, c in self.cf._state_fields()])
+
+    cdef bint _bias(self, double* out) noexcept nogil:
+        # the core's (None before __init__ configured it: no bias)
+        return self.core is not None and self.core._bias(out)
 
     cdef void _reset_state(self) noexcept nogil:
         self.core._reset_state()

@@ -43,6 +43,9 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
+    # the estimated gyro bias (rad/s, body frame) into out[3]; False: the estimator has none.
+    # The bias property and the environment's compiled loop both read it here.
+    cdef bint _bias(self, double* out) noexcept nogil
     # run()'s loop over n samples, rows of 3 (gyr, acc, mag; mag NULL for 6-axis) and 4 (out),
     # d the (n,) time steps or NULL for dt throughout. The base loops over _process; a kernel
     # may override it with a loop that inlines its step (see run_fast). With stop_invalid it

@@ -527,10 +527,16 @@ cdef class Estimator:
         return np.array([atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)), asin(s),
                          atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))])
 
+    cdef bint _bias(self, double* out) noexcept nogil:
+        return False
+
     @property
     def bias(self):
         """Estimated gyro bias (rad/s, body frame), or None if the estimator has none."""
-        return None
+        cdef double b[3]
+        if not self._bias(b):
+            return None
+        return np.array([b[0], b[1], b[2]])
 
     @property
     def covariance(self):

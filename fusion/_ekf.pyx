@@ -466,10 +466,9 @@ cdef class EKF(KalmanFilter):
         return batch_loop(self, ekf_batch_step, &s, &self.s, sizeof(EKFState), g, a, m, d, dt, o, n,
                           stop_invalid)
 
-    @property
-    def bias(self):
-        """Estimated gyro bias, rad/s (body frame)."""
-        return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
+    cdef bint _bias(self, double* out) noexcept nogil:
+        out[0], out[1], out[2] = self.s.b[0], self.s.b[1], self.s.b[2]
+        return True
 
     @property
     def acc_update(self):

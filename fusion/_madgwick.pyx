@@ -139,7 +139,7 @@ cdef class Madgwick(AidedFilter):
             q[3] -= k * g[3]
         quat_normalise(q)
 
-    @property
-    def bias(self):
-        """The gyro bias learned at rest and with the zeta gain, rad/s (body frame)."""
-        return np.array([self.s.bw[0], self.s.bw[1], self.s.bw[2]])
+    cdef bint _bias(self, double* out) noexcept nogil:
+        # the gyro bias learned at rest and with the zeta gain
+        out[0], out[1], out[2] = self.s.bw[0], self.s.bw[1], self.s.bw[2]
+        return True

@@ -332,7 +332,7 @@ cdef class Mahony(AidedFilter):
         return batch_loop(self, mahony_batch_step, &st, &self.s, sizeof(MahonyState), g, a, m, d, dt,
                           o, n, stop_invalid)
 
-    @property
-    def bias(self):
-        """The gyro bias the integral term has learned, rad/s (body frame)."""
-        return -self.ki * np.array([self.s.eint[0], self.s.eint[1], self.s.eint[2]])
+    cdef bint _bias(self, double* out) noexcept nogil:
+        # the gyro bias the integral term has learned
+        out[0], out[1], out[2] = -self.ki * self.s.eint[0], -self.ki * self.s.eint[1], -self.ki * self.s.eint[2]
+        return True

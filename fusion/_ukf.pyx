@@ -381,10 +381,9 @@ cdef class UKF(KalmanFilter):
             self.heading_gain = False
         quat_normalise(self.q)
 
-    @property
-    def bias(self):
-        """Estimated gyro bias, rad/s (body frame)."""
-        return np.array([self.s.b[0], self.s.b[1], self.s.b[2]])
+    cdef bint _bias(self, double* out) noexcept nogil:
+        out[0], out[1], out[2] = self.s.b[0], self.s.b[1], self.s.b[2]
+        return True
 
     @property
     def covariance(self):
