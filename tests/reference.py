@@ -330,7 +330,7 @@ def recovery_factor(t_left, sat, dt):
     return 1.0 + 19.0 * t_left / 3.0, t_left - dt
 
 
-MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_tol": 10.0,
+MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_tol": 5.0,
                   "magdist_new_time": 20.0}
 
 

@@ -124,7 +124,8 @@ def test_defaults(name):
     est = fusion.make(name, FS)
     assert est.mag_update == "heading"
     got = (est.magdist_time, est.magdist_norm_tol, est.magdist_dip_tol, est.magdist_new_time)
-    assert got == (60.0, 0.1, 10.0, 20.0)
+    assert got == tuple(ref.MAGDIST_PARAMS[k] for k in ("magdist_time", "magdist_norm_tol", "magdist_dip_tol",
+                                                       "magdist_new_time"))
 
 
 @pytest.mark.parametrize("name", ["ekf", "mahony", "ukf"])
