@@ -5,7 +5,8 @@ it was recorded from the single-class environment before the split into one clas
 (issue 14), and is rewritten only when an episode is deliberately changed: rewritten once
 since, for issue 19's new estimator defaults, and again for its second pass (ekf gyro_noise,
 bias_init_std), and for its magnetometer weights (mag_noise 0.2; the "truth" case, which no estimator touches,
-still equalled the pre-split recording bit for bit before that)."""
+still equalled the pre-split recording bit for bit before that), and for the sixth pass's dip tolerance
+(magdist_dip_tol 5: the PID cases' ekf rejects the robot's own steering-dependent field more often)."""
 import os
 
 import numpy as np
