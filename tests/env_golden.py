@@ -4,7 +4,8 @@
 it was recorded from the single-class environment before the split into one class per task
 (issue 14), and is rewritten only when an episode is deliberately changed: rewritten once
 since, for issue 19's new estimator defaults, and again for its second pass (ekf gyro_noise,
-bias_init_std), for its magnetometer weights (mag_noise 0.2), and for its sixth pass (mahony acc_lowpass 1.5 s; the "truth" case, which no estimator touches,
+bias_init_std), for its magnetometer weights (mag_noise 0.2), and for its sixth pass
+(mahony acc_lowpass 1.5 s; the "truth" case, which no estimator touches,
 still equalled the pre-split recording bit for bit before that)."""
 import os
 
