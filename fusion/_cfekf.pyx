@@ -128,7 +128,8 @@ cdef class CFEKF(Estimator):
         _EKF.PARAMS["bias_init_std"].but(default=0.02),
         Param("window", None, "samples", 1, WINDOW_MAX, "sliding-mean length, step 1, on gyro, "
               "accelerometer and magnetometer; None: round(0.02 fs), at least 1", integer=True),
-        _Mahony.PARAMS["kp"].but(allow_zero=False, doc="the complementary filter's proportional gain"),
+        # kp: cf-ekf's own leave-one-set-out choice (docs/accuracy.md), not mahony's
+        _Mahony.PARAMS["kp"].but(default=1.0, allow_zero=False, doc="the complementary filter's proportional gain"),
         _Mahony.PARAMS["ki"].but(default=None, doc="its integral gain; None: 0 with bias_feedback, "
                                  f"else {MAHONY_KI}"),
         _Mahony.PARAMS["mag_weight"].but(default=0.3),    # chosen as the ekf's mag_noise: docs/accuracy.md

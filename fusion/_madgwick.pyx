@@ -10,10 +10,15 @@ from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
 from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
+from fusion._acclp cimport acc_lowpass_lost
 from fusion._rest import REST_TAU_PROPERTY
 
 # |grad f| at or below this is round-off, not a direction: no step (docs/madgwick.md)
 cdef double DEAD_ZONE2 = 1e-20
+# while recovering, the raised step is recovery_gain's factor on at least Madgwick's report's
+# beta (rad/s): a step lost by the gyro can leave an error of 90 deg, which the ramp must
+# correct whatever the (smaller) default beta is (docs/robustness.md, "Recovery")
+cdef double BETA_RECOVERY = 0.041
 
 
 cdef inline void add_gradient(const double* H, const double* v, const double* s,
@@ -28,21 +33,26 @@ cdef inline void add_gradient(const double* H, const double* v, const double* s,
 cdef class Madgwick(AidedFilter):
     """Madgwick's gradient-descent filter: a fixed-rate step (beta, rad/s) along the
     normalised gradient of the gravity and north-folded field residuals; optional gyro-bias
-    learning with gain zeta (rad/s^2). With gyro_range (rad/s) a saturated sample raises
-    beta and holds the bias learning for 3 s (recovery_gain). mag_update="heading": the
+    learning with gain zeta (rad/s^2). After a step the gyro did not measure (a saturated
+    sample with gyro_range, rad/s; a dropped gyro sample; a gap in time) beta is raised and
+    the bias learning held for 3 s (recovery_gain). mag_update="heading": the
     field's gradient projected onto a turn about the vertical; magdist_*: disturbed fields
     skipped (fusion/_magdist.pxd); acc_lowpass (s): the gradient's accelerometer low-passed
     in a gyro-integrated frame (fusion/_acclp.pxd); rest_* (fusion/_rest.pxd): at rest the
     bias is pulled toward the measured rate with the time constant rest_tau."""
     name = "madgwick"
     PARAMS = table(
-        Param("beta", 0.041, "rad/s", 1e-6, 1e3, "step of the quaternion along the normalised "
-              "gradient, per second (the attitude turns by up to 2 beta rad/s toward the vectors)"),
-        Param("zeta", 0.0, "rad/s²", 1e-9, 1e3, "gain of Madgwick's gyro-bias compensation (0: off, as "
-              "in MadgwickAHRS.c and ahrs)", allow_zero=True),
+        # beta, zeta and acc_lowpass chosen leave-one-set-out on the recorded sets
+        # (docs/accuracy.md, sixth pass): a small fixed step needs the bias learned in motion
+        Param("beta", 0.0075, "rad/s", 1e-6, 1e3, "step of the quaternion along the normalised "
+              "gradient, per second (the attitude turns by up to 2 beta rad/s toward the vectors; "
+              "Madgwick's report: 0.041)"),
+        Param("zeta", 5e-4, "rad/s²", 1e-9, 1e3, "gain of Madgwick's gyro-bias compensation (the bias "
+              "changes by up to 2 zeta rad/s per second; 0: off, as in MadgwickAHRS.c and ahrs)",
+              allow_zero=True),
         GYRO_RANGE.but(doc=GYRO_RANGE.doc + "; for 3 s after a saturated sample beta is raised and the "
                        "bias learning held"),
-        MAG_UPDATE, ACC_LOWPASS, *MAGDIST, *REST_PULL)
+        MAG_UPDATE, ACC_LOWPASS.but(default=2.0), *MAGDIST, *REST_PULL)
     rest_tau = REST_TAU_PROPERTY        # REST_PULL's, read from its rest detector
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
@@ -74,7 +84,11 @@ cdef class Madgwick(AidedFilter):
         cdef double n2, k
         cdef int i
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
-        cdef double f = recovery_gain(&self.s.t_recover, sat, dt)
+        # a step the gyro did not measure (saturated, dropped, or a gap) leaves an attitude
+        # error of unknown size, which the small fixed step of beta would take long to
+        # correct: raise it as after a saturated sample
+        cdef double f = recovery_gain(&self.s.t_recover,
+                                      acc_lowpass_lost(gyr, sat, dt, self.dt_nominal), dt)
         if not mag_accepted(self, q, mag, gyr, dt):
             mag = NULL
         if self.rest.time > 0.0 and rest_now(self, gyr, acc, dt):
@@ -132,7 +146,7 @@ cdef class Madgwick(AidedFilter):
                 self.s.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
                 self.s.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
                 self.s.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
-            k = f * self.beta * dt
+            k = self.beta * dt if f == 1.0 else f * max(self.beta, BETA_RECOVERY) * dt
             q[0] -= k * g[0]
             q[1] -= k * g[1]
             q[2] -= k * g[2]

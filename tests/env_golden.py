@@ -4,9 +4,10 @@
 it was recorded from the single-class environment before the split into one class per task
 (issue 14), and is rewritten only when an episode is deliberately changed: rewritten once
 since, for issue 19's new estimator defaults, and again for its second pass (ekf gyro_noise,
-bias_init_std), and for its magnetometer weights (mag_noise 0.2; the "truth" case, which no estimator touches,
-still equalled the pre-split recording bit for bit before that), and for the sixth pass's dip tolerance
-(magdist_dip_tol 5: the PID cases' ekf rejects the robot's own steering-dependent field more often)."""
+bias_init_std), for its magnetometer weights (mag_noise 0.2), for its sixth pass (mahony
+acc_lowpass 1.5 s) and its seventh (magdist_dip_tol 5: the PID cases' ekf rejects the robot's own
+steering-dependent field more often); the "truth" case, which no estimator touches, still equalled
+the pre-split recording bit for bit before the magnetometer weights."""
 import os
 
 import numpy as np

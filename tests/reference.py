@@ -433,7 +433,7 @@ class RestAndMagCounts:
 
 
 class RefMahony(RestAndMagCounts, RefEstimator):
-    PARAMS = {"kp": 1.0, "ki": 0.01, "mag_weight": 1.0, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.0,
+    PARAMS = {"kp": 1.0, "ki": 0.01, "mag_weight": 1.0, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.5,
               "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_tau": 1.0,
               **MAGDIST_PARAMS}
 

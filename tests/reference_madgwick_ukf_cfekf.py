@@ -40,8 +40,8 @@ def rotmat_unit_form(q):
 
 
 class RefMadgwick(RefEstimator):
-    PARAMS = {"beta": 0.041, "zeta": 0.0, "gyro_range": None, "mag_update": "heading",
-              "acc_lowpass": 1.0, "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+    PARAMS = {"beta": 0.0075, "zeta": 5e-4, "gyro_range": None, "mag_update": "heading",
+              "acc_lowpass": 2.0, "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
               "rest_tau": 1.0, **MAGDIST_PARAMS}
     DEAD_ZONE = 1e-10
 
@@ -69,7 +69,9 @@ class RefMadgwick(RefEstimator):
 
     def _step(self, gyr, acc, mag, dt):
         sat = is_saturated(gyr, self.gyro_range)
-        boost, self.t_recover = recovery_factor(self.t_recover, sat, dt)
+        # the gyro did not measure the step (saturated, none, a gap > 2 periods): recover
+        lost = sat or gyr is None or dt > 2.0 / self.fs
+        boost, self.t_recover = recovery_factor(self.t_recover, lost, dt)
         q = self.q
         if mag is not None and not self.magd(q, mag, gyr, dt):         # disturbed
             mag = None
@@ -100,7 +102,8 @@ class RefMadgwick(RefEstimator):
             g = grad / n
             if boost == 1.0:
                 self.bw = self.bw + self.zeta * dt * 2.0 * qmul(qconj(q), g)[1:]
-            q = q - boost * self.beta * dt * g
+            # recovering: the ramp on at least the report's beta, 0.041 rad/s
+            q = q - (self.beta if boost == 1.0 else boost * max(self.beta, 0.041)) * dt * g
         self.q = normalise(q)
 
 

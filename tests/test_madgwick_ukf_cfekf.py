@@ -22,7 +22,7 @@ NAMES = ["madgwick", "ukf", "cf-ekf"]
 # a low-pass with zeta and a smaller beta over 1,500 (VARIANTS).
 CASES = [("madgwick", {"acc_lowpass": 0.0}), ("ukf", {}), ("cf-ekf", {}), ("cf-ekf", {"bias_feedback": False})]
 # Madgwick's document: the full field gradient, no low-pass, no disturbance rejection
-MADGWICK_AS_WRITTEN = {"beta": 0.041, "mag_update": "vector", "acc_lowpass": 0.0, "magdist_time": 0.0,
+MADGWICK_AS_WRITTEN = {"beta": 0.041, "zeta": 0.0, "mag_update": "vector", "acc_lowpass": 0.0, "magdist_time": 0.0,
                        "rest_time": 0.0}
 VARIANTS = [("madgwick", {"beta": 0.2, "zeta": 0.05, "acc_lowpass": 0.0}),
             ("madgwick", {"beta": 0.02, "zeta": 0.05, "acc_lowpass": 0.3}),
