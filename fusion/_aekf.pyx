@@ -14,7 +14,7 @@ from fusion._aided cimport mag_accepted, acc_input
 from fusion._core import check_fs, struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
-from fusion._qmath cimport quat_normalise, up_in_body, unit3, norm3, quat_measurement_update, saturated, out_of_range
+from fusion._qmath cimport quat_normalise, xi_matrix, up_in_body, unit3, norm3, quat_measurement_update, saturated, out_of_range
 from fusion._wahba cimport quest2
 
 cnp.import_array()
@@ -24,16 +24,19 @@ cdef double DEG = M_PI / 180.0
 cdef double UP[3]
 UP[:] = [0.0, 0.0, 1.0]
 
+# codes of est.decisions / est.last_decision (bits), for the kernel and for Python
+cdef enum:
+    DEC_ACC_REJECTED = 1
+    DEC_MAG_REJECTED = 2
+    DEC_QUEST_USED = 4
+ACC_REJECTED, MAG_REJECTED, QUEST_USED = DEC_ACC_REJECTED, DEC_MAG_REJECTED, DEC_QUEST_USED
+
 # struct_fields' checks of AEKFState: those other than a double's magnitude bound, a bint's
 # flag and a long long's count
 AEKF_STATE_CHECKS = {"t_dir": TIMER, "norm_ref": (0.0, VALUE_MAX), "dip_ref": (-M_PI / 2, M_PI / 2),
-                     "ref_field": "unit", "last_code": (0, 7),
+                     "ref_field": "unit",
+                     "last_code": (0, DEC_ACC_REJECTED | DEC_MAG_REJECTED | DEC_QUEST_USED),
                      "g_ref": (1.0, 100.0)}     # m/s^2: the norm a still sensor reads
-
-# codes of est.decisions / est.last_decision (bits)
-ACC_REJECTED = 1
-MAG_REJECTED = 2
-QUEST_USED = 4
 
 
 def quest(b1, b2, r1, r2, w1=1.0, w2=1.0):
@@ -147,6 +150,8 @@ cdef class AEKF(EKF):
         cdef double mh[3]
         cdef double qm[4]
         cdef double v[4]
+        cdef double X[12]
+        cdef int i
         cdef double na = 0.0, nm, c, dx, dy, dz, sa, sm
         cdef bint acc_rej = False, mag_rej = False, mag_tested = False, off_g
         cdef long long n_rest = self.rest.n
@@ -193,7 +198,7 @@ cdef class AEKF(EKF):
             self.ad.n_acc_tested += 1
             if acc_rej:
                 self.ad.n_acc_rej += 1
-                self.ad.last_code |= 1
+                self.ad.last_code |= DEC_ACC_REJECTED
         if mag != NULL:
             nm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
             if acc != NULL and self.ad.n_learned < self.n_learn:
@@ -223,7 +228,7 @@ cdef class AEKF(EKF):
                 self.ad.n_mag_tested += 1
                 if mag_rej:
                     self.ad.n_mag_rej += 1
-                    self.ad.last_code |= 2
+                    self.ad.last_code |= DEC_MAG_REJECTED
         if self.use_quest and acc != NULL and mag_tested and not acc_rej and not mag_rej:
             unit3(acc, ah)
             unit3(mag, mh)
@@ -239,13 +244,12 @@ cdef class AEKF(EKF):
                 # v = Ξ(q) u, σh² = σm² / |u × m̂|²
                 sa = self.kalman.acc_noise * self.kalman.acc_noise / (G0 * G0 * dt)
                 sm = self.kalman.mag_noise * self.kalman.mag_noise / (dt * c)
-                v[0] = -self.q[1] * u[0] - self.q[2] * u[1] - self.q[3] * u[2]
-                v[1] = self.q[0] * u[0] - self.q[3] * u[1] + self.q[2] * u[2]
-                v[2] = self.q[3] * u[0] + self.q[0] * u[1] - self.q[1] * u[2]
-                v[3] = -self.q[2] * u[0] + self.q[1] * u[1] + self.q[0] * u[2]
+                xi_matrix(self.q, X)
+                for i in range(4):
+                    v[i] = X[3 * i] * u[0] + X[3 * i + 1] * u[1] + X[3 * i + 2] * u[2]
                 quat_measurement_update(self.q, self.s.b, self.s.P, qm, 0.25 * sa, v, 0.25 * (sm - sa))
                 self.ad.n_quest += 1
-                self.ad.last_code |= 4
+                self.ad.last_code |= DEC_QUEST_USED
                 quat_normalise(self.q)
                 return
         # the ekf's updates; its variance is σ²/dt, so dt / factor gives factor × the variance
