@@ -106,20 +106,19 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     memcpy(q, qn, 4 * sizeof(double))
 
 
-cdef inline void heading_only_gain(const double* q, const double* U, const double* Sa,
-                                   double det, double* K) noexcept nogil:
-    """The gain K = U S^-1 (7x3; Sa = adj(S), det = 1 / det(S)) with every column projected
-    so that the update can only turn the attitude about the vertical (quaternion rows onto
-    u = e_z (x) q, the direction of such a turn) and change the bias along the body-frame
-    vertical w = R^T e_z: the magnetometer then corrects the heading alone, as in VQF and
-    Fusion (docs/estimators.md). Projecting U's rows first gives rank-one blocks,
-    K_q = u (uᵀ U_q S^-1) / |u|², K_b = w (wᵀ U_b S^-1): no dearer than the plain gain."""
-    cdef double u[4]
-    cdef double w[3]
+cdef inline void heading_gain(const double* q, const double* U, const double* Sa, double det,
+                              double* u, double* w, double* ka, double* kc) noexcept nogil:
+    """The magnetometer's gain projected so that the update can only turn the attitude about
+    the vertical (quaternion rows onto u = e_z (x) q, the direction of such a turn) and change
+    the bias along the body-frame vertical w = R^T e_z: the magnetometer then corrects the
+    heading alone, as in VQF and Fusion (docs/estimators.md). Projecting the rows of
+    U S^-1 (Sa = adj(S), det = 1 / det(S)) gives rank-one blocks, K_q = u kaᵀ with
+    ka = S^-1 U_qᵀ u / |u|², K_b = w kcᵀ with kc = S^-1 U_bᵀ w: K = [u; 0] kaᵀ + [0; w] kcᵀ,
+    held as its four vectors (heading_update)."""
     cdef double a[3]
     cdef double c[3]
-    cdef double ka, kc, iuu
-    cdef int i, j
+    cdef double iuu
+    cdef int j
     u[0] = -q[3]
     u[1] = -q[2]
     u[2] = q[1]
@@ -130,16 +129,83 @@ cdef inline void heading_only_gain(const double* q, const double* U, const doubl
         a[j] = u[0] * U[j] + u[1] * U[3 + j] + u[2] * U[6 + j] + u[3] * U[9 + j]
         c[j] = w[0] * U[12 + j] + w[1] * U[15 + j] + w[2] * U[18 + j]
     for j in range(3):
-        ka = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
-        kc = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
-        for i in range(4):
-            K[i * 3 + j] = u[i] * ka
-        for i in range(3):
-            K[(4 + i) * 3 + j] = w[i] * kc
+        ka[j] = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
+        kc[j] = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
+
+
+cdef inline void rank4_entry(double* P, double xi, double gj, double gi, double yj,
+                             int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] = P[i, j] - (xi gj + gi yj) (heading_update)."""
+    cdef double s = P[i * 7 + j] - (xi * gj + gi * yj)
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
+
+
+cdef inline void heading_update(double* q, double* b, double* P, const double* U, const double* S,
+                                const double* Sa, double det, const double* y) noexcept nogil:
+    """The update of [q, b] and P with the heading-only gain (heading_gain) in the Joseph form,
+    P - K Uᵀ - (U - K S) Kᵀ (kalman_apply), written for this K's structure: with
+    K = ū kaᵀ + w̄ kcᵀ (ū = [u; 0], w̄ = [0; w], 7-vectors of disjoint support), g = U ka,
+    h = U kc, α = kaᵀ S ka, β = kaᵀ S kc, γ = kcᵀ S kc, the four terms are
+    P - ū gᵀ - g ūᵀ - w̄ hᵀ - h w̄ᵀ + α ū ūᵀ + β (ū w̄ᵀ + w̄ ūᵀ) + γ w̄ w̄ᵀ
+    = P - ū g̃ᵀ - g̃ ūᵀ - w̄ h̃ᵀ - h̃ w̄ᵀ, g̃ = g - (α/2) ū - β w̄, h̃ = h - (γ/2) w̄:
+    two products an entry where the 3-D form takes six, the same algebra (round-off aside)."""
+    cdef double u[4]
+    cdef double w[3]
+    cdef double ka[3]
+    cdef double kc[3]
+    cdef double g[7]
+    cdef double h[7]
+    cdef double t[3]
+    cdef double al, be, ga, dq, db
+    cdef int i
+    heading_gain(q, U, Sa, det, u, w, ka, kc)
+    dq = ka[0] * y[0] + ka[1] * y[1] + ka[2] * y[2]
+    db = kc[0] * y[0] + kc[1] * y[1] + kc[2] * y[2]
+    for i in range(4):
+        q[i] += u[i] * dq
+    for i in range(3):
+        b[i] += w[i] * db
+    quat_normalise(q)
+    for i in range(7):
+        g[i] = U[i * 3] * ka[0] + U[i * 3 + 1] * ka[1] + U[i * 3 + 2] * ka[2]
+        h[i] = U[i * 3] * kc[0] + U[i * 3 + 1] * kc[1] + U[i * 3 + 2] * kc[2]
+    for i in range(3):
+        t[i] = S[i * 3] * ka[0] + S[i * 3 + 1] * ka[1] + S[i * 3 + 2] * ka[2]
+    al = ka[0] * t[0] + ka[1] * t[1] + ka[2] * t[2]
+    be = kc[0] * t[0] + kc[1] * t[1] + kc[2] * t[2]
+    for i in range(3):
+        t[i] = S[i * 3] * kc[0] + S[i * 3 + 1] * kc[1] + S[i * 3 + 2] * kc[2]
+    ga = kc[0] * t[0] + kc[1] * t[1] + kc[2] * t[2]
+    for i in range(4):
+        g[i] -= 0.5 * al * u[i]
+    for i in range(3):
+        g[4 + i] -= be * w[i]
+        h[4 + i] -= 0.5 * ga * w[i]
+    # the upper half, mirrored, at constant indices: the attitude block P - u g̃ᵀ - g̃ uᵀ,
+    # the cross block P - u g̃_bᵀ - h̃_q wᵀ, the bias block P - w h̃_bᵀ - h̃_b wᵀ
+    rank4_entry(P, u[0], g[0], g[0], u[0], 0, 0); rank4_entry(P, u[0], g[1], g[0], u[1], 0, 1)
+    rank4_entry(P, u[0], g[2], g[0], u[2], 0, 2); rank4_entry(P, u[0], g[3], g[0], u[3], 0, 3)
+    rank4_entry(P, u[1], g[1], g[1], u[1], 1, 1); rank4_entry(P, u[1], g[2], g[1], u[2], 1, 2)
+    rank4_entry(P, u[1], g[3], g[1], u[3], 1, 3)
+    rank4_entry(P, u[2], g[2], g[2], u[2], 2, 2); rank4_entry(P, u[2], g[3], g[2], u[3], 2, 3)
+    rank4_entry(P, u[3], g[3], g[3], u[3], 3, 3)
+    rank4_entry(P, u[0], g[4], h[0], w[0], 0, 4); rank4_entry(P, u[0], g[5], h[0], w[1], 0, 5)
+    rank4_entry(P, u[0], g[6], h[0], w[2], 0, 6)
+    rank4_entry(P, u[1], g[4], h[1], w[0], 1, 4); rank4_entry(P, u[1], g[5], h[1], w[1], 1, 5)
+    rank4_entry(P, u[1], g[6], h[1], w[2], 1, 6)
+    rank4_entry(P, u[2], g[4], h[2], w[0], 2, 4); rank4_entry(P, u[2], g[5], h[2], w[1], 2, 5)
+    rank4_entry(P, u[2], g[6], h[2], w[2], 2, 6)
+    rank4_entry(P, u[3], g[4], h[3], w[0], 3, 4); rank4_entry(P, u[3], g[5], h[3], w[1], 3, 5)
+    rank4_entry(P, u[3], g[6], h[3], w[2], 3, 6)
+    rank4_entry(P, w[0], h[4], h[4], w[0], 4, 4); rank4_entry(P, w[0], h[5], h[4], w[1], 4, 5)
+    rank4_entry(P, w[0], h[6], h[4], w[2], 4, 6)
+    rank4_entry(P, w[1], h[5], h[5], w[1], 5, 5); rank4_entry(P, w[1], h[6], h[5], w[2], 5, 6)
+    rank4_entry(P, w[2], h[6], h[6], w[2], 6, 6)
 
 
 cdef inline void tilt_only_gain(const double* q, double* K) noexcept nogil:
-    """The complement of heading_only_gain, for the accelerometer (acc_update="tilt"): K's
+    """The complement of heading_gain, for the accelerometer (acc_update="tilt"): K's
     quaternion rows projected off u = e_z (x) q (no turn about the vertical) and its bias
     rows off the body-frame vertical w = R^T e_z, so that a linear acceleration the filter
     takes for gravity cannot turn the heading or the bias along the vertical, which the
@@ -175,7 +241,7 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
                                    int gain) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
     and noise variance r per axis; ``gain``: GAIN_FULL, or the gain projected by
-    heading_only_gain / tilt_only_gain (the Joseph form in kalman_apply holds for any gain)."""
+    heading_gain / tilt_only_gain (the Joseph form in kalman_apply holds for any gain)."""
     cdef double U[21]    # P H^T, 7x3
     cdef double S[9]
     cdef double y[3]
@@ -201,6 +267,14 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
     kalman_apply(q, b, P, U, S, y, gain)
 
 
+cdef inline void optimal_entry(double* P, const double* K, const double* U, int i, int j) noexcept nogil:
+    """P[i, j] and P[j, i] of P - K Uᵀ (kalman_apply, the optimal gain)."""
+    cdef double s = P[i * 7 + j] - (K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
+                                    + K[i * 3 + 2] * U[j * 3 + 2])
+    P[i * 7 + j] = s
+    P[j * 7 + i] = s
+
+
 cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
                               double* S, const double* y, int gain) noexcept nogil:
     """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3),
@@ -214,21 +288,38 @@ cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
     # division (~13 cycles on the chain from P to the next update)
     det = sym3_adjugate(S, Si)
     if gain == GAIN_HEADING:
-        heading_only_gain(q, U, Si, det, K)
-    else:
-        for i in range(7):
-            for j in range(3):
-                K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
-        if gain == GAIN_TILT:
-            tilt_only_gain(q, K)
-        elif gain == GAIN_BIAS:
-            for i in range(12):
-                K[i] = 0.0
+        heading_update(q, b, P, U, S, Si, det, y)
+        return
+    for i in range(7):
+        for j in range(3):
+            K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
+    if gain == GAIN_TILT:
+        tilt_only_gain(q, K)
+    elif gain == GAIN_BIAS:
+        for i in range(12):
+            K[i] = 0.0
     for i in range(4):
         q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
     for i in range(3):
         b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
     quat_normalise(q)
+    if gain == GAIN_FULL:
+        # the Joseph form below with the optimal gain K = U S^-1: U - K S = 0, and what is
+        # left, P - K Uᵀ = P - U S^-1 Uᵀ, is symmetric: the same covariance (round-off
+        # aside) at half the products; the upper half, mirrored
+        optimal_entry(P, K, U, 0, 0); optimal_entry(P, K, U, 0, 1); optimal_entry(P, K, U, 0, 2)
+        optimal_entry(P, K, U, 0, 3); optimal_entry(P, K, U, 0, 4); optimal_entry(P, K, U, 0, 5)
+        optimal_entry(P, K, U, 0, 6)
+        optimal_entry(P, K, U, 1, 1); optimal_entry(P, K, U, 1, 2); optimal_entry(P, K, U, 1, 3)
+        optimal_entry(P, K, U, 1, 4); optimal_entry(P, K, U, 1, 5); optimal_entry(P, K, U, 1, 6)
+        optimal_entry(P, K, U, 2, 2); optimal_entry(P, K, U, 2, 3); optimal_entry(P, K, U, 2, 4)
+        optimal_entry(P, K, U, 2, 5); optimal_entry(P, K, U, 2, 6)
+        optimal_entry(P, K, U, 3, 3); optimal_entry(P, K, U, 3, 4); optimal_entry(P, K, U, 3, 5)
+        optimal_entry(P, K, U, 3, 6)
+        optimal_entry(P, K, U, 4, 4); optimal_entry(P, K, U, 4, 5); optimal_entry(P, K, U, 4, 6)
+        optimal_entry(P, K, U, 5, 5); optimal_entry(P, K, U, 5, 6)
+        optimal_entry(P, K, U, 6, 6)
+        return
     # Joseph form (I - KH) P (I - KH)^T + r K K^T, expanded with H P = U^T and
     # H P H^T + r I = S: P - K U^T - U K^T + K S K^T = P - K U^T - (U - K S) K^T. Valid
     # for any K like the product form (an error in K enters at second order), at half
