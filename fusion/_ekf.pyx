@@ -4,7 +4,7 @@
 Astro., 2023) (docs/estimators.md)."""
 import numpy as np
 from libc.math cimport sqrt
-from libc.string cimport memcpy, memset
+from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
 from fusion._kalman cimport KalmanFilter
@@ -18,6 +18,16 @@ from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
 from fusion._constants cimport GRAVITY as G0
+
+# the covariance arithmetic four lanes wide (fusion/_ekfcov.h)
+cdef extern from "_ekfcov.h" nogil:
+    void ekfc_predict(double* P, double* q, const double* A, const double* X, double dt, double gq,
+                      double qb)
+    void ekfc_pht(const double* P, const double* H, double r, double* U, double* S)
+    void ekfc_optimal(double* P, double* q, double* b, const double* U, const double* Si, double det,
+                      const double* y)
+    void ekfc_heading(double* P, const double* U, const double* S, const double* u, const double* w,
+                      const double* ka, const double* kc)
 
 # the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
 # error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
@@ -57,53 +67,16 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
             P[j * 7 + i] = s
 
 
-cdef inline void pred_entry(double* P, const double* F, const double* A, const double* L,
-                            const double* X, double gq, int i, int j) noexcept nogil:
-    """P[i, j] and P[j, i] (i, j < 4) of F P Fᵀ + Q = M Aᵀ + N Lᵀ + Q (ekf_predict)."""
-    cdef double s = (F[i * 7] * A[j * 4] + F[i * 7 + 1] * A[j * 4 + 1] + F[i * 7 + 2] * A[j * 4 + 2]
-                     + F[i * 7 + 3] * A[j * 4 + 3] + F[i * 7 + 4] * L[j * 3]
-                     + F[i * 7 + 5] * L[j * 3 + 1] + F[i * 7 + 6] * L[j * 3 + 2])
-    s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
-    P[i * 7 + j] = s
-    P[j * 7 + i] = s
-
-
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
                              double dt) noexcept nogil:
+    """q <- A q and P <- F P Fᵀ + Q, F = [[A, -(dt/2) Ξ(q)], [0, I]], A = Φ(gyr - b, dt),
+    Q = diag((dt/4) gyro_noise² Ξ Ξᵀ, bias_noise² dt I3) (fusion/_ekfcov.h, ekfc_predict)."""
     cdef double A[16]
-    cdef double L[12]    # -(dt/2) Xi(q), 4x3
     cdef double X[12]    # Xi(q), 4x3
-    cdef double F[28]    # [M N] = [A L] P[:4 rows of F P]: M = A Pqq + L Pbq, N = A Pqb + L Pbb
-    cdef double qn[4]
-    cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
-    cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
     xi_matrix(q, X)
-    for i in range(12):
-        L[i] = -0.5 * dt * X[i]
-    # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held
-    # in registers (the column loop unrolls: no index arithmetic, P read once a row)
-    for i in range(4):
-        a0 = A[i * 4]; a1 = A[i * 4 + 1]; a2 = A[i * 4 + 2]; a3 = A[i * 4 + 3]
-        l0 = L[i * 3]; l1 = L[i * 3 + 1]; l2 = L[i * 3 + 2]
-        qn[i] = a0 * q[0] + a1 * q[1] + a2 * q[2] + a3 * q[3]
-        for j in range(7):
-            F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
-                            + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
-    # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
-    gq = 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise
-    pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
-    pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
-    pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
-    pred_entry(P, F, A, L, X, gq, 3, 3)
-    for i in range(4):
-        for j in range(3):
-            P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
-            P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
-    s = e.kalman.bias_noise * e.kalman.bias_noise * dt
-    for i in range(4, 7):
-        P[i * 8] += s
-    memcpy(q, qn, 4 * sizeof(double))
+    ekfc_predict(P, q, A, X, dt, 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise,
+                 e.kalman.bias_noise * e.kalman.bias_noise * dt)
 
 
 cdef inline void heading_gain(const double* q, const double* U, const double* Sa, double det,
@@ -112,9 +85,9 @@ cdef inline void heading_gain(const double* q, const double* U, const double* Sa
     the vertical (quaternion rows onto u = e_z (x) q, the direction of such a turn) and change
     the bias along the body-frame vertical w = R^T e_z: the magnetometer then corrects the
     heading alone, as in VQF and Fusion (docs/estimators.md). Projecting the rows of
-    U S^-1 (Sa = adj(S), det = 1 / det(S)) gives rank-one blocks, K_q = u kaᵀ with
-    ka = S^-1 U_qᵀ u / |u|², K_b = w kcᵀ with kc = S^-1 U_bᵀ w: K = [u; 0] kaᵀ + [0; w] kcᵀ,
-    held as its four vectors (heading_update)."""
+    U S^-1 (U = P Hᵀ in ekfc_pht's columns, Sa = adj(S), det = 1 / det(S)) gives rank-one
+    blocks, K_q = u kaᵀ with ka = S^-1 U_qᵀ u / |u|², K_b = w kcᵀ with kc = S^-1 U_bᵀ w:
+    K = [u; 0] kaᵀ + [0; w] kcᵀ, held as its four vectors (ekf_vector_update)."""
     cdef double a[3]
     cdef double c[3]
     cdef double iuu
@@ -126,82 +99,11 @@ cdef inline void heading_gain(const double* q, const double* U, const double* Sa
     iuu = det      # / |u|² = |q|² = 1: q was normalised by the update or prediction before
     up_in_body(q, w)
     for j in range(3):
-        a[j] = u[0] * U[j] + u[1] * U[3 + j] + u[2] * U[6 + j] + u[3] * U[9 + j]
-        c[j] = w[0] * U[12 + j] + w[1] * U[15 + j] + w[2] * U[18 + j]
+        a[j] = u[0] * U[8 * j] + u[1] * U[8 * j + 1] + u[2] * U[8 * j + 2] + u[3] * U[8 * j + 3]
+        c[j] = w[0] * U[8 * j + 4] + w[1] * U[8 * j + 5] + w[2] * U[8 * j + 6]
     for j in range(3):
         ka[j] = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
         kc[j] = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
-
-
-cdef inline void rank4_entry(double* P, double xi, double gj, double gi, double yj,
-                             int i, int j) noexcept nogil:
-    """P[i, j] and P[j, i] = P[i, j] - (xi gj + gi yj) (heading_update)."""
-    cdef double s = P[i * 7 + j] - (xi * gj + gi * yj)
-    P[i * 7 + j] = s
-    P[j * 7 + i] = s
-
-
-cdef inline void heading_update(double* q, double* b, double* P, const double* U, const double* S,
-                                const double* Sa, double det, const double* y) noexcept nogil:
-    """The update of [q, b] and P with the heading-only gain (heading_gain) in the Joseph form,
-    P - K Uᵀ - (U - K S) Kᵀ (kalman_apply), written for this K's structure: with
-    K = ū kaᵀ + w̄ kcᵀ (ū = [u; 0], w̄ = [0; w], 7-vectors of disjoint support), g = U ka,
-    h = U kc, α = kaᵀ S ka, β = kaᵀ S kc, γ = kcᵀ S kc, the four terms are
-    P - ū gᵀ - g ūᵀ - w̄ hᵀ - h w̄ᵀ + α ū ūᵀ + β (ū w̄ᵀ + w̄ ūᵀ) + γ w̄ w̄ᵀ
-    = P - ū g̃ᵀ - g̃ ūᵀ - w̄ h̃ᵀ - h̃ w̄ᵀ, g̃ = g - (α/2) ū - β w̄, h̃ = h - (γ/2) w̄:
-    two products an entry where the 3-D form takes six, the same algebra (round-off aside)."""
-    cdef double u[4]
-    cdef double w[3]
-    cdef double ka[3]
-    cdef double kc[3]
-    cdef double g[7]
-    cdef double h[7]
-    cdef double t[3]
-    cdef double al, be, ga, dq, db
-    cdef int i
-    heading_gain(q, U, Sa, det, u, w, ka, kc)
-    dq = ka[0] * y[0] + ka[1] * y[1] + ka[2] * y[2]
-    db = kc[0] * y[0] + kc[1] * y[1] + kc[2] * y[2]
-    for i in range(4):
-        q[i] += u[i] * dq
-    for i in range(3):
-        b[i] += w[i] * db
-    quat_normalise(q)
-    for i in range(7):
-        g[i] = U[i * 3] * ka[0] + U[i * 3 + 1] * ka[1] + U[i * 3 + 2] * ka[2]
-        h[i] = U[i * 3] * kc[0] + U[i * 3 + 1] * kc[1] + U[i * 3 + 2] * kc[2]
-    for i in range(3):
-        t[i] = S[i * 3] * ka[0] + S[i * 3 + 1] * ka[1] + S[i * 3 + 2] * ka[2]
-    al = ka[0] * t[0] + ka[1] * t[1] + ka[2] * t[2]
-    be = kc[0] * t[0] + kc[1] * t[1] + kc[2] * t[2]
-    for i in range(3):
-        t[i] = S[i * 3] * kc[0] + S[i * 3 + 1] * kc[1] + S[i * 3 + 2] * kc[2]
-    ga = kc[0] * t[0] + kc[1] * t[1] + kc[2] * t[2]
-    for i in range(4):
-        g[i] -= 0.5 * al * u[i]
-    for i in range(3):
-        g[4 + i] -= be * w[i]
-        h[4 + i] -= 0.5 * ga * w[i]
-    # the upper half, mirrored, at constant indices: the attitude block P - u g̃ᵀ - g̃ uᵀ,
-    # the cross block P - u g̃_bᵀ - h̃_q wᵀ, the bias block P - w h̃_bᵀ - h̃_b wᵀ
-    rank4_entry(P, u[0], g[0], g[0], u[0], 0, 0); rank4_entry(P, u[0], g[1], g[0], u[1], 0, 1)
-    rank4_entry(P, u[0], g[2], g[0], u[2], 0, 2); rank4_entry(P, u[0], g[3], g[0], u[3], 0, 3)
-    rank4_entry(P, u[1], g[1], g[1], u[1], 1, 1); rank4_entry(P, u[1], g[2], g[1], u[2], 1, 2)
-    rank4_entry(P, u[1], g[3], g[1], u[3], 1, 3)
-    rank4_entry(P, u[2], g[2], g[2], u[2], 2, 2); rank4_entry(P, u[2], g[3], g[2], u[3], 2, 3)
-    rank4_entry(P, u[3], g[3], g[3], u[3], 3, 3)
-    rank4_entry(P, u[0], g[4], h[0], w[0], 0, 4); rank4_entry(P, u[0], g[5], h[0], w[1], 0, 5)
-    rank4_entry(P, u[0], g[6], h[0], w[2], 0, 6)
-    rank4_entry(P, u[1], g[4], h[1], w[0], 1, 4); rank4_entry(P, u[1], g[5], h[1], w[1], 1, 5)
-    rank4_entry(P, u[1], g[6], h[1], w[2], 1, 6)
-    rank4_entry(P, u[2], g[4], h[2], w[0], 2, 4); rank4_entry(P, u[2], g[5], h[2], w[1], 2, 5)
-    rank4_entry(P, u[2], g[6], h[2], w[2], 2, 6)
-    rank4_entry(P, u[3], g[4], h[3], w[0], 3, 4); rank4_entry(P, u[3], g[5], h[3], w[1], 3, 5)
-    rank4_entry(P, u[3], g[6], h[3], w[2], 3, 6)
-    rank4_entry(P, w[0], h[4], h[4], w[0], 4, 4); rank4_entry(P, w[0], h[5], h[4], w[1], 4, 5)
-    rank4_entry(P, w[0], h[6], h[4], w[2], 4, 6)
-    rank4_entry(P, w[1], h[5], h[5], w[1], 5, 5); rank4_entry(P, w[1], h[6], h[5], w[2], 5, 6)
-    rank4_entry(P, w[2], h[6], h[6], w[2], 6, 6)
 
 
 cdef inline void tilt_only_gain(const double* q, double* K) noexcept nogil:
@@ -241,44 +143,53 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
                                    int gain) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
     and noise variance r per axis; ``gain``: GAIN_FULL, or the gain projected by
-    heading_gain / tilt_only_gain (the Joseph form in kalman_apply holds for any gain)."""
-    cdef double U[21]    # P H^T, 7x3
+    heading_gain / tilt_only_gain. The covariance in the Joseph form, which holds for any
+    gain (kalman_apply), written for each gain's structure: P - K Uᵀ for the optimal gain
+    (ekfc_optimal), the rank-four form for the heading gain (ekfc_heading)."""
+    cdef double U[24]    # P Hᵀ, 7x3, as three columns of 8 (ekfc_pht)
+    cdef double Ur[21]   # P Hᵀ, 7x3 row-major (kalman_apply)
     cdef double S[9]
+    cdef double Si[9]    # adj(S)
     cdef double y[3]
-    cdef double s
-    cdef int i, j, k
-    for i in range(7):
-        for k in range(3):
-            U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
-                            + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
-    # S = H U[:4] + r I, symmetric: the upper half, mirrored
-    for k in range(3):
-        for j in range(k, 3):
-            s = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
-                 + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
-            S[k * 3 + j] = s
-            S[j * 3 + k] = s
-    S[0] += r
-    S[4] += r
-    S[8] += r
+    cdef double u[4]
+    cdef double w[3]
+    cdef double ka[3]
+    cdef double kc[3]
+    cdef double det, dq, db
+    cdef int i, k
+    ekfc_pht(P, H, r, U, S)
     y[0] = z[0] - h[0]
     y[1] = z[1] - h[1]
     y[2] = z[2] - h[2]
-    kalman_apply(q, b, P, U, S, y, gain)
-
-
-cdef inline void optimal_entry(double* P, const double* K, const double* U, int i, int j) noexcept nogil:
-    """P[i, j] and P[j, i] of P - K Uᵀ (kalman_apply, the optimal gain)."""
-    cdef double s = P[i * 7 + j] - (K[i * 3] * U[j * 3] + K[i * 3 + 1] * U[j * 3 + 1]
-                                    + K[i * 3 + 2] * U[j * 3 + 2])
-    P[i * 7 + j] = s
-    P[j * 7 + i] = s
+    if gain == GAIN_FULL:
+        # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for
+        # the division (~13 cycles on the chain from P to the next update)
+        det = sym3_adjugate(S, Si)
+        ekfc_optimal(P, q, b, U, Si, det, y)
+        quat_normalise(q)
+    elif gain == GAIN_HEADING:
+        det = sym3_adjugate(S, Si)
+        heading_gain(q, U, Si, det, u, w, ka, kc)
+        dq = ka[0] * y[0] + ka[1] * y[1] + ka[2] * y[2]
+        db = kc[0] * y[0] + kc[1] * y[1] + kc[2] * y[2]
+        for i in range(4):
+            q[i] += u[i] * dq
+        for i in range(3):
+            b[i] += w[i] * db
+        quat_normalise(q)
+        ekfc_heading(P, U, S, u, w, ka, kc)
+    else:
+        for i in range(7):
+            for k in range(3):
+                Ur[i * 3 + k] = U[8 * k + i]
+        kalman_apply(q, b, P, Ur, S, y, gain)
 
 
 cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
                               double* S, const double* y, int gain) noexcept nogil:
-    """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3),
-    S = H P Hᵀ + Rm and the residual y."""
+    """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3 row-major),
+    S = H P Hᵀ + Rm and the residual y, for a gain other than the optimal or the heading one
+    (ekf_vector_update): the tilt-only gain and the rest update's bias-only gain."""
     cdef double Si[9]    # adj(S)
     cdef double K[21]    # 7x3
     cdef double V[21]    # U - K S, 7x3
@@ -287,9 +198,6 @@ cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
     # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for the
     # division (~13 cycles on the chain from P to the next update)
     det = sym3_adjugate(S, Si)
-    if gain == GAIN_HEADING:
-        heading_update(q, b, P, U, S, Si, det, y)
-        return
     for i in range(7):
         for j in range(3):
             K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
@@ -303,23 +211,6 @@ cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
     for i in range(3):
         b[i] += K[(4 + i) * 3] * y[0] + K[(4 + i) * 3 + 1] * y[1] + K[(4 + i) * 3 + 2] * y[2]
     quat_normalise(q)
-    if gain == GAIN_FULL:
-        # the Joseph form below with the optimal gain K = U S^-1: U - K S = 0, and what is
-        # left, P - K Uᵀ = P - U S^-1 Uᵀ, is symmetric: the same covariance (round-off
-        # aside) at half the products; the upper half, mirrored
-        optimal_entry(P, K, U, 0, 0); optimal_entry(P, K, U, 0, 1); optimal_entry(P, K, U, 0, 2)
-        optimal_entry(P, K, U, 0, 3); optimal_entry(P, K, U, 0, 4); optimal_entry(P, K, U, 0, 5)
-        optimal_entry(P, K, U, 0, 6)
-        optimal_entry(P, K, U, 1, 1); optimal_entry(P, K, U, 1, 2); optimal_entry(P, K, U, 1, 3)
-        optimal_entry(P, K, U, 1, 4); optimal_entry(P, K, U, 1, 5); optimal_entry(P, K, U, 1, 6)
-        optimal_entry(P, K, U, 2, 2); optimal_entry(P, K, U, 2, 3); optimal_entry(P, K, U, 2, 4)
-        optimal_entry(P, K, U, 2, 5); optimal_entry(P, K, U, 2, 6)
-        optimal_entry(P, K, U, 3, 3); optimal_entry(P, K, U, 3, 4); optimal_entry(P, K, U, 3, 5)
-        optimal_entry(P, K, U, 3, 6)
-        optimal_entry(P, K, U, 4, 4); optimal_entry(P, K, U, 4, 5); optimal_entry(P, K, U, 4, 6)
-        optimal_entry(P, K, U, 5, 5); optimal_entry(P, K, U, 5, 6)
-        optimal_entry(P, K, U, 6, 6)
-        return
     # Joseph form (I - KH) P (I - KH)^T + r K K^T, expanded with H P = U^T and
     # H P H^T + r I = S: P - K U^T - U K^T + K S K^T = P - K U^T - (U - K S) K^T. Valid
     # for any K like the product form (an error in K enters at second order), at half
