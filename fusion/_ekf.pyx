@@ -272,8 +272,10 @@ cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double*
     H[11] = 2.0 * (y*b + z*c)
 
 
-cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
+cdef inline bint ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
+    """The magnetometer's update; False if the field has no heading information (q, b and P
+    unchanged), True if it updated them (q normalised)."""
     # "IIR-EKF, IMU dynamic error suppression", eqs. 11-16: the measured field in the navigation
     # frame, its horizontal part
     # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
@@ -291,7 +293,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     rot_to_nav(q, z, n)
     rho = sqrt(n[0] * n[0] + n[1] * n[1])
     if rho < 1e-9:     # field along the vertical: no heading information
-        return
+        return False
     # v = [0, rho, n2]; rot_to_body, jac_rot_to_body and R^T D below without the terms of
     # the zero component (products with 0.0 are not dropped by the compiler; the sums are
     # the same)
@@ -310,6 +312,7 @@ cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const do
         H[4 + j] += n[1]
         H[8 + j] += n[2]
     ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
+    return True
 
 
 cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
@@ -348,6 +351,9 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
     cdef bint sat
+    # unit: q was normalised by the last update that changed it (each update normalises); a
+    # second normalisation would only move its last bit and wait on the chain to the next step
+    cdef bint unit = False
     if gyr != NULL and out_of_range(gyr, e.gyro_range_):
         gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
     sat = gyr != NULL and saturated(gyr, e.gyro_range_)
@@ -358,9 +364,11 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
+        unit = True
     if mag_accepted(e, q, mag, gyr, dt):
-        ekf_mag_update(e, q, s.b, s.P, mag, dt)
-    quat_normalise(q)
+        unit = ekf_mag_update(e, q, s.b, s.P, mag, dt) or unit
+    if not unit:
+        quat_normalise(q)
 
 
 cdef inline void ekf_batch_step(Estimator e, double* q, void* s, const double* gyr,
