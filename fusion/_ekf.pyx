@@ -3,7 +3,6 @@
 (Software Engineering, 2022) and "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero.
 Astro., 2023) (docs/estimators.md)."""
 import numpy as np
-from libc.math cimport sqrt
 from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
@@ -13,16 +12,15 @@ from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
-from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, rot_to_body, rot_to_nav,
-                            jac_rot_to_body, jac_rot_to_nav, up_in_body,
+from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
 from fusion._constants cimport GRAVITY as G0
 
 # the covariance arithmetic four lanes wide (fusion/_ekfcov.h)
 cdef extern from "_ekfcov.h" nogil:
-    void ekfc_predict(double* P, double* q, const double* A, const double* X, double dt, double gq,
-                      double qb)
+    void ekfc_predict(double* P, double* q, const double* A, double dt, double gq, double qb)
+    double ekfc_mag_model(const double* q, const double* zv, double* h, double* H)
     void ekfc_pht(const double* P, const double* H, double r, double* U, double* S)
     void ekfc_optimal(double* P, double* q, double* b, const double* U, const double* Si, double det,
                       const double* y)
@@ -72,10 +70,8 @@ cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const
     """q <- A q and P <- F P Fᵀ + Q, F = [[A, -(dt/2) Ξ(q)], [0, I]], A = Φ(gyr - b, dt),
     Q = diag((dt/4) gyro_noise² Ξ Ξᵀ, bias_noise² dt I3) (fusion/_ekfcov.h, ekfc_predict)."""
     cdef double A[16]
-    cdef double X[12]    # Xi(q), 4x3
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-    xi_matrix(q, X)
-    ekfc_predict(P, q, A, X, dt, 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise,
+    ekfc_predict(P, q, A, dt, 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise,
                  e.kalman.bias_noise * e.kalman.bias_noise * dt)
 
 
@@ -247,70 +243,21 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, e.acc_gain)
 
 
-cdef inline void rot_to_body_yz(const double* q, double b, double c, double* out) noexcept nogil:
-    """rot_to_body(q, [0, b, c], out)."""
-    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
-    out[0] = 2.0 * (x*y + w*z) * b + 2.0 * (x*z - w*y) * c
-    out[1] = (w*w - x*x + y*y - z*z) * b + 2.0 * (y*z + w*x) * c
-    out[2] = 2.0 * (y*z - w*x) * b + (w*w - x*x - y*y + z*z) * c
-
-
-cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double* H) noexcept nogil:
-    """jac_rot_to_body(q, [0, b, c], H)."""
-    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
-    H[0] = 2.0 * (z*b - y*c)
-    H[1] = 2.0 * (y*b + z*c)
-    H[2] = 2.0 * (x*b - w*c)
-    H[3] = 2.0 * (w*b + x*c)
-    H[4] = 2.0 * (w*b + x*c)
-    H[5] = 2.0 * (w*c - x*b)
-    H[6] = 2.0 * (y*b + z*c)
-    H[7] = 2.0 * (y*c - z*b)
-    H[8] = 2.0 * (w*c - x*b)
-    H[9] = 2.0 * (-w*b - x*c)
-    H[10] = 2.0 * (z*b - y*c)
-    H[11] = 2.0 * (y*b + z*c)
-
-
 cdef inline bint ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
     """The magnetometer's update; False if the field has no heading information (q, b and P
     unchanged), True if it updated them (q normalised)."""
     # "IIR-EKF, IMU dynamic error suppression", eqs. 11-16: the measured field in the navigation
-    # frame, its horizontal part
-    # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
-    # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
-    # heading residuals tilt the estimate and drag the gyro bias with them.
+    # frame, its horizontal part folded onto north, h = R^T v (fusion/_ekfcov.h,
+    # ekfc_mag_model). v depends on q, and so does the Jacobian: dh/dq = d(R^T v)/dq|v +
+    # R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets heading residuals
+    # tilt the estimate and drag the gyro bias with them.
     cdef double z[3]
-    cdef double n[3]
     cdef double h[3]
     cdef double H[12]
-    cdef double Jn[12]   # dn/dq
-    cdef double D[12]    # dv/dq = dv/dn Jn
-    cdef double rho, ux, uy
-    cdef int j
     unit3(mag, z)
-    rot_to_nav(q, z, n)
-    rho = sqrt(n[0] * n[0] + n[1] * n[1])
-    if rho < 1e-9:     # field along the vertical: no heading information
+    if ekfc_mag_model(q, z, h, H) == 0.0:     # field along the vertical: no heading information
         return False
-    # v = [0, rho, n2]; rot_to_body, jac_rot_to_body and R^T D below without the terms of
-    # the zero component (products with 0.0 are not dropped by the compiler; the sums are
-    # the same)
-    rot_to_body_yz(q, rho, n[2], h)
-    jac_rot_to_body_yz(q, rho, n[2], H)
-    jac_rot_to_nav(q, z, Jn)
-    ux = n[0] / rho
-    uy = n[1] / rho
-    for j in range(4):
-        D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
-        D[8 + j] = Jn[8 + j]
-    # H += R^T(q) D, column by column (R^T applied to each column of D; its first row is 0)
-    for j in range(4):
-        rot_to_body_yz(q, D[4 + j], D[8 + j], n)
-        H[j] += n[0]
-        H[4 + j] += n[1]
-        H[8 + j] += n[2]
     ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
     return True
 

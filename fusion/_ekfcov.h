@@ -16,6 +16,7 @@
  * memcpy moves them to and from memory (unaligned loads and stores). */
 #ifndef FUSION_EKFCOV_H
 #define FUSION_EKFCOV_H
+#include <math.h>
 #include <string.h>
 
 #if defined(__GNUC__) || defined(__clang__)
@@ -27,6 +28,7 @@ static inline ekf_v4 ekf_mul(ekf_v4 a, double s) { return a * ekf_bc(s); }
 static inline ekf_v4 ekf_madd(ekf_v4 acc, ekf_v4 a, double s) { return acc + a * ekf_bc(s); }
 static inline ekf_v4 ekf_msub(ekf_v4 acc, ekf_v4 a, double s) { return acc - a * ekf_bc(s); }
 static inline double ekf_lane(ekf_v4 v, int i) { return v[i]; }
+static inline ekf_v4 ekf_add(ekf_v4 a, ekf_v4 b) { return a + b; }
 #else
 typedef struct { double v[4]; } ekf_v4;
 static inline ekf_v4 ekf_bc(double x) { ekf_v4 r = {{x, x, x, x}}; return r; }
@@ -38,16 +40,23 @@ static inline ekf_v4 ekf_madd(ekf_v4 acc, ekf_v4 a, double s) {
 static inline ekf_v4 ekf_msub(ekf_v4 acc, ekf_v4 a, double s) {
     ekf_v4 r; int i; for (i = 0; i < 4; i++) r.v[i] = acc.v[i] - a.v[i] * s; return r; }
 static inline double ekf_lane(ekf_v4 v, int i) { return v.v[i]; }
+static inline ekf_v4 ekf_add(ekf_v4 a, ekf_v4 b) {
+    ekf_v4 r; int i; for (i = 0; i < 4; i++) r.v[i] = a.v[i] + b.v[i]; return r; }
 #endif
 
 static inline ekf_v4 ekf_ld(const double* p) { ekf_v4 v; memcpy(&v, p, sizeof v); return v; }
 static inline void ekf_st(double* p, ekf_v4 v) { memcpy(p, &v, sizeof v); }
 
-/* P[i, j] = P[j, i] = x for the attitude block's lower half, from its upper half */
-static inline void ekf_mirror_qq(double* P) {
-    P[7] = P[1]; P[14] = P[2]; P[21] = P[3];
-    P[15] = P[9]; P[22] = P[10];
-    P[23] = P[17];
+/* The attitude block from rows whose upper halves hold it (R[i] = P[i, 0:4], lanes j >= i):
+ * each row assembled whole, its lower lanes from the rows above, and written with one store.
+ * Written as the upper half plus scalar stores of the mirrored entries, the next step's
+ * vector load of a row would span five stores, which the processor cannot forward to it:
+ * the load would wait for them to reach the cache, on the chain from one P to the next. */
+static inline void ekf_store_qq(double* P, const ekf_v4* R) {
+    ekf_st(P, R[0]);
+    ekf_st(P + 7, ekf_set(ekf_lane(R[0], 1), ekf_lane(R[1], 1), ekf_lane(R[1], 2), ekf_lane(R[1], 3)));
+    ekf_st(P + 14, ekf_set(ekf_lane(R[0], 2), ekf_lane(R[1], 2), ekf_lane(R[2], 2), ekf_lane(R[2], 3)));
+    ekf_st(P + 21, ekf_set(ekf_lane(R[0], 3), ekf_lane(R[1], 3), ekf_lane(R[2], 3), ekf_lane(R[3], 3)));
 }
 
 /* The attitude-bias block from its columns: c[j] = P[0:4, 4 + j], written to row 4 + j
@@ -62,72 +71,74 @@ static inline void ekf_store_qb(double* P, const ekf_v4* c) {
 }
 
 /* The time update's covariance and quaternion, F = [[A, L], [0, I]], L = -(dt/2) X,
- * X = Xi(q) (4x3), A (4x4) row-major: P <- F P Fᵀ + Q, Q = diag(gq X Xᵀ, qb I3); q <- A q.
- * With M = A Pqq + L Pbq (rows) and N = A Pqb + L Pbb (columns): Pqq <- M Aᵀ + N Lᵀ + gq X Xᵀ,
- * Pqb <- N, Pbb <- Pbb + qb I3. */
-static inline void ekfc_predict(double* P, double* q, const double* A, const double* X,
-                                double dt, double gq, double qb) {
-    ekf_v4 Ac[4], Lc[3], Xc[3], Pq[7], N[3], R[4], qn;
-    double L[12], m[16], n[12];
+ * X = Xi(q) = [[-x, -y, -z], [w, -z, y], [z, w, -x], [-y, x, w]], A (4x4) row-major:
+ * P <- F P Fᵀ + Q, Q = diag(gq X Xᵀ, qb I3); q <- A q. With M = A Pqq + L Pbq (rows) and
+ * N = A Pqb + L Pbb (columns): Pqq <- M Aᵀ + N Lᵀ + gq X Xᵀ = M Aᵀ + N' Xᵀ with
+ * N' = -(dt/2) N + gq X; Pqb <- N, Pbb <- Pbb + qb I3. X's entries are q's components, so its
+ * products are multiply-adds and -subtracts with them, and L's carry the factor -(dt/2)
+ * once per sum. */
+static inline void ekfc_predict(double* P, double* q, const double* A, double dt, double gq,
+                                double qb) {
+    ekf_v4 Ac[4], Xc[3], Pq[7], N[3], R[4], qn, s, t, u;
+    double m[16], n[12];
+    double w = q[0], x = q[1], y = q[2], z = q[3];
     double hl = -0.5 * dt;
     int i, k;
-    for (i = 0; i < 12; i++)
-        L[i] = hl * X[i];
     for (k = 0; k < 4; k++)
         Ac[k] = ekf_set(A[k], A[4 + k], A[8 + k], A[12 + k]);    /* columns of A */
-    for (k = 0; k < 3; k++) {
-        Lc[k] = ekf_set(L[k], L[3 + k], L[6 + k], L[9 + k]);
-        Xc[k] = ekf_set(X[k], X[3 + k], X[6 + k], X[9 + k]);
-    }
+    Xc[0] = ekf_set(-x, w, z, -y);                                  /* columns of X */
+    Xc[1] = ekf_set(-y, -z, w, x);
+    Xc[2] = ekf_set(-z, y, -x, w);
     for (k = 0; k < 7; k++)
         Pq[k] = ekf_ld(P + 7 * k);                                 /* P[k, 0:4] */
-    /* rows of M: M[i, :] = sum_k A[i, k] P[k, 0:4] + sum_k L[i, k] P[4 + k, 0:4]; here and
-     * below the sums in two or three independent parts, which shortens the chain from one
+    /* rows of M: M[i, :] = sum_k A[i, k] P[k, 0:4] + (dt/2)-scaled sum_k X[i, k] P[4 + k, 0:4];
+     * here and below the sums in independent parts, which shortens the chain from one
      * sample's P to the next (seven and ten dependent multiply-adds, 4 cycles each) */
+    t = ekf_msub(ekf_msub(ekf_mul(Pq[4], -x), Pq[5], y), Pq[6], z);     /* X row 0: -x -y -z */
+    R[0] = t;
+    t = ekf_madd(ekf_msub(ekf_mul(Pq[4], w), Pq[5], z), Pq[6], y);      /* X row 1: w -z y */
+    R[1] = t;
+    t = ekf_msub(ekf_madd(ekf_mul(Pq[4], z), Pq[5], w), Pq[6], x);      /* X row 2: z w -x */
+    R[2] = t;
+    t = ekf_madd(ekf_madd(ekf_mul(Pq[5], x), Pq[4], -y), Pq[6], w);     /* X row 3: -y x w */
+    R[3] = t;
     for (i = 0; i < 4; i++) {
-        ekf_v4 s = ekf_mul(Pq[0], A[4 * i]);
-        ekf_v4 t = ekf_mul(Pq[4], L[3 * i]);
+        s = ekf_mul(Pq[0], A[4 * i]);
         s = ekf_madd(s, Pq[1], A[4 * i + 1]);
-        t = ekf_madd(t, Pq[5], L[3 * i + 1]);
-        s = ekf_madd(s, Pq[2], A[4 * i + 2]);
-        t = ekf_madd(t, Pq[6], L[3 * i + 2]);
-        s = ekf_madd(s, Pq[3], A[4 * i + 3]);
-        ekf_st(m + 4 * i, s + t);
+        u = ekf_mul(Pq[2], A[4 * i + 2]);
+        u = ekf_madd(u, Pq[3], A[4 * i + 3]);
+        ekf_st(m + 4 * i, ekf_madd(ekf_add(s, u), R[i], hl));
     }
-    /* columns of N: N[:, j] = sum_k A[:, k] P[k, 4 + j] + sum_k L[:, k] P[4 + k, 4 + j] */
+    /* columns of N: N[:, j] = sum_k A[:, k] P[k, 4 + j] + (dt/2)-scaled sum_k X[:, k] P[4 + k, 4 + j] */
     for (i = 0; i < 3; i++) {
-        ekf_v4 s = ekf_mul(Ac[0], P[4 + i]);
-        ekf_v4 t = ekf_mul(Lc[0], P[32 + i]);
+        s = ekf_mul(Ac[0], P[4 + i]);
         s = ekf_madd(s, Ac[1], P[11 + i]);
-        t = ekf_madd(t, Lc[1], P[39 + i]);
-        s = ekf_madd(s, Ac[2], P[18 + i]);
-        t = ekf_madd(t, Lc[2], P[46 + i]);
-        s = ekf_madd(s, Ac[3], P[25 + i]);
-        N[i] = s + t;
-        ekf_st(n + 4 * i, N[i]);
+        u = ekf_mul(Ac[2], P[18 + i]);
+        u = ekf_madd(u, Ac[3], P[25 + i]);
+        t = ekf_mul(Xc[0], P[32 + i]);
+        t = ekf_madd(t, Xc[1], P[39 + i]);
+        t = ekf_madd(t, Xc[2], P[46 + i]);
+        N[i] = ekf_madd(ekf_add(s, u), t, hl);
+        /* N' = -(dt/2) N + gq X, column i */
+        ekf_st(n + 4 * i, ekf_madd(ekf_mul(N[i], hl), Xc[i], gq));
     }
-    /* rows of the new attitude block: sum_k M[i, k] A[:, k] + sum_k N[i, k] L[:, k]
-     * + gq sum_k X[i, k] X[:, k] (Aᵀ's rows are A's columns) */
+    /* rows of the new attitude block: sum_k M[i, k] A[:, k] + sum_k N'[i, k] X[:, k]
+     * (Aᵀ's rows are A's columns) */
     for (i = 0; i < 4; i++) {
-        ekf_v4 s = ekf_mul(Ac[0], m[4 * i]);
-        ekf_v4 t = ekf_mul(Lc[0], n[i]);
-        ekf_v4 u = ekf_mul(Xc[0], gq * X[3 * i]);
+        s = ekf_mul(Ac[0], m[4 * i]);
         s = ekf_madd(s, Ac[1], m[4 * i + 1]);
-        t = ekf_madd(t, Lc[1], n[4 + i]);
-        u = ekf_madd(u, Xc[1], gq * X[3 * i + 1]);
-        s = ekf_madd(s, Ac[2], m[4 * i + 2]);
-        t = ekf_madd(t, Lc[2], n[8 + i]);
-        u = ekf_madd(u, Xc[2], gq * X[3 * i + 2]);
-        s = ekf_madd(s, Ac[3], m[4 * i + 3]);
-        R[i] = s + (t + u);
+        u = ekf_mul(Ac[2], m[4 * i + 2]);
+        u = ekf_madd(u, Ac[3], m[4 * i + 3]);
+        t = ekf_mul(Xc[0], n[i]);
+        t = ekf_madd(t, Xc[1], n[4 + i]);
+        t = ekf_madd(t, Xc[2], n[8 + i]);
+        R[i] = ekf_add(ekf_add(s, u), t);
     }
-    qn = ekf_mul(Ac[0], q[0]);
-    qn = ekf_madd(qn, Ac[1], q[1]);
-    qn = ekf_madd(qn, Ac[2], q[2]);
-    qn = ekf_madd(qn, Ac[3], q[3]);
-    for (i = 0; i < 4; i++)
-        ekf_st(P + 7 * i, R[i]);
-    ekf_mirror_qq(P);
+    qn = ekf_mul(Ac[0], w);
+    qn = ekf_madd(qn, Ac[1], x);
+    qn = ekf_madd(qn, Ac[2], y);
+    qn = ekf_madd(qn, Ac[3], z);
+    ekf_store_qq(P, R);
     ekf_store_qb(P, N);
     P[32] += qb;
     P[40] += qb;
@@ -135,45 +146,107 @@ static inline void ekfc_predict(double* P, double* q, const double* A, const dou
     ekf_st(q, qn);
 }
 
+/* The magnetometer's measurement model (fusion/_ekf.pyx, ekf_mag_update): with the unit
+ * sample zv and n = R(q) zv (R body -> navigation), its horizontal part folded onto north,
+ * v = [0, rho, n2], rho = |n_xy|, the prediction h = Rᵀ v and its Jacobian (3x4, row-major)
+ * H = d(Rᵀ v)/dq|v + Rᵀ dv/dn dn/dq. Returns rho (0: rho < 1e-9, no heading information;
+ * h and H not written).
+ * d(Rᵀ v)/dq and dn/dq have rows that are q's components permuted with signs: nine such
+ * vectors p1..p9 make all six rows, H row m = rho-and-n2 terms + r_y[m] D_y + r_z[m] dn2/dq
+ * with r_y, r_z the rows of R (Rᵀ e_y, Rᵀ e_z) and D_y = (n0 dn0/dq + n1 dn1/dq) / rho. */
+static inline double ekfc_mag_model(const double* q, const double* zv, double* h, double* H) {
+    double w = q[0], x = q[1], y = q[2], z = q[3];
+    double a = zv[0], b = zv[1], c = zv[2];
+    double r00 = w * w + x * x - y * y - z * z, r01 = 2.0 * (x * y - w * z), r02 = 2.0 * (x * z + w * y);
+    double ry0 = 2.0 * (x * y + w * z), ry1 = w * w - x * x + y * y - z * z, ry2 = 2.0 * (y * z - w * x);
+    double rz0 = 2.0 * (x * z - w * y), rz1 = 2.0 * (y * z + w * x), rz2 = w * w - x * x - y * y + z * z;
+    double n0 = r00 * a + r01 * b + r02 * c;
+    double n1 = ry0 * a + ry1 * b + ry2 * c;
+    double n2 = rz0 * a + rz1 * b + rz2 * c;
+    double rho = sqrt(n0 * n0 + n1 * n1);
+    double ux, uy;
+    ekf_v4 p1, p2, p3, p4, p5, p6, p7, p8, p9, J0, J1, J2, Dy;
+    if (rho < 1e-9)
+        return 0.0;
+    p1 = ekf_set(w, x, -y, -z);
+    p2 = ekf_set(-z, y, x, -w);
+    p3 = ekf_set(y, z, w, x);
+    p4 = ekf_set(z, y, x, w);
+    p5 = ekf_set(w, -x, y, -z);
+    p6 = ekf_set(-x, -w, z, y);
+    p7 = ekf_set(-y, z, -w, x);
+    p8 = ekf_set(x, w, z, y);
+    p9 = ekf_set(w, -x, -y, z);
+    /* dn/dq = d(R zv)/dq, rows (the factor 2 of R's derivative on the scalars: exact) */
+    J0 = ekf_madd(ekf_madd(ekf_mul(p1, 2.0 * a), p2, 2.0 * b), p3, 2.0 * c);
+    J1 = ekf_madd(ekf_madd(ekf_mul(p4, 2.0 * a), p5, 2.0 * b), p6, 2.0 * c);
+    J2 = ekf_madd(ekf_madd(ekf_mul(p7, 2.0 * a), p8, 2.0 * b), p9, 2.0 * c);
+    ux = n0 / rho;
+    uy = n1 / rho;
+    Dy = ekf_madd(ekf_mul(J0, ux), J1, uy);
+    h[0] = ry0 * rho + rz0 * n2;
+    h[1] = ry1 * rho + rz1 * n2;
+    h[2] = ry2 * rho + rz2 * n2;
+    /* d(Rᵀ v)/dq|v = 2 (rho d(Rᵀ e_y) + n2 d(Rᵀ e_z)), plus Rᵀ [0; D_y; dn2/dq] */
+    ekf_st(H, ekf_madd(ekf_madd(ekf_madd(ekf_mul(p4, 2.0 * rho), p7, 2.0 * n2), Dy, ry0), J2, rz0));
+    ekf_st(H + 4, ekf_madd(ekf_madd(ekf_madd(ekf_mul(p5, 2.0 * rho), p8, 2.0 * n2), Dy, ry1), J2, rz1));
+    ekf_st(H + 8, ekf_madd(ekf_madd(ekf_madd(ekf_mul(p6, 2.0 * rho), p9, 2.0 * n2), Dy, ry2), J2, rz2));
+    return rho;
+}
+
 /* U = P Hᵀ for H = [Hq, 0] (Hq 3x4 row-major) as three columns of eight, U[8 m + i] =
- * (P Hᵀ)[i, m] for i < 7 (U[8 m + 7] is not used), and S = Hq U[0:4] + r I3 (3x3,
+ * (P Hᵀ)[i, m] for i < 7 (U[8 m + 7] = 0, not used), and S = Hq U[0:4] + r I3 (3x3,
  * row-major, the upper half mirrored). */
 static inline void ekfc_pht(const double* P, const double* H, double r, double* U, double* S) {
-    int m, l, j;
+    ekf_v4 Pq[4], T[4];
+    ekf_v4 b4 = ekf_ld(P + 28), b5 = ekf_ld(P + 35), b6 = ekf_ld(P + 42);
+    int m, l;
+    /* by symmetry, column l of P is row l: U[0:4, m] = sum_l P[l, 0:4] H[m, l], and
+     * U[4:7, m] = sum_l P[4:7, l] H[m, l] from the rows P[4 + k, 0:4] turned into columns
+     * (whole rows, each written by one store: ekf_store_qq, ekf_store_qb) */
+    for (l = 0; l < 4; l++) {
+        Pq[l] = ekf_ld(P + 7 * l);
+        T[l] = ekf_set(ekf_lane(b4, l), ekf_lane(b5, l), ekf_lane(b6, l), 0.0);
+    }
     for (m = 0; m < 3; m++) {
-        /* by symmetry, column i of P is row i: U[:, m] = sum_l P[l, :] H[m, l]; the load
-         * of P[l, 4:8] reads P[l + 1, 0] into the unused lane */
-        ekf_v4 uq = ekf_mul(ekf_ld(P), H[4 * m]);
-        ekf_v4 ub = ekf_mul(ekf_ld(P + 4), H[4 * m]);
+        ekf_v4 uq = ekf_mul(Pq[0], H[4 * m]);
+        ekf_v4 ub = ekf_mul(T[0], H[4 * m]);
         for (l = 1; l < 4; l++) {
-            uq = ekf_madd(uq, ekf_ld(P + 7 * l), H[4 * m + l]);
-            ub = ekf_madd(ub, ekf_ld(P + 7 * l + 4), H[4 * m + l]);
+            uq = ekf_madd(uq, Pq[l], H[4 * m + l]);
+            ub = ekf_madd(ub, T[l], H[4 * m + l]);
         }
         ekf_st(U + 8 * m, uq);
         ekf_st(U + 8 * m + 4, ub);
     }
-    for (m = 0; m < 3; m++)
-        for (j = m; j < 3; j++) {
-            double s = (H[4 * m] * U[8 * j] + H[4 * m + 1] * U[8 * j + 1]
-                        + H[4 * m + 2] * U[8 * j + 2] + H[4 * m + 3] * U[8 * j + 3]);
-            S[3 * m + j] = s;
-            S[3 * j + m] = s;
-        }
-    S[0] += r;
-    S[4] += r;
-    S[8] += r;
+    /* the six entries at constant indices: as a triangular loop, the compiler's loop
+     * vectoriser adds run-time alias checks and shuffles that cost more than the sums */
+#define EKF_S(m, j) (H[4 * (m)] * U[8 * (j)] + H[4 * (m) + 1] * U[8 * (j) + 1] \
+                     + H[4 * (m) + 2] * U[8 * (j) + 2] + H[4 * (m) + 3] * U[8 * (j) + 3])
+    S[0] = EKF_S(0, 0) + r;
+    S[1] = S[3] = EKF_S(0, 1);
+    S[2] = S[6] = EKF_S(0, 2);
+    S[4] = EKF_S(1, 1) + r;
+    S[5] = S[7] = EKF_S(1, 2);
+    S[8] = EKF_S(2, 2) + r;
+#undef EKF_S
 }
 
-/* The bias block's upper half P[4 + i, 4 + j] -= x_i y_j + z_i v_j, mirrored */
-static inline void ekf_update_bb(double* P, const double* x, const double* y, const double* z,
-                                 const double* v) {
-    int i, j;
-    for (i = 0; i < 3; i++)
-        for (j = i; j < 3; j++) {
-            double s = P[7 * (4 + i) + 4 + j] - (x[i] * y[j] + z[i] * v[j]);
-            P[7 * (4 + i) + 4 + j] = s;
-            P[7 * (4 + j) + 4 + i] = s;
-        }
+/* The bias block from rows whose lanes j >= i hold it (R[i] = P[4 + i, 4:7], lane 3 unused),
+ * as ekf_store_qq: each row assembled whole from the rows above and written once. (Written
+ * as scalar pairs, P[4 + i, 4 + j] = P[4 + j, 4 + i] = s, GCC's straight-line vectoriser
+ * grouped each of the two stores with its neighbours and computed s twice, in two vectors,
+ * fused differently: P lost its exact symmetry in the last bit.) */
+static inline void ekf_store_bb(double* P, const ekf_v4* R) {
+    ekf_v4 r5 = ekf_set(ekf_lane(R[0], 1), ekf_lane(R[1], 1), ekf_lane(R[1], 2), 0.0);
+    ekf_v4 r6 = ekf_set(ekf_lane(R[0], 2), ekf_lane(R[1], 2), ekf_lane(R[2], 2), 0.0);
+    memcpy(P + 32, &R[0], 3 * sizeof(double));
+    memcpy(P + 39, &r5, 3 * sizeof(double));
+    memcpy(P + 46, &r6, 3 * sizeof(double));
+}
+
+/* P[4 + i, 4:7] as a vector (lane 3: 0) */
+static inline ekf_v4 ekf_ld_bb(const double* P, int i) {
+    return ekf_set(P[32 + 7 * i], P[33 + 7 * i], P[34 + 7 * i], 0.0);
 }
 
 /* The update with the optimal gain K = U S^-1 (Si = adj(S), det = 1 / det(S)), U from
@@ -182,7 +255,7 @@ static inline void ekf_update_bb(double* P, const double* x, const double* y, co
  * kalman_apply). */
 static inline void ekfc_optimal(double* P, double* q, double* b, const double* U, const double* Si,
                                 double det, const double* y) {
-    ekf_v4 Kq[3], Kb[3], dq, db, c[3];
+    ekf_v4 Kq[3], Kb[3], dq, db, c[3], R[4];
     double K[24];
     int i, j, m;
     for (j = 0; j < 3; j++) {
@@ -203,18 +276,18 @@ static inline void ekfc_optimal(double* P, double* q, double* b, const double* U
         dq = ekf_madd(dq, Kq[j], y[j]);
         db = ekf_madd(db, Kb[j], y[j]);
     }
-    for (i = 0; i < 4; i++)
-        q[i] += ekf_lane(dq, i);
-    for (i = 0; i < 3; i++)
-        b[i] += ekf_lane(db, i);
+    ekf_st(q, ekf_add(ekf_ld(q), dq));
+    b[0] += ekf_lane(db, 0);
+    b[1] += ekf_lane(db, 1);
+    b[2] += ekf_lane(db, 2);
     /* attitude rows: P[i, 0:4] -= sum_m K[i, m] U[0:4, m] */
     for (i = 0; i < 4; i++) {
         ekf_v4 s = ekf_ld(P + 7 * i);
         for (m = 0; m < 3; m++)
             s = ekf_msub(s, ekf_ld(U + 8 * m), K[8 * m + i]);
-        ekf_st(P + 7 * i, s);
+        R[i] = s;
     }
-    ekf_mirror_qq(P);
+    ekf_store_qq(P, R);
     /* attitude-bias columns: P[0:4, 4 + j] -= sum_m K[0:4, m] U[4 + j, m] */
     for (j = 0; j < 3; j++) {
         ekf_v4 s = ekf_ld(P + 7 * (4 + j));
@@ -223,14 +296,14 @@ static inline void ekfc_optimal(double* P, double* q, double* b, const double* U
         c[j] = s;
     }
     ekf_store_qb(P, c);
-    /* bias block: P[4 + i, 4 + j] -= sum_m K[4 + i, m] U[4 + j, m] */
-    for (i = 0; i < 3; i++)
-        for (j = i; j < 3; j++) {
-            double s = P[7 * (4 + i) + 4 + j] - (K[4 + i] * U[4 + j] + K[12 + i] * U[12 + j]
-                                                 + K[20 + i] * U[20 + j]);
-            P[7 * (4 + i) + 4 + j] = s;
-            P[7 * (4 + j) + 4 + i] = s;
-        }
+    /* bias block: P[4 + i, 4:7] -= sum_m K[4 + i, m] U[4:7, m] */
+    for (i = 0; i < 3; i++) {
+        ekf_v4 r = ekf_ld_bb(P, i);
+        for (m = 0; m < 3; m++)
+            r = ekf_msub(r, ekf_ld(U + 8 * m + 4), K[8 * m + 4 + i]);
+        R[i] = r;
+    }
+    ekf_store_bb(P, R);
 }
 
 /* The heading-only update's covariance (fusion/_ekf.pyx, heading_update): K = [u; 0] kaᵀ
@@ -239,7 +312,7 @@ static inline void ekfc_optimal(double* P, double* q, double* b, const double* U
  * h̃ = h - (γ/2) w̄. */
 static inline void ekfc_heading(double* P, const double* U, const double* S, const double* u,
                                 const double* w, const double* ka, const double* kc) {
-    ekf_v4 gq, gb, hq, hb, uv, c[3];
+    ekf_v4 gq, gb, hq, hb, uv, wv, c[3], R[4];
     double t[3], gqa[4], gba[4], hqa[4], hba[4];
     double al, be, ga;
     int i, j;
@@ -262,8 +335,9 @@ static inline void ekfc_heading(double* P, const double* U, const double* S, con
     ga = kc[0] * t[0] + kc[1] * t[1] + kc[2] * t[2];
     uv = ekf_ld(u);
     gq = ekf_msub(gq, uv, 0.5 * al);
-    gb = ekf_msub(gb, ekf_set(w[0], w[1], w[2], 0.0), be);
-    hb = ekf_msub(hb, ekf_set(w[0], w[1], w[2], 0.0), 0.5 * ga);
+    wv = ekf_set(w[0], w[1], w[2], 0.0);
+    gb = ekf_msub(gb, wv, be);
+    hb = ekf_msub(hb, wv, 0.5 * ga);
     ekf_st(gqa, gq);
     ekf_st(gba, gb);
     ekf_st(hqa, hq);
@@ -271,15 +345,18 @@ static inline void ekfc_heading(double* P, const double* U, const double* S, con
     /* attitude rows: P[i, 0:4] -= u_i g̃[0:4] + g̃_i u */
     for (i = 0; i < 4; i++) {
         ekf_v4 s = ekf_msub(ekf_ld(P + 7 * i), gq, u[i]);
-        ekf_st(P + 7 * i, ekf_msub(s, uv, gqa[i]));
+        R[i] = ekf_msub(s, uv, gqa[i]);
     }
-    ekf_mirror_qq(P);
+    ekf_store_qq(P, R);
     /* attitude-bias columns: P[0:4, 4 + j] -= u g̃_b[j] + h̃_q w_j */
     for (j = 0; j < 3; j++) {
         ekf_v4 s = ekf_msub(ekf_ld(P + 7 * (4 + j)), uv, gba[j]);
         c[j] = ekf_msub(s, hq, w[j]);
     }
     ekf_store_qb(P, c);
-    ekf_update_bb(P, w, hba, hba, w);
+    /* bias block: P[4 + i, 4:7] -= w_i h̃_b + h̃_b[i] w */
+    for (i = 0; i < 3; i++)
+        R[i] = ekf_msub(ekf_msub(ekf_ld_bb(P, i), hb, w[i]), wv, hba[i]);
+    ekf_store_bb(P, R);
 }
 #endif
