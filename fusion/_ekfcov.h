@@ -19,6 +19,12 @@
 #include <math.h>
 #include <string.h>
 
+#if defined(__GNUC__) && !defined(__clang__)
+/* without AVX (the portable build: SSE2) GCC notes that a 32-byte vector returned by value
+ * has another ABI than with AVX; these functions are static and inlined, never called
+ * across objects */
+#pragma GCC diagnostic ignored "-Wpsabi"
+#endif
 #if defined(__GNUC__) || defined(__clang__)
 typedef double ekf_v4 __attribute__((vector_size(32)));
 static inline ekf_v4 ekf_bc(double x) { ekf_v4 v = {x, x, x, x}; return v; }
