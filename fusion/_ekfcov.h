@@ -19,13 +19,13 @@
 #include <math.h>
 #include <string.h>
 
-#if defined(__GNUC__) && !defined(__clang__)
-/* without AVX (the portable build: SSE2) GCC notes that a 32-byte vector returned by value
- * has another ABI than with AVX; these functions are static and inlined, never called
- * across objects */
-#pragma GCC diagnostic ignored "-Wpsabi"
-#endif
-#if defined(__GNUC__) || defined(__clang__)
+/* Four-lane vectors where the target has 256-bit registers (AVX: make's native build). Without
+ * them (the portable build: x86-64's SSE2, two lanes), GCC assembles the 32-byte vectors from
+ * scalars through the stack, and the 16-byte loads of 8-byte stores stall store-to-load
+ * forwarding: that build ran 30 % slower than the scalar code before (benchmarks/README.md).
+ * There the plain struct below runs: the same arithmetic on four doubles, which the compiler
+ * keeps in scalar registers or pairs as it finds best. */
+#if (defined(__GNUC__) || defined(__clang__)) && defined(__AVX__)
 typedef double ekf_v4 __attribute__((vector_size(32)));
 static inline ekf_v4 ekf_bc(double x) { ekf_v4 v = {x, x, x, x}; return v; }
 static inline ekf_v4 ekf_set(double a, double b, double c, double d) { ekf_v4 v = {a, b, c, d}; return v; }
