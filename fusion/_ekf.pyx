@@ -3,8 +3,7 @@
 (Software Engineering, 2022) and "IIR-EKF, IMU dynamic error suppression" (J. Nanjing Univ. Aero.
 Astro., 2023) (docs/estimators.md)."""
 import numpy as np
-from libc.math cimport sqrt
-from libc.string cimport memcpy, memset
+from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
 from fusion._kalman cimport KalmanFilter
@@ -13,11 +12,20 @@ from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
 from fusion._core import check_fs, struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
-from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, rot_to_body, rot_to_nav,
-                            jac_rot_to_body, jac_rot_to_nav, up_in_body,
+from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
 
 from fusion._constants cimport GRAVITY as G0
+
+# the covariance arithmetic four lanes wide (fusion/_ekfcov.h)
+cdef extern from "_ekfcov.h" nogil:
+    void ekfc_predict(double* P, double* q, const double* A, double dt, double gq, double qb)
+    double ekfc_mag_model(const double* q, const double* zv, double* h, double* H)
+    void ekfc_pht(const double* P, const double* H, double r, double* U, double* S)
+    void ekfc_optimal(double* P, double* q, double* b, const double* U, const double* Si, double det,
+                      const double* y)
+    void ekfc_heading(double* P, const double* U, const double* S, const double* u, const double* w,
+                      const double* ka, const double* kc)
 
 # the vector updates' gains: "vector" the Kalman gain (as written in "IIR-EKF, IMU dynamic
 # error suppression"), "heading" the magnetometer's projected onto a turn about the vertical,
@@ -57,69 +65,29 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noex
             P[j * 7 + i] = s
 
 
-cdef inline void pred_entry(double* P, const double* F, const double* A, const double* L,
-                            const double* X, double gq, int i, int j) noexcept nogil:
-    """P[i, j] and P[j, i] (i, j < 4) of F P Fᵀ + Q = M Aᵀ + N Lᵀ + Q (ekf_predict)."""
-    cdef double s = (F[i * 7] * A[j * 4] + F[i * 7 + 1] * A[j * 4 + 1] + F[i * 7 + 2] * A[j * 4 + 2]
-                     + F[i * 7 + 3] * A[j * 4 + 3] + F[i * 7 + 4] * L[j * 3]
-                     + F[i * 7 + 5] * L[j * 3 + 1] + F[i * 7 + 6] * L[j * 3 + 2])
-    s += gq * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1] + X[i * 3 + 2] * X[j * 3 + 2])
-    P[i * 7 + j] = s
-    P[j * 7 + i] = s
-
-
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
                              double dt) noexcept nogil:
+    """q <- A q and P <- F P Fᵀ + Q, F = [[A, -(dt/2) Ξ(q)], [0, I]], A = Φ(gyr - b, dt),
+    Q = diag((dt/4) gyro_noise² Ξ Ξᵀ, bias_noise² dt I3) (fusion/_ekfcov.h, ekfc_predict)."""
     cdef double A[16]
-    cdef double L[12]    # -(dt/2) Xi(q), 4x3
-    cdef double X[12]    # Xi(q), 4x3
-    cdef double F[28]    # [M N] = [A L] P[:4 rows of F P]: M = A Pqq + L Pbq, N = A Pqb + L Pbb
-    cdef double qn[4]
-    cdef double s, gq, a0, a1, a2, a3, l0, l1, l2
-    cdef int i, j
     phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-    xi_matrix(q, X)
-    for i in range(12):
-        L[i] = -0.5 * dt * X[i]
-    # F = [[A, L], [0, I]]: the first 4 rows of F P, row by row with the row of [A L] held
-    # in registers (the column loop unrolls: no index arithmetic, P read once a row)
-    for i in range(4):
-        a0 = A[i * 4]; a1 = A[i * 4 + 1]; a2 = A[i * 4 + 2]; a3 = A[i * 4 + 3]
-        l0 = L[i * 3]; l1 = L[i * 3 + 1]; l2 = L[i * 3 + 2]
-        qn[i] = a0 * q[0] + a1 * q[1] + a2 * q[2] + a3 * q[3]
-        for j in range(7):
-            F[i * 7 + j] = (a0 * P[j] + a1 * P[7 + j] + a2 * P[14 + j] + a3 * P[21 + j]
-                            + l0 * P[28 + j] + l1 * P[35 + j] + l2 * P[42 + j])
-    # the attitude block M Aᵀ + N Lᵀ + Q, upper half mirrored, entry by entry
-    gq = 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise
-    pred_entry(P, F, A, L, X, gq, 0, 0); pred_entry(P, F, A, L, X, gq, 0, 1); pred_entry(P, F, A, L, X, gq, 0, 2); pred_entry(P, F, A, L, X, gq, 0, 3)
-    pred_entry(P, F, A, L, X, gq, 1, 1); pred_entry(P, F, A, L, X, gq, 1, 2); pred_entry(P, F, A, L, X, gq, 1, 3)
-    pred_entry(P, F, A, L, X, gq, 2, 2); pred_entry(P, F, A, L, X, gq, 2, 3)
-    pred_entry(P, F, A, L, X, gq, 3, 3)
-    for i in range(4):
-        for j in range(3):
-            P[i * 7 + 4 + j] = F[i * 7 + 4 + j]
-            P[(4 + j) * 7 + i] = F[i * 7 + 4 + j]
-    s = e.kalman.bias_noise * e.kalman.bias_noise * dt
-    for i in range(4, 7):
-        P[i * 8] += s
-    memcpy(q, qn, 4 * sizeof(double))
+    ekfc_predict(P, q, A, dt, 0.25 * dt * e.kalman.gyro_noise * e.kalman.gyro_noise,
+                 e.kalman.bias_noise * e.kalman.bias_noise * dt)
 
 
-cdef inline void heading_only_gain(const double* q, const double* U, const double* Sa,
-                                   double det, double* K) noexcept nogil:
-    """The gain K = U S^-1 (7x3; Sa = adj(S), det = 1 / det(S)) with every column projected
-    so that the update can only turn the attitude about the vertical (quaternion rows onto
-    u = e_z (x) q, the direction of such a turn) and change the bias along the body-frame
-    vertical w = R^T e_z: the magnetometer then corrects the heading alone, as in VQF and
-    Fusion (docs/estimators.md). Projecting U's rows first gives rank-one blocks,
-    K_q = u (uᵀ U_q S^-1) / |u|², K_b = w (wᵀ U_b S^-1): no dearer than the plain gain."""
-    cdef double u[4]
-    cdef double w[3]
+cdef inline void heading_gain(const double* q, const double* U, const double* Sa, double det,
+                              double* u, double* w, double* ka, double* kc) noexcept nogil:
+    """The magnetometer's gain projected so that the update can only turn the attitude about
+    the vertical (quaternion rows onto u = e_z (x) q, the direction of such a turn) and change
+    the bias along the body-frame vertical w = R^T e_z: the magnetometer then corrects the
+    heading alone, as in VQF and Fusion (docs/estimators.md). Projecting the rows of
+    U S^-1 (U = P Hᵀ in ekfc_pht's columns, Sa = adj(S), det = 1 / det(S)) gives rank-one
+    blocks, K_q = u kaᵀ with ka = S^-1 U_qᵀ u / |u|², K_b = w kcᵀ with kc = S^-1 U_bᵀ w:
+    K = [u; 0] kaᵀ + [0; w] kcᵀ, held as its four vectors (ekf_vector_update)."""
     cdef double a[3]
     cdef double c[3]
-    cdef double ka, kc, iuu
-    cdef int i, j
+    cdef double iuu
+    cdef int j
     u[0] = -q[3]
     u[1] = -q[2]
     u[2] = q[1]
@@ -127,19 +95,15 @@ cdef inline void heading_only_gain(const double* q, const double* U, const doubl
     iuu = det      # / |u|² = |q|² = 1: q was normalised by the update or prediction before
     up_in_body(q, w)
     for j in range(3):
-        a[j] = u[0] * U[j] + u[1] * U[3 + j] + u[2] * U[6 + j] + u[3] * U[9 + j]
-        c[j] = w[0] * U[12 + j] + w[1] * U[15 + j] + w[2] * U[18 + j]
+        a[j] = u[0] * U[8 * j] + u[1] * U[8 * j + 1] + u[2] * U[8 * j + 2] + u[3] * U[8 * j + 3]
+        c[j] = w[0] * U[8 * j + 4] + w[1] * U[8 * j + 5] + w[2] * U[8 * j + 6]
     for j in range(3):
-        ka = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
-        kc = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
-        for i in range(4):
-            K[i * 3 + j] = u[i] * ka
-        for i in range(3):
-            K[(4 + i) * 3 + j] = w[i] * kc
+        ka[j] = (a[0] * Sa[j] + a[1] * Sa[3 + j] + a[2] * Sa[6 + j]) * iuu
+        kc[j] = (c[0] * Sa[j] + c[1] * Sa[3 + j] + c[2] * Sa[6 + j]) * det
 
 
 cdef inline void tilt_only_gain(const double* q, double* K) noexcept nogil:
-    """The complement of heading_only_gain, for the accelerometer (acc_update="tilt"): K's
+    """The complement of heading_gain, for the accelerometer (acc_update="tilt"): K's
     quaternion rows projected off u = e_z (x) q (no turn about the vertical) and its bias
     rows off the body-frame vertical w = R^T e_z, so that a linear acceleration the filter
     takes for gravity cannot turn the heading or the bias along the vertical, which the
@@ -175,36 +139,53 @@ cdef inline void ekf_vector_update(double* q, double* b, double* P, const double
                                    int gain) noexcept nogil:
     """Kalman update with measurement z, prediction h, Jacobian H (3x4, zero on the bias)
     and noise variance r per axis; ``gain``: GAIN_FULL, or the gain projected by
-    heading_only_gain / tilt_only_gain (the Joseph form in kalman_apply holds for any gain)."""
-    cdef double U[21]    # P H^T, 7x3
+    heading_gain / tilt_only_gain. The covariance in the Joseph form, which holds for any
+    gain (kalman_apply), written for each gain's structure: P - K Uᵀ for the optimal gain
+    (ekfc_optimal), the rank-four form for the heading gain (ekfc_heading)."""
+    cdef double U[24]    # P Hᵀ, 7x3, as three columns of 8 (ekfc_pht)
+    cdef double Ur[21]   # P Hᵀ, 7x3 row-major (kalman_apply)
     cdef double S[9]
+    cdef double Si[9]    # adj(S)
     cdef double y[3]
-    cdef double s
-    cdef int i, j, k
-    for i in range(7):
-        for k in range(3):
-            U[i * 3 + k] = (P[i * 7] * H[k * 4] + P[i * 7 + 1] * H[k * 4 + 1]
-                            + P[i * 7 + 2] * H[k * 4 + 2] + P[i * 7 + 3] * H[k * 4 + 3])
-    # S = H U[:4] + r I, symmetric: the upper half, mirrored
-    for k in range(3):
-        for j in range(k, 3):
-            s = (H[k * 4] * U[j] + H[k * 4 + 1] * U[3 + j]
-                 + H[k * 4 + 2] * U[6 + j] + H[k * 4 + 3] * U[9 + j])
-            S[k * 3 + j] = s
-            S[j * 3 + k] = s
-    S[0] += r
-    S[4] += r
-    S[8] += r
+    cdef double u[4]
+    cdef double w[3]
+    cdef double ka[3]
+    cdef double kc[3]
+    cdef double det, dq, db
+    cdef int i, k
+    ekfc_pht(P, H, r, U, S)
     y[0] = z[0] - h[0]
     y[1] = z[1] - h[1]
     y[2] = z[2] - h[2]
-    kalman_apply(q, b, P, U, S, y, gain)
+    if gain == GAIN_FULL:
+        # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for
+        # the division (~13 cycles on the chain from P to the next update)
+        det = sym3_adjugate(S, Si)
+        ekfc_optimal(P, q, b, U, Si, det, y)
+        quat_normalise(q)
+    elif gain == GAIN_HEADING:
+        det = sym3_adjugate(S, Si)
+        heading_gain(q, U, Si, det, u, w, ka, kc)
+        dq = ka[0] * y[0] + ka[1] * y[1] + ka[2] * y[2]
+        db = kc[0] * y[0] + kc[1] * y[1] + kc[2] * y[2]
+        for i in range(4):
+            q[i] += u[i] * dq
+        for i in range(3):
+            b[i] += w[i] * db
+        quat_normalise(q)
+        ekfc_heading(P, U, S, u, w, ka, kc)
+    else:
+        for i in range(7):
+            for k in range(3):
+                Ur[i * 3 + k] = U[8 * k + i]
+        kalman_apply(q, b, P, Ur, S, y, gain)
 
 
 cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
                               double* S, const double* y, int gain) noexcept nogil:
-    """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3),
-    S = H P Hᵀ + Rm and the residual y."""
+    """The update of [q, b] and P for a 3-D measurement from U = P Hᵀ (7x3 row-major),
+    S = H P Hᵀ + Rm and the residual y, for a gain other than the optimal or the heading one
+    (ekf_vector_update): the tilt-only gain and the rest update's bias-only gain."""
     cdef double Si[9]    # adj(S)
     cdef double K[21]    # 7x3
     cdef double V[21]    # U - K S, 7x3
@@ -213,17 +194,14 @@ cdef inline void kalman_apply(double* q, double* b, double* P, const double* U,
     # K = U S^-1 = (U adj(S)) / det(S): the products with the adjugate do not wait for the
     # division (~13 cycles on the chain from P to the next update)
     det = sym3_adjugate(S, Si)
-    if gain == GAIN_HEADING:
-        heading_only_gain(q, U, Si, det, K)
-    else:
-        for i in range(7):
-            for j in range(3):
-                K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
-        if gain == GAIN_TILT:
-            tilt_only_gain(q, K)
-        elif gain == GAIN_BIAS:
-            for i in range(12):
-                K[i] = 0.0
+    for i in range(7):
+        for j in range(3):
+            K[i * 3 + j] = (U[i * 3] * Si[j] + U[i * 3 + 1] * Si[3 + j] + U[i * 3 + 2] * Si[6 + j]) * det
+    if gain == GAIN_TILT:
+        tilt_only_gain(q, K)
+    elif gain == GAIN_BIAS:
+        for i in range(12):
+            K[i] = 0.0
     for i in range(4):
         q[i] += K[i * 3] * y[0] + K[i * 3 + 1] * y[1] + K[i * 3 + 2] * y[2]
     for i in range(3):
@@ -265,69 +243,23 @@ cdef inline void ekf_acc_update(EKF e, double* q, double* b, double* P, const do
     ekf_vector_update(q, b, P, z, h, H, sa * sa / dt, e.acc_gain)
 
 
-cdef inline void rot_to_body_yz(const double* q, double b, double c, double* out) noexcept nogil:
-    """rot_to_body(q, [0, b, c], out)."""
-    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
-    out[0] = 2.0 * (x*y + w*z) * b + 2.0 * (x*z - w*y) * c
-    out[1] = (w*w - x*x + y*y - z*z) * b + 2.0 * (y*z + w*x) * c
-    out[2] = 2.0 * (y*z - w*x) * b + (w*w - x*x - y*y + z*z) * c
-
-
-cdef inline void jac_rot_to_body_yz(const double* q, double b, double c, double* H) noexcept nogil:
-    """jac_rot_to_body(q, [0, b, c], H)."""
-    cdef double w = q[0], x = q[1], y = q[2], z = q[3]
-    H[0] = 2.0 * (z*b - y*c)
-    H[1] = 2.0 * (y*b + z*c)
-    H[2] = 2.0 * (x*b - w*c)
-    H[3] = 2.0 * (w*b + x*c)
-    H[4] = 2.0 * (w*b + x*c)
-    H[5] = 2.0 * (w*c - x*b)
-    H[6] = 2.0 * (y*b + z*c)
-    H[7] = 2.0 * (y*c - z*b)
-    H[8] = 2.0 * (w*c - x*b)
-    H[9] = 2.0 * (-w*b - x*c)
-    H[10] = 2.0 * (z*b - y*c)
-    H[11] = 2.0 * (y*b + z*c)
-
-
-cdef inline void ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
+cdef inline bint ekf_mag_update(EKF e, double* q, double* b, double* P, const double* mag,
                                 double dt) noexcept nogil:
+    """The magnetometer's update; False if the field has no heading information (q, b and P
+    unchanged), True if it updated them (q normalised)."""
     # "IIR-EKF, IMU dynamic error suppression", eqs. 11-16: the measured field in the navigation
-    # frame, its horizontal part
-    # folded onto north, h = R^T v. v depends on q, and so does the Jacobian: dh/dq =
-    # d(R^T v)/dq|v + R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets
-    # heading residuals tilt the estimate and drag the gyro bias with them.
+    # frame, its horizontal part folded onto north, h = R^T v (fusion/_ekfcov.h,
+    # ekfc_mag_model). v depends on q, and so does the Jacobian: dh/dq = d(R^T v)/dq|v +
+    # R^T dv/dn dn/dq, n = R m. Holding v fixed (as the paper does) lets heading residuals
+    # tilt the estimate and drag the gyro bias with them.
     cdef double z[3]
-    cdef double n[3]
     cdef double h[3]
     cdef double H[12]
-    cdef double Jn[12]   # dn/dq
-    cdef double D[12]    # dv/dq = dv/dn Jn
-    cdef double rho, ux, uy
-    cdef int j
     unit3(mag, z)
-    rot_to_nav(q, z, n)
-    rho = sqrt(n[0] * n[0] + n[1] * n[1])
-    if rho < 1e-9:     # field along the vertical: no heading information
-        return
-    # v = [0, rho, n2]; rot_to_body, jac_rot_to_body and R^T D below without the terms of
-    # the zero component (products with 0.0 are not dropped by the compiler; the sums are
-    # the same)
-    rot_to_body_yz(q, rho, n[2], h)
-    jac_rot_to_body_yz(q, rho, n[2], H)
-    jac_rot_to_nav(q, z, Jn)
-    ux = n[0] / rho
-    uy = n[1] / rho
-    for j in range(4):
-        D[4 + j] = ux * Jn[j] + uy * Jn[4 + j]
-        D[8 + j] = Jn[8 + j]
-    # H += R^T(q) D, column by column (R^T applied to each column of D; its first row is 0)
-    for j in range(4):
-        rot_to_body_yz(q, D[4 + j], D[8 + j], n)
-        H[j] += n[0]
-        H[4 + j] += n[1]
-        H[8 + j] += n[2]
+    if ekfc_mag_model(q, z, h, H) == 0.0:     # field along the vertical: no heading information
+        return False
     ekf_vector_update(q, b, P, z, h, H, e.kalman.mag_noise * e.kalman.mag_noise / dt, e.mag_gain)
+    return True
 
 
 cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
@@ -366,6 +298,9 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
     parameters: EKF._step and the batch loop both run this."""
     cdef double af[3]
     cdef bint sat
+    # unit: q was normalised by the last update that changed it (each update normalises); a
+    # second normalisation would only move its last bit and wait on the chain to the next step
+    cdef bint unit = False
     if gyr != NULL and out_of_range(gyr, e.gyro_range_):
         gyr = NULL      # not a measurement: held as a dropped sample (the covariance grows)
     sat = gyr != NULL and saturated(gyr, e.gyro_range_)
@@ -376,9 +311,11 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
         acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
+        unit = True
     if mag_accepted(e, q, mag, gyr, dt):
-        ekf_mag_update(e, q, s.b, s.P, mag, dt)
-    quat_normalise(q)
+        unit = ekf_mag_update(e, q, s.b, s.P, mag, dt) or unit
+    if not unit:
+        quat_normalise(q)
 
 
 cdef inline void ekf_batch_step(Estimator e, double* q, void* s, const double* gyr,

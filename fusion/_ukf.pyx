@@ -84,7 +84,7 @@ cdef inline void sigma_mean_cov(double* Y, int n, double* mean, double* cov) noe
 cdef inline void heading_only_rows(const double* q, double* K) noexcept nogil:
     """mag_update="heading": the gain's attitude rows (body-frame error) and bias rows (6x3)
     projected onto the body-frame vertical w = Rᵀ e_z, so that the magnetometer only turns
-    the attitude about the vertical (as the ekf's heading_only_gain)."""
+    the attitude about the vertical (as the ekf's heading_gain)."""
     cdef double w[3]
     cdef double a, c
     cdef int j
