@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
-SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd envs/*.pyx)
+SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd fusion/*.h envs/*.pyx)
 
 # the kernels of the local build are compiled for this machine's CPU (setup.py: FUSION_MARCH);
 # `FUSION_MARCH= make install` builds the portable copy a wheel gets
