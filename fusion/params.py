@@ -116,7 +116,7 @@ MAGDIST = (
           "reference; 0: detection off", allow_zero=True),
     Param("magdist_norm_tol", 0.1, "1", 1e-4, 10.0, "a field whose norm differs from the "
           "reference's by more than this share is disturbed"),
-    # 5 deg, not VQF's 10: leave-one-set-out, docs/accuracy.md "The magnetic dip tolerance"
+    # 5 deg, not VQF's 10: leave-one-set-out, docs/accuracy.md "Seventh pass: the magnetic dip tolerance"
     Param("magdist_dip_tol", 5.0, "deg", 1e-3, 90.0, "a field whose dip differs from the "
           "reference's by more than this is disturbed"),
     Param("magdist_new_time", 20.0, "s", 1e-3, 1e5, "a field other than the reference that stays "
