@@ -130,7 +130,7 @@ class Bank(BankCore):
                     if D is None:
                         raise ValueError(f"dt must be None, a scalar or an array of shape ({T},) or "
                                          f"({T}, {n}), got dtype {np.asarray(dt).dtype} shape {np.shape(dt)}")
-        self._enter()
+        self._enter(0)
         try:
             if self.on_invalid == "raise":
                 check_samples(G, A, M, n, True)
@@ -186,7 +186,7 @@ class Bank(BankCore):
         return Estimator.from_state(self._read(lambda: self._filters[index].state()))
 
     def _read(self, f):
-        self._enter()
+        self._enter(1)
         try:
             return f()
         finally:
