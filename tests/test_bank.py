@@ -430,7 +430,8 @@ def _hard_recording(count, T, seed):
         sl = slice(0, T) if i % 2 == 0 else slice(None, None, -1)
         G[:, i], A[:, i], M[:, i] = src.gyr[sl], src.acc[sl], src.mag[sl]
         if i % 3 == 0:                     # moves after its rest
-            G[T // 2:, i], A[T // 2:, i], M[T // 2:, i] = moving.gyr[:T - T // 2], moving.acc[:T - T // 2], moving.mag[:T - T // 2]
+            h = T - T // 2
+            G[T // 2:, i], A[T // 2:, i], M[T // 2:, i] = moving.gyr[:h], moving.acc[:h], moving.mag[:h]
     M[T // 5:T // 5 + 300, 1::2] *= 1.6                 # a magnet: the norm off by 60 %
     G[T // 3:T // 3 + 20, 2] += [0.0, 0.0, 25.0]        # a spin: |w| dt / 2 > 0.05
     G[T // 4:T // 4 + 5, 3] = [3.0, -3.0, 0.5]          # saturated (gyro_range 3 on filter 3)
