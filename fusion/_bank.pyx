@@ -2,10 +2,15 @@
 """The compiled part of fusion.Bank (fusion/bank.py): count estimator kernels stepped in one
 loop without the GIL, the in-use guard, and the per-sample path.
 
-The kernels keep their state per object today, so the bank holds an array of pointers to
-count ordinary estimators and calls each one's batch loop (Estimator._run_batch, the code
-that est.update and est.run run) directly through its C method table: the same compiled
-code as count separate estimators, so the same numbers, bit for bit."""
+The bank holds an array of pointers to count ordinary estimators. For most it calls each
+one's batch loop (Estimator._run_batch, the code that est.update and est.run run) directly
+through its C method table: the same compiled code as count separate estimators, so the same
+numbers, bit for bit. A bank of `ekf` with acc_update="vector" and mag_update="heading" (the
+defaults; soa_supported) also holds every filter's state field-major, lane l of field f at
+soa[f * cap + l], and steps four filters per vector (fusion/_ekfbank.h, ekfb_block); a
+filter whose sample is not the usual one (ekfb_fast) is stepped through its object, its
+state copied in and back. The objects are brought up to the lanes' state before anything
+reads them (_enter), and the lanes reloaded after anything may have changed them."""
 from cpython.ref cimport PyObject
 from libc.stdlib cimport malloc, calloc, free
 
@@ -293,6 +298,15 @@ cdef class BankCore:
         """True: the bank steps its filters four at a time, state in structure-of-arrays
         layout (fusion/_ekfbank.h); False: each through its own batch loop."""
         return self.soa != NULL
+
+    def _objects_only(self):
+        """Drop the structure-of-arrays lanes (their state written to the objects first): from
+        here on the bank steps the objects' own batch loops, so that code holding the filter
+        objects themselves (envs/vector.py: each robot its filter) may use them between steps."""
+        self._enter()
+        free(self.soa)
+        self.soa = NULL
+        self._exit()
 
     cdef void _load_lanes(self) noexcept nogil:
         """Every lane from its filter; the padding lanes copies of lane 0."""
