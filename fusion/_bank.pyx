@@ -39,6 +39,9 @@ cdef extern from "_ekfbank.h" nogil:
                      const double* m, const double* h, double dt, double dtn)
     void ekfb_block(double* d, size_t cap, size_t l, int nine, double qo[4][4])
 
+#: True where the build has the ekf bank's structure-of-arrays step (fusion/_ekfbank.h: AVX)
+SOA = bool(EKFB_AVAILABLE)
+
 # the ekf's gains the structure-of-arrays step has (fusion/_ekf.pyx GAIN_*): acc_update
 # "vector", mag_update "heading"
 cdef int GAIN_FULL = 0, GAIN_HEADING = 1

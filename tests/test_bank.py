@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import fusion
+from fusion._bank import SOA
 from fusion.scenarios import make_scenario
 
 NAMES = fusion.available()
@@ -92,7 +93,7 @@ def test_bank_equals_separate_estimators(data, name, nine_axis):
     assert Q.shape == (T, COUNT, 4)
     ref = np.stack([e.run(G[:, i], A[:, i], None if M is None else M[:, i]) for i, e in enumerate(ests)], 1)
     assert _close(bank, Q, ref)
-    assert bank._soa == (name == "ekf")
+    assert bank._soa == (name == "ekf" and SOA)
     # update: one sample for every filter per call, against the single estimators' update
     bank = fusion.make_bank(name, 100.0, COUNT, **kw, **shared)
     ests = _separate(name, per, **kw)
@@ -464,7 +465,7 @@ def test_ekf_bank_four_lane_step_long(nine_axis):
                gyro_range=[None, None, None, 3.0, 35.0, None, None])
     kw = dict(frame="NED", on_invalid="skip")
     bank = fusion.make_bank("ekf", 100.0, count, **kw, **per)
-    assert bank._soa
+    assert bank._soa == SOA
     ests = [fusion.make("ekf", 100.0, **kw, **{k: v[i] for k, v in per.items()}) for i in range(count)]
 
     def col(x, i, sl):
