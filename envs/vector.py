@@ -76,6 +76,9 @@ class SphereBotVectorEnv(VectorEnv):
             import fusion
             self._bank = fusion.make_bank(e0.estimator_name, e0.imu_hz, self.num_envs, on_invalid="skip",
                                           **e0._est_params)
+            # the robots use their filter objects between the bank's steps (reset, bias, lone
+            # updates): the bank steps those objects, not its structure-of-arrays copy
+            self._bank._objects_only()
             for e, f in zip(self.envs, self._bank._filters, strict=True):
                 e._est = f
         self._p = self._client = None

@@ -2,21 +2,147 @@
 """The compiled part of fusion.Bank (fusion/bank.py): count estimator kernels stepped in one
 loop without the GIL, the in-use guard, and the per-sample path.
 
-The kernels keep their state per object today, so the bank holds an array of pointers to
-count ordinary estimators and calls each one's batch loop (Estimator._run_batch, the code
-that est.update and est.run run) directly through its C method table: the same compiled
-code as count separate estimators, so the same numbers, bit for bit."""
+The bank holds an array of pointers to count ordinary estimators. For most it calls each
+one's batch loop (Estimator._run_batch, the code that est.update and est.run run) directly
+through its C method table: the same compiled code as count separate estimators, so the same
+numbers, bit for bit. A bank of `ekf` with acc_update="vector" and mag_update="heading" (the
+defaults; soa_supported) also holds every filter's state field-major, lane l of field f at
+soa[f * cap + l], and steps four filters per vector (fusion/_ekfbank.h, ekfb_block); a
+filter whose sample is not the usual one (ekfb_fast) is stepped through its object, its
+state copied in and back. The objects are brought up to the lanes' state before anything
+reads them (_enter), and the lanes reloaded after anything may have changed them."""
 from cpython.ref cimport PyObject
-from libc.stdlib cimport malloc, free
+from libc.stdlib cimport malloc, calloc, free
+
+from fusion._ekf cimport EKF
+from fusion._ekf import EKF as _EKF
 
 import numpy as np
 cimport numpy as cnp
 
-from fusion._core cimport Estimator, output_q
+from fusion._core cimport Estimator, output_q, quat_out
 from fusion._core import DT_MAX, DT_MIN, check_dt
 from fusion._qmath cimport vec3_valid, vec3_finite
 
 cnp.import_array()
+
+# the ekf bank's structure-of-arrays step (fusion/_ekfbank.h)
+cdef extern from "_ekfbank.h" nogil:
+    int EKFB_AVAILABLE
+    enum:
+        EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
+        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MSTART, EB_MREJ, EB_LP, EB_QG, EB_LPS, EB_LPT,
+        EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
+        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_NFIELDS
+    int ekb_ix(int i, int j)
+    size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g, const double* a,
+                     const double* m, const double* h, double dt, double dtn)
+    void ekfb_block(double* d, size_t cap, size_t l, int nine, double qo[4][4])
+
+#: True where the build has the ekf bank's structure-of-arrays step (fusion/_ekfbank.h: AVX)
+SOA = bool(EKFB_AVAILABLE)
+
+# the ekf's gains the structure-of-arrays step has (fusion/_ekf.pyx GAIN_*): acc_update
+# "vector", mag_update "heading"
+cdef int GAIN_FULL = 0, GAIN_HEADING = 1
+
+
+cdef inline double* _lane(double* d, size_t cap, int f, size_t l) noexcept nogil:
+    return d + <size_t>f * cap + l
+
+
+cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noexcept nogil:
+    """Filter e's state (and with params its parameters) into lane l."""
+    cdef int i, j
+    for i in range(4):
+        _lane(d, cap, EB_Q + i, l)[0] = e.q[i]
+        _lane(d, cap, EB_QG + i, l)[0] = e.acc_lp.qg[i]
+    for i in range(3):
+        _lane(d, cap, EB_B + i, l)[0] = e.s.b[i]
+        _lane(d, cap, EB_RG + i, l)[0] = e.rest.gyr[i]
+        _lane(d, cap, EB_RA + i, l)[0] = e.rest.acc[i]
+        _lane(d, cap, EB_LP + i, l)[0] = e.acc_lp.lp[i]
+    for i in range(7):
+        for j in range(i, 7):
+            _lane(d, cap, EB_P + ekb_ix(i, j), l)[0] = e.s.P[7 * i + j]
+    _lane(d, cap, EB_TUN, l)[0] = e.s.t_unmeasured
+    _lane(d, cap, EB_RT, l)[0] = e.rest.t
+    _lane(d, cap, EB_RN, l)[0] = <double>e.rest.n
+    _lane(d, cap, EB_RS, l)[0] = 1.0 if e.rest.started else 0.0
+    for i in range(2):
+        _lane(d, cap, EB_MCUR + i, l)[0] = e.magd.s.cur[i]
+        _lane(d, cap, EB_MREF + i, l)[0] = e.magd.s.ref[i]
+        _lane(d, cap, EB_MCAND + i, l)[0] = e.magd.s.cand[i]
+    _lane(d, cap, EB_MTU, l)[0] = e.magd.s.t_undist
+    _lane(d, cap, EB_MTC, l)[0] = e.magd.s.t_cand
+    _lane(d, cap, EB_MTR, l)[0] = e.magd.s.t_reject
+    _lane(d, cap, EB_MDIST, l)[0] = 1.0 if e.magd.s.disturbed else 0.0
+    _lane(d, cap, EB_MSTART, l)[0] = 1.0 if e.magd.s.started else 0.0
+    _lane(d, cap, EB_MREJ, l)[0] = <double>e.magd.s.rejected
+    _lane(d, cap, EB_LPS, l)[0] = 1.0 if e.acc_lp.lp_started else 0.0
+    _lane(d, cap, EB_LPT, l)[0] = e.acc_lp.lp_time
+    _lane(d, cap, EB_INIT, l)[0] = 1.0 if e.is_init else 0.0
+    if not params:
+        return
+    _lane(d, cap, EB_GN, l)[0] = e.kalman.gyro_noise
+    _lane(d, cap, EB_BN, l)[0] = e.kalman.bias_noise
+    _lane(d, cap, EB_AN, l)[0] = e.kalman.acc_noise
+    _lane(d, cap, EB_MN, l)[0] = e.kalman.mag_noise
+    _lane(d, cap, EB_GR, l)[0] = e.gyro_range_
+    _lane(d, cap, EB_RTIME, l)[0] = e.rest.time
+    _lane(d, cap, EB_RGTOL, l)[0] = e.rest.gyro_tol
+    _lane(d, cap, EB_RATOL, l)[0] = e.rest.acc_tol
+    _lane(d, cap, EB_RNOISE, l)[0] = e.rest.noise
+    _lane(d, cap, EB_MTIME, l)[0] = e.magd.time
+    _lane(d, cap, EB_MNTOL, l)[0] = e.magd.norm_tol
+    _lane(d, cap, EB_MDTOL, l)[0] = e.magd.dip_tol
+    _lane(d, cap, EB_MNEW, l)[0] = e.magd.new_time
+    _lane(d, cap, EB_TAU, l)[0] = e.acc_lowpass
+
+
+cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
+    """Lane l's state (what the four-lane step changes) into filter e."""
+    cdef int i, j
+    cdef double v
+    for i in range(4):
+        e.q[i] = _lane(d, cap, EB_Q + i, l)[0]
+        e.acc_lp.qg[i] = _lane(d, cap, EB_QG + i, l)[0]
+    for i in range(3):
+        e.s.b[i] = _lane(d, cap, EB_B + i, l)[0]
+        e.rest.gyr[i] = _lane(d, cap, EB_RG + i, l)[0]
+        e.rest.acc[i] = _lane(d, cap, EB_RA + i, l)[0]
+        e.acc_lp.lp[i] = _lane(d, cap, EB_LP + i, l)[0]
+    for i in range(7):
+        for j in range(i, 7):
+            v = _lane(d, cap, EB_P + ekb_ix(i, j), l)[0]
+            e.s.P[7 * i + j] = v
+            e.s.P[7 * j + i] = v
+    e.s.t_unmeasured = _lane(d, cap, EB_TUN, l)[0]
+    e.rest.t = _lane(d, cap, EB_RT, l)[0]
+    e.rest.n = <long long>_lane(d, cap, EB_RN, l)[0]
+    for i in range(2):
+        e.magd.s.cur[i] = _lane(d, cap, EB_MCUR + i, l)[0]
+        e.magd.s.ref[i] = _lane(d, cap, EB_MREF + i, l)[0]
+        e.magd.s.cand[i] = _lane(d, cap, EB_MCAND + i, l)[0]
+    e.magd.s.t_undist = _lane(d, cap, EB_MTU, l)[0]
+    e.magd.s.t_cand = _lane(d, cap, EB_MTC, l)[0]
+    e.magd.s.t_reject = _lane(d, cap, EB_MTR, l)[0]
+    e.magd.s.disturbed = _lane(d, cap, EB_MDIST, l)[0] != 0.0
+    e.magd.s.rejected = <long long>_lane(d, cap, EB_MREJ, l)[0]
+    e.acc_lp.lp_time = _lane(d, cap, EB_LPT, l)[0]
+
+
+def soa_supported(list ests):
+    """True when these estimators can take the ekf bank's structure-of-arrays step: every one
+    an `ekf` (not a subclass) with acc_update="vector" and mag_update="heading", and the
+    compiler had vector extensions (fusion/_ekfbank.h)."""
+    if not EKFB_AVAILABLE or not ests:
+        return False
+    for e in ests:
+        if type(e) is not _EKF or (<EKF>e).acc_gain != GAIN_FULL or (<EKF>e).mag_gain != GAIN_HEADING:
+            return False
+    return True
+
 
 # samples per filter gathered per call of its batch loop in BankCore._run
 cdef Py_ssize_t RUN_BLOCK = 128
@@ -125,37 +251,124 @@ cdef class BankCore:
     cdef bint check                  # on_invalid == "raise"
     cdef bint busy                   # a call is in progress (set and tested with the GIL held)
     cdef readonly list _filters
+    # the ekf's structure-of-arrays step (fusion/_ekfbank.h): soa the fields of cap lanes
+    # (NULL: the filters are stepped through their own batch loops); fresh: the lanes hold the
+    # filters' latest state (the objects may be behind them until _sync_out)
+    cdef double* soa
+    cdef size_t cap
+    cdef bint fresh
+    cdef bint ned
 
     def __dealloc__(self):
         free(self.p)
+        free(self.soa)
 
     def _bind(self, list ests, bint check):
         """Take these estimators (fusion.Bank._setup has checked them)."""
         cdef Py_ssize_t i
         cdef PyObject** p
+        cdef double* soa = NULL
+        cdef size_t cap = (len(ests) + 3) // 4 * 4
         for e in ests:
             if not isinstance(e, Estimator):
                 raise TypeError(f"a bank holds fusion estimators, got {type(e).__name__}")
         p = <PyObject**>malloc(max(len(ests), 1) * sizeof(PyObject*))
         if p == NULL:
             raise MemoryError()
+        if soa_supported(ests):
+            soa = <double*>calloc(EB_NFIELDS * cap, sizeof(double))
+            if soa == NULL:
+                free(p)
+                raise MemoryError()
         self._enter()
         free(self.p)
+        free(self.soa)
         self.p = p
+        self.soa = soa
+        self.cap = cap
+        self.fresh = False
         self._filters = list(ests)
         self.count = len(self._filters)
         for i in range(self.count):
             self.p[i] = <PyObject*>self._filters[i]
         self.dt_nominal = (<Estimator>self._filters[0]).dt_nominal
+        self.ned = (<Estimator>self._filters[0]).ned
         self.check = check
         self._exit()
 
+    @property
+    def _soa(self):
+        """True: the bank steps its filters four at a time, state in structure-of-arrays
+        layout (fusion/_ekfbank.h); False: each through its own batch loop."""
+        return self.soa != NULL
+
+    def _objects_only(self):
+        """Drop the structure-of-arrays lanes (their state written to the objects first): from
+        here on the bank steps the objects' own batch loops, so that code holding the filter
+        objects themselves (envs/vector.py: each robot its filter) may use them between steps."""
+        self._enter()
+        free(self.soa)
+        self.soa = NULL
+        self._exit()
+
+    cdef void _load_lanes(self) noexcept nogil:
+        """Every lane from its filter; the padding lanes copies of lane 0."""
+        cdef size_t l, f
+        for l in range(<size_t>self.count):
+            _obj_to_lane(<EKF>self.p[l], self.soa, self.cap, l, True)
+        for l in range(<size_t>self.count, self.cap):
+            for f in range(<size_t>EB_NFIELDS):
+                self.soa[f * self.cap + l] = self.soa[f * self.cap]
+        self.fresh = True
+
+    cdef void _sync_out(self) noexcept nogil:
+        """The objects brought up to the lanes' state."""
+        cdef size_t l
+        if self.soa != NULL and self.fresh:
+            for l in range(<size_t>self.count):
+                _lane_to_obj(self.soa, self.cap, l, <EKF>self.p[l])
+
+    cdef void _soa_step(self, const double* g, const double* a, const double* m, const double* hd,
+                        double h, double* o) noexcept nogil:
+        """One sample for every filter on the lanes: the four-lane step where ekfb_fast allows
+        it, the filter's own batch loop (with its state copied in and back) elsewhere."""
+        cdef size_t n = self.count, cap = self.cap, l, k, slow
+        cdef double* d = self.soa
+        cdef double qo[4][4]
+        cdef double qq[4]
+        if not self.fresh:
+            self._load_lanes()
+        slow = ekfb_fast(d, cap, n, g, a, m, hd, h, self.dt_nominal)
+        if slow:
+            for l in range(n):
+                if d[EB_FAST * cap + l] == 0.0:
+                    _lane_to_obj(d, cap, l, <EKF>self.p[l])
+        for l in range(0, cap, 4):
+            ekfb_block(d, cap, l, m != NULL, qo)
+            for k in range(4):
+                if l + k < n:
+                    qq[0] = qo[0][k]; qq[1] = qo[1][k]; qq[2] = qo[2][k]; qq[3] = qo[3][k]
+                    quat_out(qq, self.ned, o + 4 * (l + k))
+        if slow:
+            for l in range(n):
+                if d[EB_FAST * cap + l] == 0.0:
+                    (<Estimator>self.p[l])._run_batch(g + 3 * l, a + 3 * l, m + 3 * l if m != NULL else NULL,
+                                                      NULL, hd[l] if hd != NULL else h, o + 4 * l, 1, False)
+                    _obj_to_lane(<EKF>self.p[l], d, cap, l, False)
+
     # --- in-use guard: the GIL is held from the test to the set, so two threads cannot both pass
-    def _enter(self):
+    def _enter(self, int mode=2):
+        """Mark the bank in use. mode 2 (a call that may change the filter objects: reset,
+        load_state): the objects brought up to date and the lanes reloaded from them at the
+        next step; 1 (a call that reads them): brought up to date; 0 (a step): neither."""
         if self.busy:
             raise RuntimeError("this bank is in use by another thread (a call on it is in "
                                "progress); give each thread its own bank")
         self.busy = True
+        if mode >= 1:
+            self._sync_out()
+        if mode == 2:
+            self.fresh = False
 
     def _exit(self):
         self.busy = False
@@ -199,10 +412,14 @@ cdef class BankCore:
                     i = _first_invalid(g, a, m, n, &s)
                 if i >= 0:
                     check_samples(G, A, M, n, False)           # raises, naming it
-            with nogil:
-                for i in range(n):
-                    (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
-                                                      NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
+            if self.soa != NULL:
+                with nogil:
+                    self._soa_step(g, a, m, hd, h, o)
+            else:
+                with nogil:
+                    for i in range(n):
+                        (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
+                                                          NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
         finally:
             self.busy = False
         return out
@@ -220,6 +437,12 @@ cdef class BankCore:
         cdef const double* h = _ptr(D)
         cdef double* o = <double*>cnp.PyArray_DATA(<cnp.ndarray>out)
         if T == 0:
+            return
+        if self.soa != NULL:
+            with nogil:
+                for t0 in range(T):
+                    self._soa_step(g + 3 * c * t0, a + 3 * c * t0, m + 3 * c * t0 if m != NULL else NULL,
+                                   h + c * t0 if h != NULL else NULL, dt, o + 4 * c * t0)
             return
         # gathered block by block (in cache): whole (count, T, 3) transposed copies cost 15 %
         # of a 64-ekf bank's run; gathered, the bank runs as fast as count separate est.run

@@ -5,11 +5,16 @@
     q = bank.update(gyr, acc, mag)      # (64, 3) each -> (64, 4)
     Q = bank.run(G, A, M)               # (T, 64, 3) each -> (T, 64, 4)
 
-The loop over the filters is compiled and runs without the GIL (fusion._bank). Each filter
-is an ordinary estimator kernel stepped through its own batch loop, so the numbers are those
-of count separate estimators, bit for bit. The kernels keep their state per object for now
-(not yet the structure-of-arrays layout a vectorising compiler would want): the bank is an
-array of pointers to count kernels.
+The loop over the filters is compiled and runs without the GIL (fusion._bank). A bank of
+`ekf` (the class itself, acc_update="vector" and mag_update="heading" on every filter: the
+defaults; any other numeric parameters, per filter or shared) keeps its filters' state in
+structure-of-arrays layout and steps them four at a time (fusion/_ekfbank.h): the scalar
+kernel's arithmetic on four filters per vector, equal to count separate estimators to 1e-12
+(not bit for bit: the compiler fuses multiply-adds differently). A sample that is not the
+usual one for a filter (not initialised, invalid, saturated, a time gap, a detector or the
+low-pass starting) goes through that filter's own estimator object. Every other bank (other
+estimators, other ekf configurations, iir-ekf) is an array of pointers to count kernels, each
+stepped through its own batch loop: the numbers of count separate estimators, bit for bit.
 """
 from __future__ import annotations
 
@@ -130,7 +135,7 @@ class Bank(BankCore):
                     if D is None:
                         raise ValueError(f"dt must be None, a scalar or an array of shape ({T},) or "
                                          f"({T}, {n}), got dtype {np.asarray(dt).dtype} shape {np.shape(dt)}")
-        self._enter()
+        self._enter(0)
         try:
             if self.on_invalid == "raise":
                 check_samples(G, A, M, n, True)
@@ -186,7 +191,7 @@ class Bank(BankCore):
         return Estimator.from_state(self._read(lambda: self._filters[index].state()))
 
     def _read(self, f):
-        self._enter()
+        self._enter(1)
         try:
             return f()
         finally:

@@ -1,5 +1,6 @@
 """fusion.make_bank (docs/estimators.md, "Banks"): count estimators in one object give the
-numbers of count separate estimators, bit for bit; bad input is refused naming the argument;
+numbers of count separate estimators (bit for bit, or to TOL for the ekf bank's four-lane
+step); bad input is refused naming the argument;
 states round trip; one filter resets alone; a second thread is refused while one steps."""
 import copy
 import json
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 import fusion
+from fusion._bank import SOA
 from fusion.scenarios import make_scenario
 
 NAMES = fusion.available()
@@ -50,6 +52,29 @@ def _params(name):
     return {k: vals}, [{k: v} for v in vals]
 
 
+# the ekf bank's structure-of-arrays step (fusion/_ekfbank.h) against the scalar kernel: the
+# same arithmetic, which the compiler may fuse into multiply-adds differently
+TOL = 1e-12
+
+
+def _close(bank, a, b):
+    """a and b bit for bit, or to TOL where the bank takes the four-lane step."""
+    if bank._soa:
+        return np.allclose(a, b, rtol=0.0, atol=TOL)
+    return np.array_equal(a, b)
+
+
+def _states_close(a, b):
+    """Two est.state() dicts (or lists of them) equal, their floats to TOL."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_states_close(a[k], b[k]) for k in a)
+    if isinstance(a, list) and a and isinstance(a[0], dict):
+        return isinstance(b, list) and len(a) == len(b) and all(_states_close(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) or (isinstance(a, list) and a and isinstance(a[0], float)):
+        return np.shape(a) == np.shape(b) and np.allclose(a, b, rtol=0.0, atol=TOL)
+    return a == b
+
+
 def _separate(name, per, **kw):
     return [fusion.make(name, 100.0, **kw, **p) for p in per]
 
@@ -67,26 +92,28 @@ def test_bank_equals_separate_estimators(data, name, nine_axis):
     Q = bank.run(G, A, M)
     assert Q.shape == (T, COUNT, 4)
     ref = np.stack([e.run(G[:, i], A[:, i], None if M is None else M[:, i]) for i, e in enumerate(ests)], 1)
-    assert np.array_equal(Q, ref)
+    assert _close(bank, Q, ref)
+    assert bank._soa == (name == "ekf" and SOA)
     # update: one sample for every filter per call, against the single estimators' update
     bank = fusion.make_bank(name, 100.0, COUNT, **kw, **shared)
     ests = _separate(name, per, **kw)
+    U = np.empty_like(Q)
     for t in range(T):
-        q = bank.update(G[t], A[t], None if M is None else M[t])
+        U[t] = bank.update(G[t], A[t], None if M is None else M[t])
         r = [e.update(G[t, i], A[t, i], None if M is None else M[t, i]) for i, e in enumerate(ests)]
-        assert np.array_equal(q, np.array(r)), f"sample {t}"
-    assert np.array_equal(Q, ref)
-    assert [s for s in bank.state()["filters"]] == [e.state() for e in ests]
-    assert np.array_equal(bank.quaternion, [e.quaternion for e in ests])
+        assert _close(bank, U[t], np.array(r)), f"sample {t}"
+    assert np.array_equal(U, Q)         # the bank's update and run: the same code
+    assert _states_close(bank.state()["filters"], [e.state() for e in ests])
+    assert _close(bank, bank.quaternion, [e.quaternion for e in ests])
     if ests[0].bias is None:
         assert bank.bias is None
     else:
-        assert np.array_equal(bank.bias, [e.bias for e in ests])
+        assert _close(bank, bank.bias, [e.bias for e in ests])
     if ests[0].covariance is None:
         assert bank.covariance is None
     else:
-        assert np.array_equal(bank.covariance, [e.covariance for e in ests])
-    assert np.array_equal(bank.euler, [e.euler for e in ests])
+        assert _close(bank, bank.covariance, [e.covariance for e in ests])
+    assert _close(bank, bank.euler, [e.euler for e in ests])
     if "rest_time" in ests[0].PARAMS:
         assert np.array_equal(bank.at_rest, [e.at_rest for e in ests])
     else:
@@ -106,17 +133,17 @@ def test_time_steps(data, name):
     bank = fusion.make_bank(name, 100.0, COUNT)
     ests = _separate(name, [{}] * COUNT)
     Q = bank.run(G, A, M, dt=D)
-    assert np.array_equal(Q, np.stack([e.run(G[:, i], A[:, i], M[:, i], dt=D[:, i]) for i, e in enumerate(ests)], 1))
+    assert _close(bank, Q, np.stack([e.run(G[:, i], A[:, i], M[:, i], dt=D[:, i]) for i, e in enumerate(ests)], 1))
     for dt in (0.02, D[:, 0]):
         bank = fusion.make_bank(name, 100.0, COUNT)
         ests = _separate(name, [{}] * COUNT)
         Q = bank.run(G, A, M, dt=dt)
-        assert np.array_equal(Q, np.stack([e.run(G[:, i], A[:, i], M[:, i], dt=dt) for i, e in enumerate(ests)], 1))
+        assert _close(bank, Q, np.stack([e.run(G[:, i], A[:, i], M[:, i], dt=dt) for i, e in enumerate(ests)], 1))
     bank = fusion.make_bank(name, 100.0, COUNT)
     ests = _separate(name, [{}] * COUNT)
     for t in range(20):
         q = bank.update(G[t], A[t], M[t], dt=D[t])
-        assert np.array_equal(q, [e.update(G[t, i], A[t, i], M[t, i], dt=D[t, i]) for i, e in enumerate(ests)])
+        assert _close(bank, q, [e.update(G[t, i], A[t, i], M[t, i], dt=D[t, i]) for i, e in enumerate(ests)])
 
 
 def test_bad_construction():
@@ -208,10 +235,10 @@ def test_reset_one_index(data):
     ests[2].reset(q0)
     bank.reset(-1)
     ests[3].reset()
-    assert bank.state()["filters"] == [e.state() for e in ests]
+    assert _states_close(bank.state()["filters"], [e.state() for e in ests])
     Q = bank.run(G[200:], A[200:], M[200:])
     ref = np.stack([e.run(G[200:, i], A[200:, i], M[200:, i]) for i, e in enumerate(ests)], 1)
-    assert np.array_equal(Q, ref)
+    assert _close(bank, Q, ref)
     # all at once, one start attitude per filter; a bad row changes nothing
     q0s = np.tile(q0, (COUNT, 1))
     q0s[1] = 0.0
@@ -389,3 +416,97 @@ def test_big_endian_and_unaligned_input(data, name):
     assert not unaligned(G[0]).flags.aligned
     assert np.array_equal(ua.update(unaligned(G[0]), unaligned(A[0]), unaligned(M[0])), q)
     assert np.array_equal(ua.run(unaligned(G[1:20]), unaligned(A[1:20]), unaligned(M[1:20])), Q)
+
+
+def _hard_recording(count, T, seed):
+    """(T, count, 3) gyr, acc, mag and (T, count) dt for the ekf bank's four-lane step and
+    every way out of it: still stretches (rest), a magnet's field (disturbance), fast spins
+    (the half-angle's cos / sin), saturated gyro samples, invalid samples, time gaps."""
+    rng = np.random.default_rng(seed)
+    still = make_scenario("static", fs=100.0, duration=T / 100.0, seed=seed)
+    moving = make_scenario("mixed", fs=100.0, duration=T / 100.0, seed=seed + 1)
+    G, A, M = (np.empty((T, count, 3)) for _ in range(3))
+    for i in range(count):
+        src = still if i % 3 == 0 else moving
+        sl = slice(0, T) if i % 2 == 0 else slice(None, None, -1)
+        G[:, i], A[:, i], M[:, i] = src.gyr[sl], src.acc[sl], src.mag[sl]
+        if i % 3 == 0:                     # moves after its rest
+            h = T - T // 2
+            G[T // 2:, i], A[T // 2:, i], M[T // 2:, i] = moving.gyr[:h], moving.acc[:h], moving.mag[:h]
+    M[T // 5:T // 5 + 300, 1::2] *= 1.6                 # a magnet: the norm off by 60 %
+    G[T // 3:T // 3 + 20, 2] += [0.0, 0.0, 25.0]        # a spin: |w| dt / 2 > 0.05
+    G[T // 4:T // 4 + 5, 3] = [3.0, -3.0, 0.5]          # saturated (gyro_range 3 on filter 3)
+    for _ in range(3 * count):                           # invalid samples (on_invalid='skip')
+        t, i, k = rng.integers(T), rng.integers(count), rng.integers(3)
+        (G, A, M)[k][t, i, rng.integers(3)] = [np.nan, np.inf, 0.0][k] if k else np.nan
+        if k:
+            (A, M)[k - 1][t, i] = 0.0
+    D = np.full((T, count), 0.01) * rng.uniform(0.9, 1.1, (T, count))
+    D[rng.integers(T, size=8), rng.integers(count, size=8)] = 0.035     # gaps
+    return G, A, M, D
+
+
+@pytest.mark.parametrize("nine_axis", [True, False])
+def test_ekf_bank_four_lane_step_long(nine_axis):
+    """A long seeded run of 7 ekf with their own parameters (two blocks of four lanes, one
+    lane padding) against 7 separate ekf, through rest, disturbances, spins, saturation,
+    invalid samples and gaps; mid-run a state round trip and a reset of one filter."""
+    count, T = 7, 4000
+    G, A, M, D = _hard_recording(count, T, seed=11)
+    M = M if nine_axis else None
+    per = dict(acc_noise=[0.5, 1.0, 2.0, 0.3, 0.5, 4.0, 1.5],
+               gyro_noise=[0.015, 0.01, 0.03, 0.015, 0.02, 0.005, 0.015],
+               bias_noise=[1e-4, 0.0, 1e-3, 1e-4, 1e-5, 1e-4, 1e-4],
+               mag_noise=[0.2, 0.1, 0.5, 0.2, 0.3, 0.2, 1.0],
+               rest_time=[1.5, 0.0, 0.5, 1.5, 1.0, 1.5, 3.0],
+               magdist_time=[60.0, 2.0, 0.0, 60.0, 5.0, 60.0, 10.0],
+               magdist_new_time=[20.0, 1.0, 20.0, 20.0, 2.0, 20.0, 20.0],
+               acc_lowpass=[1.0, 0.0, 0.3, 1.0, 2.0, 1.0, 0.0],
+               gyro_range=[None, None, None, 3.0, 35.0, None, None])
+    kw = dict(frame="NED", on_invalid="skip")
+    bank = fusion.make_bank("ekf", 100.0, count, **kw, **per)
+    assert bank._soa == SOA
+    ests = [fusion.make("ekf", 100.0, **kw, **{k: v[i] for k, v in per.items()}) for i in range(count)]
+
+    def col(x, i, sl):
+        return None if x is None else x[sl, i]
+
+    def check(sl):
+        Q = bank.run(G[sl], A[sl], None if M is None else M[sl], dt=D[sl])
+        ref = np.stack([e.run(G[sl, i], A[sl, i], col(M, i, sl), dt=D[sl, i]) for i, e in enumerate(ests)], 1)
+        assert np.abs(Q - ref).max() <= TOL
+        assert _states_close(bank.state()["filters"], [e.state() for e in ests])
+
+    check(slice(0, 1500))
+    s = bank.state()
+    bank = fusion.Bank.from_state(json.loads(json.dumps(s)))
+    bank.reset(4)
+    ests[4].reset()
+    check(slice(1500, 2500))
+    for t in range(2500, T):        # per sample
+        q = bank.update(G[t], A[t], None if M is None else M[t], dt=D[t])
+        r = [e.update(G[t, i], A[t, i], col(M, i, t), dt=D[t, i]) for i, e in enumerate(ests)]
+        assert np.abs(q - np.array(r)).max() <= TOL, f"sample {t}"
+    assert _states_close(bank.state()["filters"], [e.state() for e in ests])
+    # the run went through what the four-lane step handles itself, and what it leaves to the object
+    st = [e.state()["fields"] for e in ests]
+    assert sum(f["rest_samples"] for f in st) > 100
+    if nine_axis:
+        assert sum(f["magd_rejected"] for f in st) > 50
+    assert sum(sum(e.skipped.values()) for e in ests) > 0
+    assert np.array_equal(bank.at_rest, [e.at_rest for e in ests])
+    assert [list(v) for v in bank.skipped.values()] == [[e.skipped[k] for e in ests] for k in ("gyr", "acc", "mag")]
+
+
+def test_ekf_bank_other_configurations_keep_the_objects(data):
+    """acc_update="tilt" or mag_update="vector" (on any filter), and the ekf's subclasses:
+    the bank steps the objects' own batch loops, bit for bit."""
+    G, A, M = data
+    for kw in (dict(acc_update="tilt"), dict(mag_update=["heading", "vector", "heading", "heading"])):
+        bank = fusion.make_bank("ekf", 100.0, COUNT, **kw)
+        assert not bank._soa
+        Q = bank.run(G, A, M)
+        per = [{k: (v[i] if isinstance(v, list) else v) for k, v in kw.items()} for i in range(COUNT)]
+        ests = _separate("ekf", per)
+        assert np.array_equal(Q, np.stack([e.run(G[:, i], A[:, i], M[:, i]) for i, e in enumerate(ests)], 1))
+    assert not fusion.make_bank("iir-ekf", 100.0, COUNT)._soa
