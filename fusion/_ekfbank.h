@@ -67,6 +67,17 @@ static inline ekb_v ekb_sel(ekb_m m, ekb_v a, ekb_v b) {
     return (ekb_v)(((ekb_m)a & m) | ((ekb_m)b & ~m));
 }
 static inline int ekb_any(ekb_m m) { return (m[0] | m[1] | m[2] | m[3]) != 0; }
+/* an update's result (p2, q2, b2) kept in the lanes of m, the state before it elsewhere */
+static inline void ekb_keep(ekb_m m, ekb_v* p, ekb_v* q, ekb_v* b, const ekb_v* p2,
+                            const ekb_v* q2, const ekb_v* b2) {
+    int i;
+    for (i = 0; i < 49; i++)
+        p[i] = ekb_sel(m, p2[i], p[i]);
+    for (i = 0; i < 4; i++)
+        q[i] = ekb_sel(m, q2[i], q[i]);
+    for (i = 0; i < 3; i++)
+        b[i] = ekb_sel(m, b2[i], b[i]);
+}
 static inline ekb_v ekb_sqrt(ekb_v v) {
     ekb_v r; int i;
     for (i = 0; i < 4; i++) r[i] = sqrt(v[i]);
@@ -606,12 +617,7 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
             memcpy(q2, q, sizeof q2);
             memcpy(b2, b, sizeof b2);
             ekb_rest_update(p2, q2, b2, g, rn * rn / dt);
-            for (i = 0; i < 49; i++)
-                p[i] = ekb_sel(rest, p2[i], p[i]);
-            for (i = 0; i < 4; i++)
-                q[i] = ekb_sel(rest, q2[i], q[i]);
-            for (i = 0; i < 3; i++)
-                b[i] = ekb_sel(rest, b2[i], b[i]);
+            ekb_keep(rest, p, q, b, p2, q2, b2);
         }
     }
     /* acc_lowpassed: in the gyro's frame (started, not lost) where tau > 0 */
@@ -669,12 +675,7 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
             memcpy(q2, q, sizeof q2);
             memcpy(b2, b, sizeof b2);
             acc &= ekb_mag_update(p2, q2, b2, mg, mn * mn / dt);
-            for (i = 0; i < 49; i++)
-                p[i] = ekb_sel(acc, p2[i], p[i]);
-            for (i = 0; i < 4; i++)
-                q[i] = ekb_sel(acc, q2[i], q[i]);
-            for (i = 0; i < 3; i++)
-                b[i] = ekb_sel(acc, b2[i], b[i]);
+            ekb_keep(acc, p, q, b, p2, q2, b2);
         }
     }
     for (i = 0; i < 7; i++)
