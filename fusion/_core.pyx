@@ -29,7 +29,8 @@ ON_INVALID = ("raise", "skip")
 # 3: magnetic disturbance detection; 4: rest detection in mahony, cf-ekf composed (an EKF core
 # and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*);
 # 5: the accelerometer low-pass's running-mean start (acc_lp_time)
-STATE_VERSION = 5
+# 6: the magnetic disturbance detector's settling (magd_t_settle)
+STATE_VERSION = 6
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter

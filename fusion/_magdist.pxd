@@ -15,10 +15,11 @@ cdef struct MagDistState:
     double ref[2]       # the reference
     double cand[2]      # the candidate for a new reference
     double t_undist     # s undisturbed so far
+    double t_settle     # s since the first sample, until MAGD_FIRST_TIME (magd_check)
     double t_cand       # s the candidate has held while turning
     double t_reject     # s of rejection (decays while undisturbed)
     bint disturbed
-    bint started
+    bint started        # settled: the reference holds (magd_check)
     long long rejected  # samples rejected since the reset
 
 
@@ -36,7 +37,9 @@ cdef class MagDetector:
 # fixed time constants and limits, VQF's: the current field's low-pass (s), the reference's
 # (s), the undisturbed time before the reference follows again (s), the rate at which a
 # candidate counts (rad/s, 20 deg/s: a field that stays steady while the sensor turns is
-# homogeneous), how fast the rejection time decays while undisturbed (s per s)
+# homogeneous), how fast the rejection time decays while undisturbed (s per s); and ours: the
+# settling before the dip is judged (s: the default accelerometer low-pass's running-mean
+# start, after which the attitude's tilt has settled; docs/accuracy.md, "Ninth pass")
 cdef extern from *:
     """
     #define FUSION_MAGD_CUR_TAU 0.05
@@ -44,12 +47,14 @@ cdef extern from *:
     #define FUSION_MAGD_MIN_UNDIST 0.5
     #define FUSION_MAGD_NEW_MIN_GYR 0.3490658503988659
     #define FUSION_MAGD_DECAY 2.0
+    #define FUSION_MAGD_FIRST_TIME 1.0
     """
     double MAGD_CUR_TAU "FUSION_MAGD_CUR_TAU"
     double MAGD_REF_TAU "FUSION_MAGD_REF_TAU"
     double MAGD_MIN_UNDIST "FUSION_MAGD_MIN_UNDIST"
     double MAGD_NEW_MIN_GYR "FUSION_MAGD_NEW_MIN_GYR"
     double MAGD_DECAY "FUSION_MAGD_DECAY"
+    double MAGD_FIRST_TIME "FUSION_MAGD_FIRST_TIME"
 
 
 cdef inline void magd_clear(MagDetector d) noexcept nogil:
@@ -88,17 +93,27 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
     x[0] = nrm
     x[1] = -asin(s)             # the dip, positive down
-    if not d.started:           # the first sample is the reference
+    if not d.started and d.t_settle == 0.0:     # the first sample since the reset
         for i in range(2):
             d.cur[i] = x[i]
             d.ref[i] = x[i]
             d.cand[i] = x[i]
-        d.started = True
+        d.t_settle = dt
         d.t_undist = MAGD_MIN_UNDIST
         return True
     k = dt / (MAGD_CUR_TAU + dt)
     for i in range(2):
         d.cur[i] += k * (x[i] - d.cur[i])
+    if not d.started:
+        # settling: the dip is measured with the filter's attitude, which may start several
+        # degrees off (a first accelerometer sample with linear acceleration in it); a dip
+        # reference taken then would hold the true field out as disturbed for `time` s. For
+        # the first MAGD_FIRST_TIME s the reference's dip is the current one (the norm, which
+        # does not depend on the attitude, is judged from the first sample)
+        d.ref[1] = d.cur[1]
+        d.cand[1] = d.cur[1]
+        d.t_settle += dt
+        d.started = d.t_settle >= MAGD_FIRST_TIME
     k = dt / (MAGD_REF_TAU + dt)
     if magd_close(d.cur, d.ref, m):
         d.t_undist += dt

@@ -337,12 +337,13 @@ MAGDIST_PARAMS = {"magdist_time": 60.0, "magdist_norm_tol": 0.1, "magdist_dip_to
 class RefMagDist:
     """docs/estimators.md, "Magnetic disturbances": call with the attitude, the magnetometer
     and gyro samples; True when the sample may be used (rejections counted in n)."""
-    CUR_TAU, REF_TAU, MIN_UNDIST, NEW_MIN_GYR, DECAY = 0.05, 20.0, 0.5, math.radians(20.0), 2.0
+    CUR_TAU, REF_TAU, MIN_UNDIST, NEW_MIN_GYR, DECAY, FIRST_TIME = 0.05, 20.0, 0.5, math.radians(20.0), 2.0, 1.0
 
     def __init__(self, time, norm_tol, dip_tol_deg, new_time):
         self.time, self.norm_tol, self.dip_tol, self.new_time = time, norm_tol, math.radians(dip_tol_deg), new_time
         self.cur = self.ref = self.cand = None
         self.t_undist = self.t_cand = self.t_reject = 0.0
+        self.t_settle = 0.0
         self.disturbed = False
         self.n = 0
 
@@ -361,9 +362,12 @@ class RefMagDist:
         x = np.array([nrm, -math.asin(np.clip((rotmat(q) @ mag)[2] / nrm, -1.0, 1.0))])
         if self.cur is None:
             self.cur, self.ref, self.cand = x.copy(), x.copy(), x.copy()
-            self.t_undist = self.MIN_UNDIST
+            self.t_undist, self.t_settle = self.MIN_UNDIST, dt
             return True
         self.cur = self.cur + dt / (self.CUR_TAU + dt) * (x - self.cur)
+        if self.t_settle < self.FIRST_TIME:     # settling: the reference's dip is the current one
+            self.ref[1] = self.cand[1] = self.cur[1]
+            self.t_settle += dt
         k = dt / (self.REF_TAU + dt)
         if self._close(self.cur, self.ref):
             self.t_undist += dt

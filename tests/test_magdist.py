@@ -31,14 +31,18 @@ def attached(n=6000, t_on=20.0, offset=(0.8, -0.5, 0.6)):
 
 
 @pytest.mark.parametrize("name", sorted(REFS))
-@pytest.mark.parametrize("case", ["passing", "attached"])
+@pytest.mark.parametrize("case", ["passing", "attached", "start in motion"])
 def test_kernel_equals_reference_while_disturbed(name, case):
     """Each kernel against its reference (1e-9) over a passing disturbance (15 s) and an
     attached magnet (from 20 s, magdist_time 10 s so that the reference is re-learned), with
-    the detector rejecting samples in both."""
+    the detector rejecting samples in both, and over a start in linear acceleration (the
+    settling before the dip is judged, with the tilt several degrees off)."""
     if case == "passing":
         q_true, gyr, acc, mag, _, _ = scenario(n=6000, seed=9, burst_amp=0.0, disturb=(20.0, 35.0))
         params = {}
+    elif case == "start in motion":
+        q_true, gyr, acc, mag = start_in_motion(0)
+        params = {"magdist_new_time": 2.0}
     else:
         q_true, gyr, acc, mag, _ = attached()
         params = {"magdist_time": 10.0}
@@ -49,7 +53,7 @@ def test_kernel_equals_reference_while_disturbed(name, case):
     qr = r.run(gyr, acc, mag)
     assert qdiff(q, qr) < TOL
     assert est.mag_rejected == r.mag_rejected if name != "cf-ekf" else est.mag_rejected == r.cf.mag_rejected
-    assert est.mag_rejected > 100
+    assert est.mag_rejected > 100 or case == "start in motion"
 
 
 @pytest.mark.parametrize("name", MAGNETIC)
@@ -84,6 +88,33 @@ def test_attached_magnet_is_rejected_then_relearned(name):
     print(name, rejected, round(e[2000:3000].max(), 2))
     assert 0.5 * 10.0 * FS < rejected < 40.0 * FS     # rejected, not for the whole 40 s
     assert e[2000:3000].max() < 10.0
+
+
+def start_in_motion(seed):
+    """fusion.scenarios' "shaking" (linear-acceleration bursts of 8 m/s², 30 a minute) with a
+    1 deg/s gyro bias: the first accelerometer samples carry linear acceleration, and the
+    filters start with a tilt up to 16 deg off, settled within a second."""
+    from fusion.scenarios import make_scenario
+    b = np.random.default_rng(seed).normal(size=3)
+    sc = make_scenario("shaking", fs=FS, duration=60.0, seed=seed, gyro_bias=np.radians(1.0) * b / np.linalg.norm(b))
+    return sc.q_true, sc.gyr, sc.acc, sc.mag
+
+
+@pytest.mark.parametrize("name", MAGNETIC)
+def test_a_start_in_motion_does_not_hold_the_true_field_out(name):
+    """The dip is judged with the filter's attitude, so a reference dip taken at the first
+    sample, with the tilt still off, held the undisturbed field out as disturbed for
+    magdist_time (60 s): ekf 9-axis total 1.73 deg against 0.74 without detection (mean of 6
+    seeds, 120 s). The dip is judged after the first second (MAGD_FIRST_TIME): nothing is
+    rejected here, and the heading is that of the detection off."""
+    for seed in (0, 1):
+        q_true, gyr, acc, mag = start_in_motion(seed)
+        est = fusion.make(name, FS)
+        on = errors_deg(est.run(gyr, acc, mag), q_true)[1]
+        off = errors_deg(fusion.make(name, FS, magdist_time=0).run(gyr, acc, mag), q_true)[1]
+        print(name, seed, est.mag_rejected, round(rms(on), 2), round(rms(off), 2))
+        assert est.mag_rejected < 0.01 * len(gyr)
+        assert rms(on) < 1.1 * rms(off) + 0.1
 
 
 def test_detection_off_rejects_nothing_and_6_axis_is_unchanged():
