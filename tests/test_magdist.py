@@ -90,13 +90,13 @@ def test_attached_magnet_is_rejected_then_relearned(name):
     assert e[2000:3000].max() < 10.0
 
 
-def start_in_motion(seed):
+def start_in_motion(seed, duration=120.0):
     """fusion.scenarios' "shaking" (linear-acceleration bursts of 8 m/s², 30 a minute) with a
     1 deg/s gyro bias: the first accelerometer samples carry linear acceleration, and the
     filters start with a tilt up to 16 deg off, settled within a second."""
     from fusion.scenarios import make_scenario
     b = np.random.default_rng(seed).normal(size=3)
-    sc = make_scenario("shaking", fs=FS, duration=60.0, seed=seed, gyro_bias=np.radians(1.0) * b / np.linalg.norm(b))
+    sc = make_scenario("shaking", fs=FS, duration=duration, seed=seed, gyro_bias=np.radians(1.0) * b / np.linalg.norm(b))
     return sc.q_true, sc.gyr, sc.acc, sc.mag
 
 
@@ -104,10 +104,11 @@ def start_in_motion(seed):
 def test_a_start_in_motion_does_not_hold_the_true_field_out(name):
     """The dip is judged with the filter's attitude, so a reference dip taken at the first
     sample, with the tilt still off, held the undisturbed field out as disturbed for
-    magdist_time (60 s): ekf 9-axis total 1.73 deg against 0.74 without detection (mean of 6
-    seeds, 120 s). The dip is judged after the first second (MAGD_FIRST_TIME): nothing is
-    rejected here, and the heading is that of the detection off."""
-    for seed in (0, 1):
+    magdist_time (60 s): before the settling, on this recording every filter but madgwick
+    rejected 6,000-6,030 samples and its heading error was 19.5-22.3 deg rms against
+    1.2-3.0 with detection off. The dip is judged after the first second (MAGD_FIRST_TIME):
+    nothing is rejected here, and the heading is that of the detection off."""
+    for seed in (0,):
         q_true, gyr, acc, mag = start_in_motion(seed)
         est = fusion.make(name, FS)
         on = errors_deg(est.run(gyr, acc, mag), q_true)[1]
