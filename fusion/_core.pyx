@@ -42,7 +42,7 @@ TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
 COV = "cov"
-ACC_LP_CHECKS = {"qg": "unit", "lp_time": TIMER}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
+ACC_LP_CHECKS = {"lp_time": TIMER}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
 COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 
