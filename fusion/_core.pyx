@@ -28,8 +28,9 @@ ON_INVALID = ("raise", "skip")
 # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover;
 # 3: magnetic disturbance detection; 4: rest detection in mahony, cf-ekf composed (an EKF core
 # and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*);
-# 5: the accelerometer low-pass's running-mean start (acc_lp_time)
-STATE_VERSION = 5
+# 5: the accelerometer low-pass's running-mean start (acc_lp_time); 6: the low-pass held in
+# the body frame (acc_lp; acc_qg gone), a version-5 acc_lp being in the frame acc_qg
+STATE_VERSION = 6
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter
