@@ -3,13 +3,11 @@
 # estimation with bias estimation and magnetic disturbance rejection", 2023); the ekf family,
 # mahony, madgwick and the ukf share it, each with its own AccLowpass (its state fields:
 # fusion._core.struct_fields(<AccLowpass[:1]>&..., ACC_LP_CHECKS, "acc_")).
-from libc.string cimport memcpy
-from fusion._qmath cimport phi_matrix, quat_normalise, rot_to_nav, rot_to_body
+from fusion._qmath cimport half_angle_terms, rot_to_body
 
 
 cdef struct AccLowpass:
-    double lp[3]        # the low-passed sample, in the frame qg
-    double qg[4]        # the bias-corrected gyro integrated from the first sample, uncorrected
+    double lp[3]        # the low-passed sample, in the body frame (acc_gyro_lowpass)
     bint lp_started     # lp has its first sample
     double lp_time      # s since its first sample, held at tau (the running-mean start)
 
@@ -24,36 +22,44 @@ cdef inline void acc_gyro_lowpass(double tau, AccLowpass* s, const double* gyr,
     does not depend on the filter's corrections. For its first tau seconds (lp_time: the time
     since the first sample, held at tau after) it is the running mean of the samples so far,
     which weighs them alike: an exponential low-pass would hold the first sample, and the
-    linear acceleration in it, for about tau."""
-    cdef double an[3]
-    cdef double A[16]
-    cdef double qn[4]
-    cdef double k
+    linear acceleration in it, for about tau.
+    Computed in the body frame, the same filter: with qg <- qg ⊗ dq (dq the step's turn,
+    Φ(gyr - b, dt)'s first column) and l = R(qg)ᵀ lp_nav, the frame qg's low-pass
+    lp_nav <- lp_nav + k (R(qg) acc - lp_nav) is l <- R(dq)ᵀ l + k (acc - R(dq)ᵀ l): one
+    rotation a sample where the frame form took qg's propagation, its normalisation and two
+    rotations (the ekf's 9-axis sample about 15 ns faster: benchmarks/README.md); the
+    outputs move by round-off, which the low-pass forgets at the rate k."""
+    cdef double dq[4]
+    cdef double t[3]
+    cdef double k, c, sn
     cdef double* lp = s.lp
-    cdef double* qg = s.qg
-    cdef int i
-    if gyr != NULL and s.lp_started:
-        phi_matrix(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, A)
-        for i in range(4):
-            qn[i] = A[i * 4] * qg[0] + A[i * 4 + 1] * qg[1] + A[i * 4 + 2] * qg[2] + A[i * 4 + 3] * qg[3]
-        memcpy(qg, qn, 4 * sizeof(double))
-        quat_normalise(qg)
-    rot_to_nav(qg, acc, an)
     if not s.lp_started:
-        lp[0] = an[0]
-        lp[1] = an[1]
-        lp[2] = an[2]
+        lp[0] = acc[0]
+        lp[1] = acc[1]
+        lp[2] = acc[2]
         s.lp_started = True
         s.lp_time = 0.0
     else:
+        if gyr != NULL:
+            half_angle_terms(gyr[0] - b[0], gyr[1] - b[1], gyr[2] - b[2], dt, &c, &sn)
+            dq[0] = c
+            dq[1] = (gyr[0] - b[0]) * sn
+            dq[2] = (gyr[1] - b[1]) * sn
+            dq[3] = (gyr[2] - b[2]) * sn
+            rot_to_body(dq, lp, t)
+            lp[0] = t[0]
+            lp[1] = t[1]
+            lp[2] = t[2]
         s.lp_time += dt
         if s.lp_time > tau:
             s.lp_time = tau
         k = dt / (s.lp_time + dt)
-        lp[0] += k * (an[0] - lp[0])
-        lp[1] += k * (an[1] - lp[1])
-        lp[2] += k * (an[2] - lp[2])
-    rot_to_body(qg, lp, out)
+        lp[0] += k * (acc[0] - lp[0])
+        lp[1] += k * (acc[1] - lp[1])
+        lp[2] += k * (acc[2] - lp[2])
+    out[0] = lp[0]
+    out[1] = lp[1]
+    out[2] = lp[2]
 
 
 cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:
@@ -84,9 +90,5 @@ cdef inline void acc_lowpass_clear(AccLowpass* s) noexcept nogil:
     s.lp[0] = 0.0
     s.lp[1] = 0.0
     s.lp[2] = 0.0
-    s.qg[0] = 1.0
-    s.qg[1] = 0.0
-    s.qg[2] = 0.0
-    s.qg[3] = 0.0
     s.lp_started = False
     s.lp_time = 0.0

@@ -31,7 +31,7 @@ cdef extern from "_ekfbank.h" nogil:
     int EKFB_AVAILABLE
     enum:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
-        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MSTART, EB_MREJ, EB_LP, EB_QG, EB_LPS, EB_LPT,
+        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MSTART, EB_MREJ, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
         EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_NFIELDS
     int ekb_ix(int i, int j)
@@ -56,7 +56,6 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
     cdef int i, j
     for i in range(4):
         _lane(d, cap, EB_Q + i, l)[0] = e.q[i]
-        _lane(d, cap, EB_QG + i, l)[0] = e.acc_lp.qg[i]
     for i in range(3):
         _lane(d, cap, EB_B + i, l)[0] = e.s.b[i]
         _lane(d, cap, EB_RG + i, l)[0] = e.rest.gyr[i]
@@ -106,7 +105,6 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
     cdef double v
     for i in range(4):
         e.q[i] = _lane(d, cap, EB_Q + i, l)[0]
-        e.acc_lp.qg[i] = _lane(d, cap, EB_QG + i, l)[0]
     for i in range(3):
         e.s.b[i] = _lane(d, cap, EB_B + i, l)[0]
         e.rest.gyr[i] = _lane(d, cap, EB_RG + i, l)[0]

@@ -28,8 +28,9 @@ ON_INVALID = ("raise", "skip")
 # 2: rest detection (ekf family, ukf, cf-ekf), cf-ekf t_quiet, mahony/madgwick t_recover;
 # 3: magnetic disturbance detection; 4: rest detection in mahony, cf-ekf composed (an EKF core
 # and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*);
-# 5: the accelerometer low-pass's running-mean start (acc_lp_time)
-# 6: the magnetic disturbance detector's settling (magd_t_settle)
+# 5: the accelerometer low-pass's running-mean start (acc_lp_time); 6: the low-pass held in
+# the body frame (acc_lp; acc_qg gone), a version-5 acc_lp being in the frame acc_qg, and the
+# magnetic disturbance detector's settling (magd_t_settle)
 STATE_VERSION = 6
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
@@ -43,7 +44,7 @@ TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
 COV = "cov"
-ACC_LP_CHECKS = {"qg": "unit", "lp_time": TIMER}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
+ACC_LP_CHECKS = {"lp_time": TIMER}     # struct_fields' checks of an AccLowpass (fusion/_acclp.pxd)
 COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 

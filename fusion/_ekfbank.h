@@ -37,15 +37,15 @@ enum {
     EB_RG = 36, EB_RA = 39, EB_RT = 42, EB_RN = 43, EB_RS = 44,     /* rest: gyr[3], acc[3], t, n, started */
     EB_MCUR = 45, EB_MREF = 47, EB_MCAND = 49, EB_MTU = 51, EB_MTC = 52, EB_MTR = 53,
     EB_MDIST = 54, EB_MSTART = 55, EB_MREJ = 56,                    /* magnetic disturbance */
-    EB_LP = 57, EB_QG = 60, EB_LPS = 64, EB_LPT = 65,               /* acc low-pass */
-    EB_INIT = 66,
+    EB_LP = 57, EB_LPS = 60, EB_LPT = 61,               /* acc low-pass */
+    EB_INIT = 62,
     /* parameters */
-    EB_GN = 67, EB_BN = 68, EB_AN = 69, EB_MN = 70, EB_GR = 71,
-    EB_RTIME = 72, EB_RGTOL = 73, EB_RATOL = 74, EB_RNOISE = 75,
-    EB_MTIME = 76, EB_MNTOL = 77, EB_MDTOL = 78, EB_MNEW = 79, EB_TAU = 80,
+    EB_GN = 63, EB_BN = 64, EB_AN = 65, EB_MN = 66, EB_GR = 67,
+    EB_RTIME = 68, EB_RGTOL = 69, EB_RATOL = 70, EB_RNOISE = 71,
+    EB_MTIME = 72, EB_MNTOL = 73, EB_MDTOL = 74, EB_MNEW = 75, EB_TAU = 76,
     /* the sample, transposed (ekfb_fast) */
-    EB_IG = 81, EB_IA = 84, EB_IM = 87, EB_IDT = 90, EB_FAST = 91,
-    EB_NFIELDS = 92
+    EB_IG = 77, EB_IA = 80, EB_IM = 83, EB_IDT = 86, EB_FAST = 87,
+    EB_NFIELDS = 88
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -620,36 +620,26 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
             ekb_keep(rest, p, q, b, p2, q2, b2);
         }
     }
-    /* acc_lowpassed: in the gyro's frame (started, not lost) where tau > 0 */
+    /* acc_lowpassed (started, not lost) where tau > 0, in the body frame as acc_gyro_lowpass:
+     * lp <- R(dq)ᵀ lp + k (a - R(dq)ᵀ lp), dq = A's first column */
     on = EKB_LD(EB_TAU) > 0.0;
     if (ekb_any(on)) {
-        ekb_v qg[4], qn[4], an[3], lp[3], out[3], tau = EKB_LD(EB_TAU), lpt, k;
+        ekb_v lp[3], t[3], tau = EKB_LD(EB_TAU), lpt, k;
         ekb_v w, x, y, z;
         ekb_phi(g[0] - b[0], g[1] - b[1], g[2] - b[2], dt, A);
-        for (i = 0; i < 4; i++)
-            qg[i] = EKB_LD(EB_QG + i);
-        for (i = 0; i < 4; i++)
-            qn[i] = A[i * 4] * qg[0] + A[i * 4 + 1] * qg[1] + A[i * 4 + 2] * qg[2] + A[i * 4 + 3] * qg[3];
-        ekb_normalise(qn);
-        w = qn[0]; x = qn[1]; y = qn[2]; z = qn[3];
-        an[0] = (w*w + x*x - y*y - z*z) * a[0] + 2.0 * (x*y - w*z) * a[1] + 2.0 * (x*z + w*y) * a[2];
-        an[1] = 2.0 * (x*y + w*z) * a[0] + (w*w - x*x + y*y - z*z) * a[1] + 2.0 * (y*z - w*x) * a[2];
-        an[2] = 2.0 * (x*z - w*y) * a[0] + 2.0 * (y*z + w*x) * a[1] + (w*w - x*x - y*y + z*z) * a[2];
+        w = A[0]; x = A[4]; y = A[8]; z = A[12];
+        for (i = 0; i < 3; i++)
+            lp[i] = EKB_LD(EB_LP + i);
+        t[0] = (w*w + x*x - y*y - z*z) * lp[0] + 2.0 * (x*y + w*z) * lp[1] + 2.0 * (x*z - w*y) * lp[2];
+        t[1] = 2.0 * (x*y - w*z) * lp[0] + (w*w - x*x + y*y - z*z) * lp[1] + 2.0 * (y*z + w*x) * lp[2];
+        t[2] = 2.0 * (x*z + w*y) * lp[0] + 2.0 * (y*z - w*x) * lp[1] + (w*w - x*x - y*y + z*z) * lp[2];
         lpt = EKB_LD(EB_LPT) + dt;
         lpt = ekb_sel(lpt > tau, tau, lpt);
         k = dt / (lpt + dt);
         for (i = 0; i < 3; i++) {
-            lp[i] = EKB_LD(EB_LP + i);
-            lp[i] = lp[i] + k * (an[i] - lp[i]);
-        }
-        out[0] = (w*w + x*x - y*y - z*z) * lp[0] + 2.0 * (x*y + w*z) * lp[1] + 2.0 * (x*z - w*y) * lp[2];
-        out[1] = 2.0 * (x*y - w*z) * lp[0] + (w*w - x*x + y*y - z*z) * lp[1] + 2.0 * (y*z + w*x) * lp[2];
-        out[2] = 2.0 * (x*z + w*y) * lp[0] + 2.0 * (y*z - w*x) * lp[1] + (w*w - x*x - y*y + z*z) * lp[2];
-        for (i = 0; i < 4; i++)
-            EKB_ST(EB_QG + i, ekb_sel(on, qn[i], EKB_LD(EB_QG + i)));
-        for (i = 0; i < 3; i++) {
+            lp[i] = t[i] + k * (a[i] - t[i]);
             EKB_ST(EB_LP + i, ekb_sel(on, lp[i], EKB_LD(EB_LP + i)));
-            a[i] = ekb_sel(on, out[i], a[i]);
+            a[i] = ekb_sel(on, lp[i], a[i]);
         }
         EKB_ST(EB_LPT, ekb_sel(on, lpt, EKB_LD(EB_LPT)));
     }

@@ -407,7 +407,9 @@ def acc_lowpass_lost(est, gyr, sat, dt):
 def acc_lowpass_step(est, gyr, b, acc, dt):
     """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
     (never corrected), turned back into the body frame; est.acc_lp None before the first.
-    For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples."""
+    For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples.
+    The definition, VQF's frame form: the kernel (fusion/_acclp.pxd) holds the same filter in
+    the body frame, and the kernel = reference tests check the two agree."""
     if gyr is not None and est.acc_lp is not None:
         est.acc_qg = normalise(phi(gyr - b, dt) @ est.acc_qg)
     an = rotmat(est.acc_qg) @ acc

@@ -193,7 +193,8 @@ def test_a_state_of_the_previous_version_is_refused_by_its_version(name):
     detector, cf-ekf's composed core), and every version-3 state has the disturbance
     detector's old field names: such a state was refused as "state fields do not match",
     which did not say that the format had changed. The version is checked first, and the
-    message says which version this build reads."""
+    message says which version this build reads. Version 5 states hold the accelerometer
+    low-pass in the frame acc_qg, which version 6 dropped (the low-pass in the body frame)."""
     s = _state(name)
     s["version"] = 3
     for load in (fusion.make(name, 100.0).load_state, fusion.Estimator.from_state):
