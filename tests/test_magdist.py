@@ -96,7 +96,8 @@ def start_in_motion(seed, duration=120.0):
     filters start with a tilt up to 16 deg off, settled within a second."""
     from fusion.scenarios import make_scenario
     b = np.random.default_rng(seed).normal(size=3)
-    sc = make_scenario("shaking", fs=FS, duration=duration, seed=seed, gyro_bias=np.radians(1.0) * b / np.linalg.norm(b))
+    sc = make_scenario("shaking", fs=FS, duration=duration, seed=seed,
+                       gyro_bias=np.radians(1.0) * b / np.linalg.norm(b))
     return sc.q_true, sc.gyr, sc.acc, sc.mag
 
 
