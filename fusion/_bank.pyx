@@ -31,7 +31,7 @@ cdef extern from "_ekfbank.h" nogil:
     int EKFB_AVAILABLE
     enum:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
-        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MSTART, EB_MREJ, EB_MSET, EB_LP, EB_LPS, EB_LPT,
+        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
         EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_NFIELDS
     int ekb_ix(int i, int j)
@@ -76,7 +76,6 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
     _lane(d, cap, EB_MTC, l)[0] = e.magd.s.t_cand
     _lane(d, cap, EB_MTR, l)[0] = e.magd.s.t_reject
     _lane(d, cap, EB_MDIST, l)[0] = 1.0 if e.magd.s.disturbed else 0.0
-    _lane(d, cap, EB_MSTART, l)[0] = 1.0 if e.magd.s.started else 0.0
     _lane(d, cap, EB_MREJ, l)[0] = <double>e.magd.s.rejected
     _lane(d, cap, EB_MSET, l)[0] = e.magd.s.t_settle
     _lane(d, cap, EB_LPS, l)[0] = 1.0 if e.acc_lp.lp_started else 0.0
@@ -128,7 +127,6 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
     e.magd.s.t_reject = _lane(d, cap, EB_MTR, l)[0]
     e.magd.s.disturbed = _lane(d, cap, EB_MDIST, l)[0] != 0.0
     e.magd.s.rejected = <long long>_lane(d, cap, EB_MREJ, l)[0]
-    e.magd.s.started = _lane(d, cap, EB_MSTART, l)[0] != 0.0
     e.magd.s.t_settle = _lane(d, cap, EB_MSET, l)[0]
     e.acc_lp.lp_time = _lane(d, cap, EB_LPT, l)[0]
 

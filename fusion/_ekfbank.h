@@ -36,16 +36,16 @@ enum {
     EB_TUN = 35,                              /* t_unmeasured */
     EB_RG = 36, EB_RA = 39, EB_RT = 42, EB_RN = 43, EB_RS = 44,     /* rest: gyr[3], acc[3], t, n, started */
     EB_MCUR = 45, EB_MREF = 47, EB_MCAND = 49, EB_MTU = 51, EB_MTC = 52, EB_MTR = 53,
-    EB_MDIST = 54, EB_MSTART = 55, EB_MREJ = 56, EB_MSET = 57,      /* magnetic disturbance */
-    EB_LP = 58, EB_LPS = 61, EB_LPT = 62,               /* acc low-pass */
-    EB_INIT = 63,
+    EB_MDIST = 54, EB_MREJ = 55, EB_MSET = 56,                    /* magnetic disturbance */
+    EB_LP = 57, EB_LPS = 60, EB_LPT = 61,               /* acc low-pass */
+    EB_INIT = 62,
     /* parameters */
-    EB_GN = 64, EB_BN = 65, EB_AN = 66, EB_MN = 67, EB_GR = 68,
-    EB_RTIME = 69, EB_RGTOL = 70, EB_RATOL = 71, EB_RNOISE = 72,
-    EB_MTIME = 73, EB_MNTOL = 74, EB_MDTOL = 75, EB_MNEW = 76, EB_TAU = 77,
+    EB_GN = 63, EB_BN = 64, EB_AN = 65, EB_MN = 66, EB_GR = 67,
+    EB_RTIME = 68, EB_RGTOL = 69, EB_RATOL = 70, EB_RNOISE = 71,
+    EB_MTIME = 72, EB_MNTOL = 73, EB_MDTOL = 74, EB_MNEW = 75, EB_TAU = 76,
     /* the sample, transposed (ekfb_fast) */
-    EB_IG = 78, EB_IA = 81, EB_IM = 84, EB_IDT = 87, EB_FAST = 88,
-    EB_NFIELDS = 89
+    EB_IG = 77, EB_IA = 80, EB_IM = 83, EB_IDT = 86, EB_FAST = 87,
+    EB_NFIELDS = 88
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -410,12 +410,8 @@ static inline void ekb_rest_update(ekb_v* p, ekb_v* q, ekb_v* b, const ekb_v* g,
 }
 
 /* magd_check (fusion/_magdist.pxd) on lane l: 1 if the filter may use the sample */
-/* its constants: fusion/_magdist.pxd's, defined before this header in the generated module */
-#define EKB_MAGD_CUR_TAU FUSION_MAGD_CUR_TAU
-#define EKB_MAGD_REF_TAU FUSION_MAGD_REF_TAU
-#define EKB_MAGD_MIN_UNDIST FUSION_MAGD_MIN_UNDIST
-#define EKB_MAGD_NEW_MIN_GYR FUSION_MAGD_NEW_MIN_GYR
-#define EKB_MAGD_DECAY FUSION_MAGD_DECAY
+/* its constants FUSION_MAGD_*: fusion/_magdist.pxd's, defined before this header in the
+ * generated module */
 #define EKB_S(f) d[(size_t)(f) * cap + l]
 
 static inline int ekb_magd_close(const double* a, const double* r, double norm_tol, double dip_tol) {
@@ -444,19 +440,18 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
     }
     disturbed = EKB_S(EB_MDIST) != 0.0;
     /* (past the first sample: ekfb_fast) */
-    k = dt / (EKB_MAGD_CUR_TAU + dt);
+    k = dt / (FUSION_MAGD_CUR_TAU + dt);
     for (i = 0; i < 2; i++)
         cur[i] += k * (x[i] - cur[i]);
-    if (EKB_S(EB_MSTART) == 0.0) {      /* settling: the reference's dip is the current one */
+    if (EKB_S(EB_MSET) < FUSION_MAGD_FIRST_TIME) {     /* settling: the reference's dip is the current one */
         ref[1] = cur[1];
         cand[1] = cur[1];
         EKB_S(EB_MSET) += dt;
-        EKB_S(EB_MSTART) = EKB_S(EB_MSET) >= FUSION_MAGD_FIRST_TIME ? 1.0 : 0.0;
     }
-    k = dt / (EKB_MAGD_REF_TAU + dt);
+    k = dt / (FUSION_MAGD_REF_TAU + dt);
     if (ekb_magd_close(cur, ref, ntol, dtol)) {
         EKB_S(EB_MTU) += dt;
-        if (EKB_S(EB_MTU) >= EKB_MAGD_MIN_UNDIST) {
+        if (EKB_S(EB_MTU) >= FUSION_MAGD_MIN_UNDIST) {
             disturbed = 0;
             for (i = 0; i < 2; i++)
                 ref[i] += k * (cur[i] - ref[i]);
@@ -467,7 +462,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
     }
     if (ekb_magd_close(cur, cand, ntol, dtol)) {
         g2 = gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2];
-        if (g2 >= EKB_MAGD_NEW_MIN_GYR * EKB_MAGD_NEW_MIN_GYR)
+        if (g2 >= FUSION_MAGD_NEW_MIN_GYR * FUSION_MAGD_NEW_MIN_GYR)
             EKB_S(EB_MTC) += dt;
         for (i = 0; i < 2; i++)
             cand[i] += k * (cur[i] - cand[i]);
@@ -475,7 +470,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
             ref[0] = cand[0];
             ref[1] = cand[1];
             disturbed = 0;
-            EKB_S(EB_MTU) = EKB_MAGD_MIN_UNDIST;
+            EKB_S(EB_MTU) = FUSION_MAGD_MIN_UNDIST;
         }
     } else {
         EKB_S(EB_MTC) = 0.0;
@@ -487,7 +482,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         EKB_S(EB_MCAND + i) = cand[i];
     }
     if (!disturbed) {
-        EKB_S(EB_MTR) -= EKB_MAGD_DECAY * dt;
+        EKB_S(EB_MTR) -= FUSION_MAGD_DECAY * dt;
         if (EKB_S(EB_MTR) < 0.0)
             EKB_S(EB_MTR) = 0.0;
         EKB_S(EB_MREF) = ref[0];
@@ -500,7 +495,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         EKB_S(EB_MREF) = cur[0];
         EKB_S(EB_MREF + 1) = cur[1];
         EKB_S(EB_MDIST) = 0.0;
-        EKB_S(EB_MTU) = EKB_MAGD_MIN_UNDIST;
+        EKB_S(EB_MTU) = FUSION_MAGD_MIN_UNDIST;
         EKB_S(EB_MTR) = 0.0;
         return 1;
     }
@@ -561,7 +556,7 @@ static inline size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g,
                && !(hl > 1.5 * dtn)
                && (EKB_S(EB_RTIME) <= 0.0 || EKB_S(EB_RS) != 0.0)
                && (EKB_S(EB_TAU) <= 0.0 || EKB_S(EB_LPS) != 0.0)
-               && (ml == NULL || EKB_S(EB_MTIME) <= 0.0 || EKB_S(EB_MSTART) != 0.0 || EKB_S(EB_MSET) > 0.0);
+               && (ml == NULL || EKB_S(EB_MTIME) <= 0.0 || EKB_S(EB_MSET) > 0.0);
         EKB_S(EB_FAST) = fast ? 1.0 : 0.0;
         slow += !fast;
     }

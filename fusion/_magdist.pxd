@@ -15,11 +15,10 @@ cdef struct MagDistState:
     double ref[2]       # the reference
     double cand[2]      # the candidate for a new reference
     double t_undist     # s undisturbed so far
-    double t_settle     # s since the first sample, until MAGD_FIRST_TIME (magd_check)
+    double t_settle     # s since the first sample (0: none yet), counted to MAGD_FIRST_TIME (magd_check)
     double t_cand       # s the candidate has held while turning
     double t_reject     # s of rejection (decays while undisturbed)
     bint disturbed
-    bint started        # settled: the reference holds (magd_check)
     long long rejected  # samples rejected since the reset
 
 
@@ -93,7 +92,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
     x[0] = nrm
     x[1] = -asin(s)             # the dip, positive down
-    if not d.started and d.t_settle == 0.0:     # the first sample since the reset
+    if d.t_settle == 0.0:       # the first sample since the reset
         for i in range(2):
             d.cur[i] = x[i]
             d.ref[i] = x[i]
@@ -104,7 +103,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     k = dt / (MAGD_CUR_TAU + dt)
     for i in range(2):
         d.cur[i] += k * (x[i] - d.cur[i])
-    if not d.started:
+    if d.t_settle < MAGD_FIRST_TIME:
         # settling: the dip is measured with the filter's attitude, which may start several
         # degrees off (a first accelerometer sample with linear acceleration in it); a dip
         # reference taken then would hold the true field out as disturbed for `time` s. For
@@ -113,7 +112,6 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
         d.ref[1] = d.cur[1]
         d.cand[1] = d.cur[1]
         d.t_settle += dt
-        d.started = d.t_settle >= MAGD_FIRST_TIME
     k = dt / (MAGD_REF_TAU + dt)
     if magd_close(d.cur, d.ref, m):
         d.t_undist += dt
