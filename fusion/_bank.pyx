@@ -31,7 +31,7 @@ cdef extern from "_ekfbank.h" nogil:
     int EKFB_AVAILABLE
     enum:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
-        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_LP, EB_LPS, EB_LPT,
+        EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_MDIRC, EB_MDIRS, EB_MTF, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
         EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_NFIELDS
     int ekb_ix(int i, int j)
@@ -61,6 +61,8 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
         _lane(d, cap, EB_RG + i, l)[0] = e.rest.gyr[i]
         _lane(d, cap, EB_RA + i, l)[0] = e.rest.acc[i]
         _lane(d, cap, EB_LP + i, l)[0] = e.acc_lp.lp[i]
+        _lane(d, cap, EB_MDIRC + i, l)[0] = e.magd.s.dir_cur[i]
+        _lane(d, cap, EB_MDIRS + i, l)[0] = e.magd.s.dir_slow[i]
     for i in range(7):
         for j in range(i, 7):
             _lane(d, cap, EB_P + ekb_ix(i, j), l)[0] = e.s.P[7 * i + j]
@@ -78,6 +80,7 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
     _lane(d, cap, EB_MDIST, l)[0] = 1.0 if e.magd.s.disturbed else 0.0
     _lane(d, cap, EB_MREJ, l)[0] = <double>e.magd.s.rejected
     _lane(d, cap, EB_MSET, l)[0] = e.magd.s.t_settle
+    _lane(d, cap, EB_MTF, l)[0] = e.magd.s.t_fixed
     _lane(d, cap, EB_LPS, l)[0] = 1.0 if e.acc_lp.lp_started else 0.0
     _lane(d, cap, EB_LPT, l)[0] = e.acc_lp.lp_time
     _lane(d, cap, EB_INIT, l)[0] = 1.0 if e.is_init else 0.0
@@ -110,6 +113,8 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
         e.rest.gyr[i] = _lane(d, cap, EB_RG + i, l)[0]
         e.rest.acc[i] = _lane(d, cap, EB_RA + i, l)[0]
         e.acc_lp.lp[i] = _lane(d, cap, EB_LP + i, l)[0]
+        e.magd.s.dir_cur[i] = _lane(d, cap, EB_MDIRC + i, l)[0]
+        e.magd.s.dir_slow[i] = _lane(d, cap, EB_MDIRS + i, l)[0]
     for i in range(7):
         for j in range(i, 7):
             v = _lane(d, cap, EB_P + ekb_ix(i, j), l)[0]
@@ -128,6 +133,7 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
     e.magd.s.disturbed = _lane(d, cap, EB_MDIST, l)[0] != 0.0
     e.magd.s.rejected = <long long>_lane(d, cap, EB_MREJ, l)[0]
     e.magd.s.t_settle = _lane(d, cap, EB_MSET, l)[0]
+    e.magd.s.t_fixed = _lane(d, cap, EB_MTF, l)[0]
     e.acc_lp.lp_time = _lane(d, cap, EB_LPT, l)[0]
 
 

@@ -30,8 +30,9 @@ ON_INVALID = ("raise", "skip")
 # and a mahony, its fields "cf.*"), the disturbance detector a component (fields magd_*);
 # 5: the accelerometer low-pass's running-mean start (acc_lp_time); 6: the low-pass held in
 # the body frame (acc_lp; acc_qg gone), a version-5 acc_lp being in the frame acc_qg, and the
-# magnetic disturbance detector's settling (magd_t_settle)
-STATE_VERSION = 6
+# magnetic disturbance detector's settling (magd_t_settle); 7: the detector's test of a field
+# that turns with the sensor (magd_dir, magd_t_fixed)
+STATE_VERSION = 7
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter

@@ -36,16 +36,17 @@ enum {
     EB_TUN = 35,                              /* t_unmeasured */
     EB_RG = 36, EB_RA = 39, EB_RT = 42, EB_RN = 43, EB_RS = 44,     /* rest: gyr[3], acc[3], t, n, started */
     EB_MCUR = 45, EB_MREF = 47, EB_MCAND = 49, EB_MTU = 51, EB_MTC = 52, EB_MTR = 53,
-    EB_MDIST = 54, EB_MREJ = 55, EB_MSET = 56,                    /* magnetic disturbance */
-    EB_LP = 57, EB_LPS = 60, EB_LPT = 61,               /* acc low-pass */
-    EB_INIT = 62,
+    EB_MDIST = 54, EB_MREJ = 55, EB_MSET = 56, EB_MDIRC = 57, EB_MDIRS = 60, EB_MTF = 63,
+    /* (magnetic disturbance) */
+    EB_LP = 64, EB_LPS = 67, EB_LPT = 68,               /* acc low-pass */
+    EB_INIT = 69,
     /* parameters */
-    EB_GN = 63, EB_BN = 64, EB_AN = 65, EB_MN = 66, EB_GR = 67,
-    EB_RTIME = 68, EB_RGTOL = 69, EB_RATOL = 70, EB_RNOISE = 71,
-    EB_MTIME = 72, EB_MNTOL = 73, EB_MDTOL = 74, EB_MNEW = 75, EB_TAU = 76,
+    EB_GN = 70, EB_BN = 71, EB_AN = 72, EB_MN = 73, EB_GR = 74,
+    EB_RTIME = 75, EB_RGTOL = 76, EB_RATOL = 77, EB_RNOISE = 78,
+    EB_MTIME = 79, EB_MNTOL = 80, EB_MDTOL = 81, EB_MNEW = 82, EB_TAU = 83,
     /* the sample, transposed (ekfb_fast) */
-    EB_IG = 77, EB_IA = 80, EB_IM = 83, EB_IDT = 86, EB_FAST = 87,
-    EB_NFIELDS = 88
+    EB_IG = 84, EB_IA = 87, EB_IM = 90, EB_IDT = 93, EB_FAST = 94,
+    EB_NFIELDS = 95
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -421,15 +422,20 @@ static inline int ekb_magd_close(const double* a, const double* r, double norm_t
 
 static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, const double* mag,
                            const double* gyr, double dt) {
-    double nrm, nz, s, k, g2, x[2], cur[2], ref[2], cand[2];
+    double nrm, nz, s, k, ks, g2, x[2], cur[2], ref[2], cand[2], u[3], r2;
     double ntol = EKB_S(EB_MNTOL), dtol = EKB_S(EB_MDTOL);
-    int i, disturbed;
+    int i, disturbed, turned;
     if (EKB_S(EB_MTIME) <= 0.0)
         return 1;
     nrm = sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2]);
     nz = (2.0 * (q[1] * q[3] - q[0] * q[2]) * mag[0] + 2.0 * (q[2] * q[3] + q[0] * q[1]) * mag[1]
           + (q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]) * mag[2]);
     s = nz / nrm;
+    u[0] = ((q[0] * q[0] + q[1] * q[1] - q[2] * q[2] - q[3] * q[3]) * mag[0]
+            + 2.0 * (q[1] * q[2] - q[0] * q[3]) * mag[1] + 2.0 * (q[1] * q[3] + q[0] * q[2]) * mag[2]) / nrm;
+    u[1] = (2.0 * (q[1] * q[2] + q[0] * q[3]) * mag[0] + (q[0] * q[0] - q[1] * q[1] + q[2] * q[2] - q[3] * q[3]) * mag[1]
+            + 2.0 * (q[2] * q[3] - q[0] * q[1]) * mag[2]) / nrm;
+    u[2] = s;
     s = s > 1.0 ? 1.0 : (s < -1.0 ? -1.0 : s);
     x[0] = nrm;
     x[1] = -asin(s);
@@ -440,6 +446,17 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
     }
     disturbed = EKB_S(EB_MDIST) != 0.0;
     /* (past the first sample: ekfb_fast) */
+    k = dt / (FUSION_MAGD_CUR_TAU + dt);
+    ks = dt / (FUSION_MAGD_DIR_TAU + dt);
+    r2 = 0.0;
+    for (i = 0; i < 3; i++) {
+        EKB_S(EB_MDIRC + i) += k * (u[i] - EKB_S(EB_MDIRC + i));
+        EKB_S(EB_MDIRS + i) += ks * (EKB_S(EB_MDIRC + i) - EKB_S(EB_MDIRS + i));
+        u[i] = EKB_S(EB_MDIRC + i) - EKB_S(EB_MDIRS + i);
+        r2 += u[i] * u[i];
+    }
+    turned = EKB_S(EB_MSET) >= FUSION_MAGD_FIRST_TIME && r2 > FUSION_MAGD_DIR_TOL * FUSION_MAGD_DIR_TOL;
+    EKB_S(EB_MTF) = turned ? 0.0 : EKB_S(EB_MTF) + dt;
     k = dt / (FUSION_MAGD_CUR_TAU + dt);
     for (i = 0; i < 2; i++)
         cur[i] += k * (x[i] - cur[i]);
@@ -460,13 +477,14 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         EKB_S(EB_MTU) = 0.0;
         disturbed = 1;
     }
-    if (ekb_magd_close(cur, cand, ntol, dtol)) {
+    if (ekb_magd_close(cur, cand, ntol, dtol) && !turned) {
         g2 = gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2];
         if (g2 >= FUSION_MAGD_NEW_MIN_GYR * FUSION_MAGD_NEW_MIN_GYR)
             EKB_S(EB_MTC) += dt;
         for (i = 0; i < 2; i++)
             cand[i] += k * (cur[i] - cand[i]);
-        if (disturbed && EKB_S(EB_MTC) >= EKB_S(EB_MNEW)) {     /* magd_relearn(cand) */
+        if (disturbed && EKB_S(EB_MTC) >= EKB_S(EB_MNEW)
+            && EKB_S(EB_MTF) >= FUSION_MAGD_FIXED_HOLD) {     /* magd_relearn(cand) */
             ref[0] = cand[0];
             ref[1] = cand[1];
             disturbed = 0;
@@ -491,7 +509,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         return 1;
     }
     EKB_S(EB_MTR) += dt;
-    if (EKB_S(EB_MTR) > EKB_S(EB_MTIME)) {      /* magd_relearn(cur) */
+    if (EKB_S(EB_MTR) > EKB_S(EB_MTIME) && EKB_S(EB_MTF) >= FUSION_MAGD_FIXED_HOLD) {      /* magd_relearn(cur) */
         EKB_S(EB_MREF) = cur[0];
         EKB_S(EB_MREF + 1) = cur[1];
         EKB_S(EB_MDIST) = 0.0;

@@ -4,7 +4,10 @@
 # and dip angle against a reference learned while undisturbed. While disturbed the heading runs
 # on the gyro; after `time` s of rejection the current field becomes the reference (a magnet
 # fixed to the sensor is a new hard-iron offset), and a different field that stays steady for
-# `new_time` s while the sensor turns replaces the reference sooner. Each filter skips its
+# `new_time` s while the sensor turns replaces the reference sooner. Neither re-learning takes a
+# field whose direction in the navigation frame turns with the sensor (a magnet fixed to it:
+# its field is no earth field's however long it stays): the field must have held its direction
+# for MAGD_FIXED_HOLD s first, and until then the heading stays on the gyro. Each filter skips its
 # magnetometer update when magd_check says so. A component (fusion/_magdist.pyx) that the
 # filters using the magnetometer hold, as they hold a RestDetector.
 from libc.math cimport sqrt, asin, M_PI
@@ -18,6 +21,9 @@ cdef struct MagDistState:
     double t_settle     # s since the first sample (0: none yet), counted to MAGD_FIRST_TIME (magd_check)
     double t_cand       # s the candidate has held while turning
     double t_reject     # s of rejection (decays while undisturbed)
+    double dir_cur[3]   # the field's direction in the navigation frame, low-passed as cur
+    double dir_slow[3]  # the same, low-passed over MAGD_DIR_TAU
+    double t_fixed      # s since the field last turned with the sensor (dir test)
     bint disturbed
     long long rejected  # samples rejected since the reset
 
@@ -38,7 +44,11 @@ cdef class MagDetector:
 # candidate counts (rad/s, 20 deg/s: a field that stays steady while the sensor turns is
 # homogeneous), how fast the rejection time decays while undisturbed (s per s); and ours: the
 # settling before the dip is judged (s: the default accelerometer low-pass's running-mean
-# start, after which the attitude's tilt has settled; docs/accuracy.md, "Ninth pass")
+# start, after which the attitude's tilt has settled; docs/accuracy.md, "Ninth pass"); the
+# field direction's low-pass (s), the distance from it (unit vectors, about rad) beyond which
+# the field turns with the sensor, and how long it must then hold still before a re-learning
+# (s) (docs/accuracy.md, "Tenth pass": the recorded earth fields stay within 0.063 of it,
+# a magnet fixed to a turning sensor exceeds 0.1 on 79-92 % of its samples)
 cdef extern from *:
     """
     #define FUSION_MAGD_CUR_TAU 0.05
@@ -47,6 +57,9 @@ cdef extern from *:
     #define FUSION_MAGD_NEW_MIN_GYR 0.3490658503988659
     #define FUSION_MAGD_DECAY 2.0
     #define FUSION_MAGD_FIRST_TIME 1.0
+    #define FUSION_MAGD_DIR_TAU 1.0
+    #define FUSION_MAGD_DIR_TOL 0.1
+    #define FUSION_MAGD_FIXED_HOLD 5.0
     """
     double MAGD_CUR_TAU "FUSION_MAGD_CUR_TAU"
     double MAGD_REF_TAU "FUSION_MAGD_REF_TAU"
@@ -54,6 +67,9 @@ cdef extern from *:
     double MAGD_NEW_MIN_GYR "FUSION_MAGD_NEW_MIN_GYR"
     double MAGD_DECAY "FUSION_MAGD_DECAY"
     double MAGD_FIRST_TIME "FUSION_MAGD_FIRST_TIME"
+    double MAGD_DIR_TAU "FUSION_MAGD_DIR_TAU"
+    double MAGD_DIR_TOL "FUSION_MAGD_DIR_TOL"
+    double MAGD_FIXED_HOLD "FUSION_MAGD_FIXED_HOLD"
 
 
 cdef inline void magd_clear(MagDetector d) noexcept nogil:
@@ -78,8 +94,9 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     """One magnetometer sample with the attitude q (ENU, body -> navigation) and the gyro
     sample (NULL: none); True when the filter may use it, False to skip it (counted in
     m.s.rejected)."""
-    cdef double nrm, nz, s, k, g2
+    cdef double nrm, nz, s, k, g2, r2, ux, uy, uz
     cdef double x[2]
+    cdef bint turned
     cdef int i
     cdef MagDistState* d = &m.s
     if m.time <= 0.0:
@@ -89,6 +106,14 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     nz = (2.0 * (q[1] * q[3] - q[0] * q[2]) * mag[0] + 2.0 * (q[2] * q[3] + q[0] * q[1]) * mag[1]
           + (q[0] * q[0] - q[1] * q[1] - q[2] * q[2] + q[3] * q[3]) * mag[2])
     s = nz / nrm
+    # the field's direction in the navigation frame (R(q) mag / |mag|): an earth field keeps
+    # it while the sensor turns, a magnet fixed to the sensor turns it with the sensor (uz is
+    # the dip's sine, before the clip)
+    ux = ((q[0] * q[0] + q[1] * q[1] - q[2] * q[2] - q[3] * q[3]) * mag[0]
+          + 2.0 * (q[1] * q[2] - q[0] * q[3]) * mag[1] + 2.0 * (q[1] * q[3] + q[0] * q[2]) * mag[2]) / nrm
+    uy = (2.0 * (q[1] * q[2] + q[0] * q[3]) * mag[0] + (q[0] * q[0] - q[1] * q[1] + q[2] * q[2] - q[3] * q[3]) * mag[1]
+          + 2.0 * (q[2] * q[3] - q[0] * q[1]) * mag[2]) / nrm
+    uz = s
     s = 1.0 if s > 1.0 else (-1.0 if s < -1.0 else s)
     x[0] = nrm
     x[1] = -asin(s)             # the dip, positive down
@@ -99,7 +124,27 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
             d.cand[i] = x[i]
         d.t_settle = dt
         d.t_undist = MAGD_MIN_UNDIST
+        d.dir_cur[0] = d.dir_slow[0] = ux
+        d.dir_cur[1] = d.dir_slow[1] = uy
+        d.dir_cur[2] = d.dir_slow[2] = uz
         return True
+    k = dt / (MAGD_CUR_TAU + dt)
+    d.dir_cur[0] += k * (ux - d.dir_cur[0])
+    d.dir_cur[1] += k * (uy - d.dir_cur[1])
+    d.dir_cur[2] += k * (uz - d.dir_cur[2])
+    k = dt / (MAGD_DIR_TAU + dt)
+    d.dir_slow[0] += k * (d.dir_cur[0] - d.dir_slow[0])
+    d.dir_slow[1] += k * (d.dir_cur[1] - d.dir_slow[1])
+    d.dir_slow[2] += k * (d.dir_cur[2] - d.dir_slow[2])
+    ux = d.dir_cur[0] - d.dir_slow[0]
+    uy = d.dir_cur[1] - d.dir_slow[1]
+    uz = d.dir_cur[2] - d.dir_slow[2]
+    r2 = ux * ux + uy * uy + uz * uz
+    turned = d.t_settle >= MAGD_FIRST_TIME and r2 > MAGD_DIR_TOL * MAGD_DIR_TOL
+    if turned:
+        d.t_fixed = 0.0
+    else:
+        d.t_fixed += dt
     k = dt / (MAGD_CUR_TAU + dt)
     for i in range(2):
         d.cur[i] += k * (x[i] - d.cur[i])
@@ -123,13 +168,13 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
         d.t_undist = 0.0
         d.disturbed = True
     # a new field: steady while the sensor turns for new_time s
-    if magd_close(d.cur, d.cand, m):
+    if magd_close(d.cur, d.cand, m) and not turned:
         g2 = 0.0 if gyr == NULL else gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2]
         if g2 >= MAGD_NEW_MIN_GYR * MAGD_NEW_MIN_GYR:
             d.t_cand += dt
         for i in range(2):
             d.cand[i] += k * (d.cur[i] - d.cand[i])
-        if d.disturbed and d.t_cand >= m.new_time:
+        if d.disturbed and d.t_cand >= m.new_time and d.t_fixed >= MAGD_FIXED_HOLD:
             magd_relearn(d, d.cand)
     else:
         d.t_cand = 0.0
@@ -141,7 +186,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
             d.t_reject = 0.0
         return True
     d.t_reject += dt
-    if d.t_reject > m.time:     # rejected for too long: this field is the reference now
+    if d.t_reject > m.time and d.t_fixed >= MAGD_FIXED_HOLD:     # rejected for too long: this field is the reference now
         magd_relearn(d, d.cur)
         d.t_reject = 0.0
         return True

@@ -478,6 +478,10 @@ FAILURE_SCENARIOS = {
     "magnet-attached": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
                             doc="a magnet fixed to the sensor from 20 to 50 s: a body-frame "
                                 "offset of 0.8 x the field's norm (a new hard-iron offset)"),
+    "magnet-stays": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
+                         doc="a strong magnet fixed to the sensor from 20 s to the end: a body-frame "
+                             "offset of 10 x the field's norm (a small magnet a few cm away), which "
+                             "turns with the sensor, so that no re-learnt reference is the earth's"),
     "magnet-passing": dict(base="slow", fs=100.0, motion=dict(turn=120.0, freq=(0.05, 0.3)),
                            doc="a magnet passed nearby: an earth-frame field of up to 0.7 x the "
                                "field's norm, Hann-shaped from 25 to 35 s"),
@@ -506,6 +510,10 @@ def failure_scenario(name: str, duration: float = 60.0, seed: int = 0) -> Scenar
     if name == "magnet-attached":
         on = (t >= 20.0) & (t < 50.0)
         sc.mag[on] += 0.8 * b * np.array([0.6, -0.48, 0.64])
+        mag_dist = on
+    elif name == "magnet-stays":
+        on = t >= 20.0
+        sc.mag[on] += 10.0 * b * np.array([0.6, -0.48, 0.64])
         mag_dist = on
     elif name == "magnet-passing":
         w = np.where((t >= 25.0) & (t < 35.0), np.sin(np.pi * (t - 25.0) / 10.0) ** 2, 0.0)

@@ -338,12 +338,14 @@ class RefMagDist:
     """docs/estimators.md, "Magnetic disturbances": call with the attitude, the magnetometer
     and gyro samples; True when the sample may be used (rejections counted in n)."""
     CUR_TAU, REF_TAU, MIN_UNDIST, NEW_MIN_GYR, DECAY, FIRST_TIME = 0.05, 20.0, 0.5, math.radians(20.0), 2.0, 1.0
+    DIR_TAU, DIR_TOL, FIXED_HOLD = 1.0, 0.1, 5.0
 
     def __init__(self, time, norm_tol, dip_tol_deg, new_time):
         self.time, self.norm_tol, self.dip_tol, self.new_time = time, norm_tol, math.radians(dip_tol_deg), new_time
         self.cur = self.ref = self.cand = None
         self.t_undist = self.t_cand = self.t_reject = 0.0
-        self.t_settle = 0.0
+        self.t_settle = self.t_fixed = 0.0
+        self.dir_cur = self.dir_slow = None
         self.disturbed = False
         self.n = 0
 
@@ -359,11 +361,20 @@ class RefMagDist:
         if self.time <= 0:
             return True
         nrm = np.linalg.norm(mag)
-        x = np.array([nrm, -math.asin(np.clip((rotmat(q) @ mag)[2] / nrm, -1.0, 1.0))])
+        u = rotmat(q) @ mag / nrm        # the field's direction in the navigation frame
+        x = np.array([nrm, -math.asin(np.clip(u[2], -1.0, 1.0))])
         if self.cur is None:
             self.cur, self.ref, self.cand = x.copy(), x.copy(), x.copy()
             self.t_undist, self.t_settle = self.MIN_UNDIST, dt
+            self.dir_cur = self.dir_slow = u
             return True
+        # the field turns with the sensor (a magnet fixed to it): no re-learning until it has
+        # held its direction FIXED_HOLD s
+        self.dir_cur = self.dir_cur + dt / (self.CUR_TAU + dt) * (u - self.dir_cur)
+        self.dir_slow = self.dir_slow + dt / (self.DIR_TAU + dt) * (self.dir_cur - self.dir_slow)
+        turned = self.t_settle >= self.FIRST_TIME and np.linalg.norm(self.dir_cur - self.dir_slow) > self.DIR_TOL
+        self.t_fixed = 0.0 if turned else self.t_fixed + dt
+        may_relearn = self.t_fixed >= self.FIXED_HOLD
         self.cur = self.cur + dt / (self.CUR_TAU + dt) * (x - self.cur)
         if self.t_settle < self.FIRST_TIME:     # settling: the reference's dip is the current one
             self.ref[1] = self.cand[1] = self.cur[1]
@@ -377,11 +388,11 @@ class RefMagDist:
         else:
             self.t_undist = 0.0
             self.disturbed = True
-        if self._close(self.cur, self.cand):
+        if self._close(self.cur, self.cand) and not turned:
             if gyr is not None and np.linalg.norm(gyr) >= self.NEW_MIN_GYR:
                 self.t_cand += dt
             self.cand = self.cand + k * (self.cur - self.cand)
-            if self.disturbed and self.t_cand >= self.new_time:
+            if self.disturbed and self.t_cand >= self.new_time and may_relearn:
                 self._relearn(self.cand)
         else:
             self.t_cand = 0.0
@@ -390,7 +401,7 @@ class RefMagDist:
             self.t_reject = max(self.t_reject - self.DECAY * dt, 0.0)
             return True
         self.t_reject += dt
-        if self.t_reject > self.time:
+        if self.t_reject > self.time and may_relearn:
             self._relearn(self.cur)
             self.t_reject = 0.0
             return True

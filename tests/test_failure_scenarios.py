@@ -9,7 +9,11 @@ the held-out set asks of every seed estimator. `madgwick` is held to them since 
 shared disturbance rejection and low-pass (before: 6.7 / 8.0 deg total with the magnets; now
 3.4 attached, 1.8 passing). With issue 19's fourth-pass defaults (the weaker magnetometer) the
 largest 9-axis totals are madgwick 3.44 (attached) and cf-ekf 3.40 (fast rotation); the ekf's
-2.49 (attached). The 3-seed means bounded the magnetometer's weight (docs/accuracy.md)."""
+2.49 (attached). The 3-seed means bounded the magnetometer's weight (docs/accuracy.md).
+In "magnet-stays" (a strong magnet fixed to the sensor for the last 40 s) every filter rejects
+the field for good and the heading runs on the gyro: there the total's bound is the 4.89 deg
+itself (seed 0: mahony 4.20, ekf 3.24, aekf 0.69; VQF, which re-learns the magnet's field
+as a new one, 13.2 as a 4-seed mean against the ekf's 3.9)."""
 import pytest
 
 import fusion
@@ -18,6 +22,7 @@ from benchmarks import compare
 
 NAMES = ("ekf", "iir-ekf", "aekf", "ukf", "mahony", "madgwick", "cf-ekf")
 TOTAL_9, INCL = 4.0, 2.5
+TOTAL_9_GYRO_HEADING = 4.89
 
 
 @pytest.fixture(scope="module", params=sorted(scenarios.FAILURE_SCENARIOS))
@@ -33,14 +38,17 @@ def test_error_stays_bounded(scenario, name):
     s9, _, _, _ = compare.score_mode(q9, sc.q_true, "9-axis")
     s6, _, _, _ = compare.score_mode(q6, sc.q_true, "6-axis")
     print(sc.name, name, round(s9["total"], 2), round(s9["inclination"], 2), round(s6["inclination"], 2))
-    assert s9["total"] < TOTAL_9 and s9["inclination"] < INCL and s6["inclination"] < INCL
+    bound = TOTAL_9_GYRO_HEADING if sc.name == "magnet-stays" else TOTAL_9
+    assert s9["total"] < bound and s9["inclination"] < INCL and s6["inclination"] < INCL
 
 
 def test_scenarios_are_what_they_say():
     fast = scenarios.failure_scenario("fast-rotation")
     assert fast.fs == 286.0 and abs(fast.omega).max() > 5.0
-    att = scenarios.failure_scenario("magnet-attached")
-    assert att.mag_disturbed[int(25 * att.fs)] and not att.mag_disturbed[int(10 * att.fs)]
+    for name in ("magnet-attached", "magnet-stays"):
+        att = scenarios.failure_scenario(name)
+        assert att.mag_disturbed[int(25 * att.fs)] and not att.mag_disturbed[int(10 * att.fs)]
+    assert scenarios.failure_scenario("magnet-stays").mag_disturbed[-1]
     for name in ("vibration", "tapping"):
         sc = scenarios.failure_scenario(name)
         assert 0.01 < sc.acc_disturbed.mean() < 0.5
