@@ -7,7 +7,7 @@ WINDOW_S: float
 MAHONY_KI: float
 CORE_PARAMS: tuple[str, ...]
 
-def default_window(fs: float) -> int: ...
+def seed_window(fs: float) -> int: ...
 
 class CFEKF(Estimator, _RestProperties, _MagdistProperties):
     gyro_noise: float

@@ -21,7 +21,7 @@ from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, 
 from libc.math cimport sqrt, fabs
 from fusion._qmath cimport quat_normalise, quat_measurement_update, saturated, vec3_finite
 
-WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz
+WINDOW_S = 0.02     # the seed's window: 10 samples at 500 Hz (seed_window; not the default)
 MAHONY_KI = 0.005     # ki's default without bias_feedback (mahony's before issue 19)
 # bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
 # with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
@@ -37,8 +37,9 @@ CORE_PARAMS = ("gyro_noise", "bias_noise", "q_init_std", "bias_init_std", "motio
                *(d.name for d in REST))
 
 
-def default_window(fs):
-    """Samples in the seed's 20 ms window at sample rate fs (at least 1)."""
+def seed_window(fs):
+    """Samples in the seed's 20 ms window at sample rate fs (at least 1): its literal setting,
+    ``window=seed_window(fs)``."""
     return max(1, int(round(WINDOW_S * fs)))
 
 
@@ -114,7 +115,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
 
 cdef class CFEKF(Estimator):
     """The fusion of "Attitude-angle solution for a mobile robot": gyro, accelerometer and
-    magnetometer through a sliding mean; Mahony's
+    magnetometer through a sliding mean (window samples, 1 by default: none); Mahony's
     complementary filter (kp, ki) turns the means into a quaternion; that quaternion is the
     4-D measurement (H = [I4 0], noise density cf_noise) of the quaternion + gyro-bias EKF,
     whose prediction integrates the averaged gyro. bias_feedback: the complementary filter
@@ -126,8 +127,11 @@ cdef class CFEKF(Estimator):
         # the ekf's noise declarations at the values cf-ekf's folds chose (docs/accuracy.md)
         _EKF.PARAMS["gyro_noise"].but(default=0.01), _EKF.PARAMS["bias_noise"], _EKF.PARAMS["q_init_std"],
         _EKF.PARAMS["bias_init_std"].but(default=0.02),
-        Param("window", None, "samples", 1, WINDOW_MAX, "sliding-mean length, step 1, on gyro, "
-              "accelerometer and magnetometer; None: round(0.02 fs), at least 1", integer=True),
+        # window 1 (no mean): every leave-one-set-out fold chose it over the seed's 20 ms, whose
+        # delay of (window - 1)/2 samples the estimate follows (docs/accuracy.md, "Eleventh pass")
+        Param("window", 1, "samples", 1, WINDOW_MAX, "sliding-mean length, step 1, on gyro, "
+              "accelerometer and magnetometer; 1: no mean; the seed's 20 ms: round(0.02 fs)",
+              integer=True),
         # kp: cf-ekf's own leave-one-set-out choice (docs/accuracy.md), not mahony's
         _Mahony.PARAMS["kp"].but(default=1.0, allow_zero=False, doc="the complementary filter's proportional gain"),
         _Mahony.PARAMS["ki"].but(default=None, doc="its integral gain; None: 0 with bias_feedback, "
@@ -171,7 +175,7 @@ cdef class CFEKF(Estimator):
         ki = p["ki"]
         if ki is None:
             ki = 0.0 if self.bias_feedback else MAHONY_KI
-        w = default_window(self.fs) if p["window"] is None else p["window"]
+        w = p["window"]
         self.pre_gyr = SlidingMean(w)
         self.pre_acc = SlidingMean(w)
         self.pre_mag = SlidingMean(w)

@@ -309,14 +309,12 @@ class RefSlidingMean:
 
 class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
-              "window": None, "kp": 1.0, "ki": None, "mag_weight": 0.3, "cf_noise": 0.005, "gyro_range": None,
+              "window": 1, "kp": 1.0, "ki": None, "mag_weight": 0.3, "cf_noise": 0.005, "gyro_range": None,
               "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
               **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_") or k.startswith("magdist_")}}
     LEARN_ACC_TOL, LEARN_ANGLE, LEARN_HOLD = 0.5, math.radians(2.0), 0.5     # bias_feedback
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        if params.get("window") is None:        # the seed's 20 ms (10 samples at 500 Hz)
-            params["window"] = max(1, round(0.02 * fs))
         if params.get("ki") is None:            # no integral of its own with the bias fed back
             params["ki"] = 0.0 if params.get("bias_feedback", True) else 0.005
         super().__init__(fs, frame=frame, on_invalid=on_invalid, **params)

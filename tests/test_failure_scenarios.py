@@ -8,8 +8,9 @@ scenario's unlearned gyro bias, 0.014 rad/s, and is not scored). 4 deg is below 
 the held-out set asks of every seed estimator. `madgwick` is held to them since it has the
 shared disturbance rejection and low-pass (before: 6.7 / 8.0 deg total with the magnets; now
 3.4 attached, 1.8 passing). With issue 19's fourth-pass defaults (the weaker magnetometer) the
-largest 9-axis totals are madgwick 3.44 (attached) and cf-ekf 3.40 (fast rotation); the ekf's
-2.49 (attached). The 3-seed means bounded the magnetometer's weight (docs/accuracy.md).
+largest 9-axis totals were madgwick 3.44 (attached) and cf-ekf 3.40 (fast rotation; 0.63 since
+its sliding mean is off by default, issue 19's eleventh pass); the ekf's 2.49 (attached). The
+3-seed means bounded the magnetometer's weight (docs/accuracy.md).
 In "magnet-stays" (a strong magnet fixed to the sensor for the last 40 s) every filter rejects
 the field for good and the heading runs on the gyro: there the total's bound is the 4.89 deg
 itself (seed 0: mahony 4.20, ekf 3.24, aekf 0.69; VQF, which re-learns the magnet's field

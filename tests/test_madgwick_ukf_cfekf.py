@@ -376,10 +376,12 @@ def test_rest_update_equals_the_reference(data, name, nine_axis):
     assert np.abs(q1 - q).max() < 1e-15
 
 
-def test_cf_ekf_window_default_is_the_seeds_20_ms():
-    assert fusion.make("cf-ekf", 500.0).window == 10      # seed 004: 10 samples at 500 Hz
-    assert fusion.make("cf-ekf", 100.0).window == 2
-    assert fusion.make("cf-ekf", 10.0).window == 1
+def test_cf_ekf_window_default_is_no_mean_and_the_seeds_is_20_ms():
+    from fusion._cfekf import seed_window
+    for fs in (10.0, 100.0, 500.0):
+        assert fusion.make("cf-ekf", fs).window == 1
+    assert seed_window(500.0) == 10 and seed_window(100.0) == 2 and seed_window(10.0) == 1  # seed 004: 10 at 500 Hz
+    assert fusion.make("cf-ekf", 500.0, window=seed_window(500.0)).window == 10
     est = fusion.make("cf-ekf", 100.0, window=7)
     assert est.window == 7 and est.params["window"] == 7
     again = eval(repr(est), {"fusion": fusion})

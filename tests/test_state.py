@@ -80,7 +80,7 @@ def test_copies_are_independent():
 
 def test_state_is_plain_data():
     s = fusion.make("cf-ekf", 100.0).state()
-    assert s["version"] == fusion._core.STATE_VERSION == 7 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 2
+    assert s["version"] == fusion._core.STATE_VERSION == 7 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 1
 
     def plain(x):
         if isinstance(x, dict):
