@@ -37,18 +37,20 @@ if platform.machine().lower() in ("aarch64", "arm64") and "gcc" in CC:
 if "gcc" in CC:
     COMPILE_ARGS.append("--param=max-inline-insns-single=2000")
 
-# The environment's kernels must equal their numpy reference bit for bit: an episode is
-# chaotic, so a last-bit difference in one step becomes a different episode. No fused
-# multiply-add, then: -ffp-contract=off stops the contraction of a*b+c, and GCC's SLP
-# vectorizer still forms vfmaddsub from paired adds and subtracts when -march has FMA
-# (seen with x86-64-v3, GCC 12), so it is off for these kernels too.
-EXACT_ARGS = ["-ffp-contract=off", "-fno-tree-slp-vectorize"]
+# The environment's step (envs/_signals and the IMU model it runs, fusion/_imu) must equal its
+# numpy reference bit for bit: an episode is chaotic, so a last-bit difference in one step
+# becomes a different episode. No fused multiply-add, then: -ffp-contract=off stops the
+# contraction of a*b+c, and GCC's vectorisers still form vfmaddsub from paired adds and
+# subtracts when -march has FMA (seen with x86-64-v3, GCC 12: the SLP vectoriser in straight
+# code, the loop vectoriser in loops), so both are off for these kernels.
+EXACT_KERNELS = {"envs._signals", "fusion._imu"}
+EXACT_ARGS = ["-ffp-contract=off", "-fno-tree-vectorize"]
 
 extensions = [
     Extension(name, [name.replace(".", "/") + ".pyx"],
               include_dirs=[np.get_include()],
               define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
-              extra_compile_args=COMPILE_ARGS + (EXACT_ARGS if name.startswith("envs.") else []),
+              extra_compile_args=COMPILE_ARGS + (EXACT_ARGS if name in EXACT_KERNELS else []),
               extra_link_args=LINK_ARGS)
     for name in KERNELS
 ]

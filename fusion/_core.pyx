@@ -190,7 +190,11 @@ def _checked_field(name, value, view, check):
         raise ValueError(f"state field {name!r} must hold {kind}, got {value!r}")
     shape = () if n == 1 else (n,)
     if v.shape != shape:
-        raise ValueError(f"state field {name!r} must have shape {shape}, got {v.shape}")
+        # a buffer's length follows a parameter (cf-ekf's window): a state saved with another
+        # value (or another version's default) has its length
+        raise ValueError(f"state field {name!r} must have shape {shape}, got {v.shape} (a state saved "
+                         f"with other parameters? Estimator.from_state(state) makes an estimator with "
+                         f"the state's own)")
     if is_float:
         v = v.astype(np.float64)
         if not np.isfinite(v).all():

@@ -8,6 +8,7 @@ import pytest
 
 import fusion
 import reference as ref
+from fusion._cfekf import seed_window
 import reference_madgwick_ukf_cfekf as rm
 from _helpers import axis_angle, inclination, static_body
 from _helpers import (FS, N, TOL, check_ned_and_given_start, check_skipped, check_uneven_dt, compare_state,
@@ -20,7 +21,8 @@ NAMES = ["madgwick", "ukf", "cf-ekf"]
 # 2,000 samples (kernel against kernel, and reference against reference). The long runs use
 # acc_lowpass=0; the defaults are checked over N_SHORT samples (uneven dt, NED, skipping) and
 # a low-pass with zeta and a smaller beta over 1,500 (VARIANTS).
-CASES = [("madgwick", {"acc_lowpass": 0.0}), ("ukf", {}), ("cf-ekf", {}), ("cf-ekf", {"bias_feedback": False})]
+CASES = [("madgwick", {"acc_lowpass": 0.0}), ("ukf", {}), ("cf-ekf", {}), ("cf-ekf", {"window": 2}),
+         ("cf-ekf", {"window": 2, "bias_feedback": False})]
 # Madgwick's document: the full field gradient, no low-pass, no disturbance rejection
 MADGWICK_AS_WRITTEN = {"beta": 0.041, "zeta": 0.0, "mag_update": "vector", "acc_lowpass": 0.0, "magdist_time": 0.0,
                        "rest_time": 0.0}
@@ -80,17 +82,18 @@ def test_cf_ekf_sees_saturation_on_the_raw_samples():
     gyr[1000:1250, 0] = 6.0                              # 0.5 s beyond the range
     gyr = np.clip(gyr, -rail, rail)
     acc = np.tile([0.0, 0.0, 9.81], (n, 1)) + rng.normal(0, 0.1, (n, 3))
-    est = fusion.make("cf-ekf", fs, gyro_range=rail)
-    r = rm.make("cf-ekf", fs, gyro_range=rail)
+    w = seed_window(fs)
+    est = fusion.make("cf-ekf", fs, gyro_range=rail, window=w)
+    r = rm.make("cf-ekf", fs, gyro_range=rail, window=w)
     q = est.run(gyr, acc)
     assert qdiff(q, r.run(gyr, acc)) < TOL
     compare_more(est, r)
-    assert qdiff(q, fusion.make("cf-ekf", fs).run(gyr, acc)) > 1e-2
+    assert qdiff(q, fusion.make("cf-ekf", fs, window=w).run(gyr, acc)) > 1e-2
     # reset in mid-recovery: the same as a fresh estimator
     est.reset()
     est.run(gyr[:1300], acc[:1300])
     est.reset([1.0, 0.0, 0.0, 0.0])
-    fresh = fusion.make("cf-ekf", fs, gyro_range=rail)
+    fresh = fusion.make("cf-ekf", fs, gyro_range=rail, window=w)
     fresh.reset([1.0, 0.0, 0.0, 0.0])
     assert np.array_equal(est.run(gyr[1300:], acc[1300:]), fresh.run(gyr[1300:], acc[1300:]))
 
@@ -377,7 +380,6 @@ def test_rest_update_equals_the_reference(data, name, nine_axis):
 
 
 def test_cf_ekf_window_default_is_no_mean_and_the_seeds_is_20_ms():
-    from fusion._cfekf import seed_window
     for fs in (10.0, 100.0, 500.0):
         assert fusion.make("cf-ekf", fs).window == 1
     assert seed_window(500.0) == 10 and seed_window(100.0) == 2 and seed_window(10.0) == 1  # seed 004: 10 at 500 Hz

@@ -146,8 +146,9 @@ def test_mismatched_prefilters_and_memory_unsafe_indices_are_refused():
     with pytest.raises(ValueError, match=r"missing \[\].*unexpected \['pre_mag.primed'"):
         est.load_state(_state("iir-ekf", filter_mag=True))
     cf = fusion.make("cf-ekf", 100.0, window=4)
-    with pytest.raises(ValueError, match=r"'pre_gyr.buf' must have shape \(12,\)"):
+    with pytest.raises(ValueError, match=r"'pre_gyr.buf' must have shape \(12,\).*from_state"):
         cf.load_state(_state("cf-ekf", window=5))
+    assert type(cf).from_state(_state("cf-ekf", window=5)).window == 5     # what the error offers
     s = _state("cf-ekf", window=4)
     s["fields"]["pre_acc.head"] = 4     # would index past the ring buffer
     with pytest.raises(ValueError, match=r"'pre_acc.head' must be in \[0, 3\]"):
