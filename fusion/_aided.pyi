@@ -10,6 +10,8 @@ class AidedFilter(Estimator, _MagdistProperties):
     rest_time: float
     rest_gyro_tol: float
     rest_acc_tol: float
+    rest_gyro_drift_tol: float
+    rest_acc_drift_tol: float
     at_rest: bool
     rest_samples: int
     acc_lowpass: float

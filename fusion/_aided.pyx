@@ -18,10 +18,10 @@ cdef class AidedFilter(Estimator):
     it has it), ends its __init__ with configure(p), and extends _state_fields /
     _reset_state, which hold the parts', from this class's (docs/contributing.md)."""
     # the rest and disturbance parameters and counts, read from the detectors (fusion._rest,
-    # fusion._magdist); rest_noise (REST_PROPERTIES[3]) only where there is a zero-rate
+    # fusion._magdist); rest_noise (REST_PROPERTIES[5]) only where there is a zero-rate
     # update (fusion._kalman)
-    rest_time, rest_gyro_tol, rest_acc_tol = REST_PROPERTIES[:3]
-    at_rest, rest_samples = REST_PROPERTIES[4:]
+    rest_time, rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol = REST_PROPERTIES[:5]
+    at_rest, rest_samples = REST_PROPERTIES[6:]
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
 
     cdef int configure(self, dict p) except -1:

@@ -144,7 +144,8 @@ cdef class CFEKF(Estimator):
               "minus the EKF's bias, which the EKF learns from the filter only while it is quiet"),
         MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
     # the rest parameters and counts, read from the core's detector (fusion._rest)
-    rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES
+    (rest_time, rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol, rest_noise, at_rest,
+     rest_samples) = REST_PROPERTIES
     # the disturbance parameters and count, read from the complementary filter's (its magd)
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),

@@ -31,8 +31,9 @@ ON_INVALID = ("raise", "skip")
 # 5: the accelerometer low-pass's running-mean start (acc_lp_time); 6: the low-pass held in
 # the body frame (acc_lp; acc_qg gone), a version-5 acc_lp being in the frame acc_qg, and the
 # magnetic disturbance detector's settling (magd_t_settle); 7: the detector's test of a field
-# that turns with the sensor (magd_dir, magd_t_fixed)
-STATE_VERSION = 7
+# that turns with the sensor (magd_dir, magd_t_fixed); 8: the rest detector's drift test and
+# running-mean start (rest_gyr0, rest_acc0, rest_lp_time; rest_gyro_drift_tol, rest_acc_drift_tol)
+STATE_VERSION = 8
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 COUNT = (0, None)       # check of a counter

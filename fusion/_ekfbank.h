@@ -46,7 +46,9 @@ enum {
     EB_MTIME = 79, EB_MNTOL = 80, EB_MDTOL = 81, EB_MNEW = 82, EB_TAU = 83,
     /* the sample, transposed (ekfb_fast) */
     EB_IG = 84, EB_IA = 87, EB_IM = 90, EB_IDT = 93, EB_FAST = 94,
-    EB_NFIELDS = 95
+    /* rest's drift tests and running-mean start: gyr0[3], acc0[3], lp_time; the parameters */
+    EB_RG0 = 95, EB_RA0 = 98, EB_RLPT = 101, EB_RGDTOL = 102, EB_RADTOL = 103,
+    EB_NFIELDS = 104
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -609,9 +611,13 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
     /* ekf_rest: rest_detect (started), then the zero-rate update where at rest */
     on = EKB_LD(EB_RTIME) > 0.0;
     if (ekb_any(on)) {
-        ekb_v k = dt / (0.5 + dt), dg = ekb_bc(0.0), da = ekb_bc(0.0), gtol = EKB_LD(EB_RGTOL);
-        ekb_v atol = EKB_LD(EB_RATOL), rg[3], ra[3], t, dd;
-        ekb_m still = on, rest;
+        ekb_v lpt = EKB_LD(EB_RLPT) + dt, k, dg = ekb_bc(0.0), da = ekb_bc(0.0), gtol = EKB_LD(EB_RGTOL);
+        ekb_v atol = EKB_LD(EB_RATOL), gdtol = EKB_LD(EB_RGDTOL), adtol = EKB_LD(EB_RADTOL);
+        ekb_v rg[3], ra[3], t, dd, drift_g, drift_a;
+        ekb_m still = on, rest, start;
+        lpt = ekb_sel(lpt > 0.5, ekb_bc(0.5), lpt);
+        k = dt / (lpt + dt);
+        EKB_ST(EB_RLPT, ekb_sel(on, lpt, EKB_LD(EB_RLPT)));
         for (i = 0; i < 3; i++) {
             rg[i] = EKB_LD(EB_RG + i);
             ra[i] = EKB_LD(EB_RA + i);
@@ -626,6 +632,22 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
             EKB_ST(EB_RA + i, ekb_sel(on, ra[i], EKB_LD(EB_RA + i)));
         }
         still = still & (dg < gtol * gtol) & (da < atol * atol);
+        /* rest_detect's drift tests: a still run's start holds the low-passes (gyr0, acc0);
+         * later samples stay still while the low-passes are within the tolerances of them */
+        start = still & (EKB_LD(EB_RT) == 0.0);
+        drift_g = ekb_bc(0.0);
+        drift_a = ekb_bc(0.0);
+        for (i = 0; i < 3; i++) {
+            ekb_v g0 = EKB_LD(EB_RG0 + i), a0 = EKB_LD(EB_RA0 + i);
+            EKB_ST(EB_RG0 + i, ekb_sel(on & start, rg[i], g0));
+            EKB_ST(EB_RA0 + i, ekb_sel(on & start, ra[i], a0));
+            dd = rg[i] - g0;
+            drift_g = drift_g + dd * dd;
+            dd = ra[i] - a0;
+            drift_a = drift_a + dd * dd;
+        }
+        still = still & (start | (((gdtol <= 0.0) | (drift_g <= gdtol * gdtol))
+                                  & ((adtol <= 0.0) | (drift_a <= adtol * adtol))));
         t = ekb_sel(still, EKB_LD(EB_RT) + dt, ekb_bc(0.0));
         t = ekb_sel(on, t, EKB_LD(EB_RT));
         EKB_ST(EB_RT, t);

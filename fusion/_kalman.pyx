@@ -25,7 +25,7 @@ cdef class KalmanFilter(AidedFilter):
     REST, MAGDIST, MAG_UPDATE, ACC_LOWPASS where it has it) and ends its __init__ with
     configure(p) (the noise struct, then AidedFilter's parts)."""
     gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = NOISE_PROPERTIES
-    rest_noise = REST_PROPERTIES[3]     # the zero-rate update's noise (its rest detector's)
+    rest_noise = REST_PROPERTIES[5]     # the zero-rate update's noise (its rest detector's)
 
     cdef int configure(self, dict p) except -1:
         self.kalman = p     # before the reset, which reads the initial stds

@@ -6,11 +6,16 @@ cdef class RestDetector:
     cdef readonly double time       # s at rest before the gyro measures its bias (0: detection off)
     cdef readonly double gyro_tol   # rad/s: gyro within this of its low-pass, the low-pass within this of 0
     cdef readonly double acc_tol    # m/s^2: accelerometer within this of its low-pass
+    cdef readonly double gyro_drift_tol   # rad/s: a still run ends when the gyro's low-pass moves this far (0: never)
+    cdef readonly double acc_drift_tol    # m/s^2: ... or the accelerometer's (0: never)
     cdef readonly double noise      # rad/s/sqrt(Hz): the zero-rate measurement's noise density (REST)
     cdef readonly double tau        # s: the bias pulled toward the measured rate at rest (REST_PULL)
     cdef double gyr[3]              # the low-passes
     cdef double acc[3]
+    cdef double gyr0[3]             # the low-passes when the still run began
+    cdef double acc0[3]
     cdef double t                   # s at rest so far
+    cdef double lp_time             # s since the low-passes' first sample, held at 0.5 (the running-mean start)
     cdef bint started               # the low-passes have their first sample
     cdef long long n                # zero-rate updates since the reset
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
@@ -22,7 +27,10 @@ cdef inline void rest_clear(RestDetector r) noexcept nogil:
     for i in range(3):
         r.gyr[i] = 0.0
         r.acc[i] = 0.0
+        r.gyr0[i] = 0.0
+        r.acc0[i] = 0.0
     r.t = 0.0
+    r.lp_time = 0.0
     r.started = False
     r.n = 0
 
@@ -31,7 +39,7 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
                              double dt) noexcept nogil:
     """One sample (gyr or acc NULL: the rest run ends); True when the body has been still for
     r.time s (counted in r.n): the caller then makes its zero-rate update."""
-    cdef double k, dg = 0.0, da = 0.0, d, m
+    cdef double k, dg = 0.0, da = 0.0, d, m, drift_g = 0.0, drift_a = 0.0
     cdef bint still = True
     cdef int i
     if r.time <= 0.0:
@@ -45,8 +53,15 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
             r.acc[i] = acc[i]
         r.started = True
         r.t = 0.0
+        r.lp_time = 0.0
         return False
-    k = dt / (0.5 + dt)         # 0.5 s low-passes (VQF's restFilterTau)
+    # 0.5 s low-passes (VQF's restFilterTau), the running mean of the samples for their first
+    # 0.5 s: a start at one sample would hold its noise for a second, and the drift test below
+    # would take the low-pass settling from it for motion
+    r.lp_time += dt
+    if r.lp_time > 0.5:
+        r.lp_time = 0.5
+    k = dt / (r.lp_time + dt)
     for i in range(3):
         r.gyr[i] += k * (gyr[i] - r.gyr[i])
         r.acc[i] += k * (acc[i] - r.acc[i])
@@ -58,6 +73,20 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
         m = r.gyr[i] if r.gyr[i] > 0.0 else -r.gyr[i]
         still = still and m < r.gyro_tol
     still = still and dg < r.gyro_tol * r.gyro_tol and da < r.acc_tol * r.acc_tol
+    # the turning point of a slow oscillation passes the tests above for a moment, but its
+    # low-passes keep moving (the rate's through zero, the tilt's vertical): at rest they stay
+    if still and r.t == 0.0:
+        for i in range(3):
+            r.gyr0[i] = r.gyr[i]
+            r.acc0[i] = r.acc[i]
+    elif still:
+        for i in range(3):
+            d = r.gyr[i] - r.gyr0[i]
+            drift_g += d * d
+            d = r.acc[i] - r.acc0[i]
+            drift_a += d * d
+        still = ((r.gyro_drift_tol <= 0.0 or drift_g <= r.gyro_drift_tol * r.gyro_drift_tol)
+                 and (r.acc_drift_tol <= 0.0 or drift_a <= r.acc_drift_tol * r.acc_drift_tol))
     r.t = r.t + dt if still else 0.0
     if r.t < r.time:
         return False

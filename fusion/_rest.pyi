@@ -6,6 +6,8 @@ class RestDetector:
     time: float
     gyro_tol: float
     acc_tol: float
+    gyro_drift_tol: float
+    acc_drift_tol: float
     noise: float
     tau: float
     at_rest: bool
@@ -22,6 +24,8 @@ class _RestProperties:
     rest_time: float
     rest_gyro_tol: float
     rest_acc_tol: float
+    rest_gyro_drift_tol: float
+    rest_acc_drift_tol: float
     rest_noise: float
     at_rest: bool
     rest_samples: int

@@ -16,6 +16,7 @@ cdef class RestDetector:
         """p: the holder's checked parameters (Estimator._take_params), REST's among them."""
         self.time, self.gyro_tol = p["rest_time"], p["rest_gyro_tol"]
         self.acc_tol = p["rest_acc_tol"]
+        self.gyro_drift_tol, self.acc_drift_tol = p["rest_gyro_drift_tol"], p["rest_acc_drift_tol"]
         # what the holder does at rest: REST's zero-rate update (rest_noise) or REST_PULL's
         # pull of the bias (rest_tau); the one it does not declare is 0
         self.noise, self.tau = p.get("rest_noise", 0.0), p.get("rest_tau", 0.0)
@@ -23,7 +24,9 @@ cdef class RestDetector:
 
     cdef list fields(self):
         return [("rest_gyr", <double[:3]>self.gyr, None), ("rest_acc", <double[:3]>self.acc, None),
+                ("rest_gyr0", <double[:3]>self.gyr0, None), ("rest_acc0", <double[:3]>self.acc0, None),
                 ("t_rest", <double[:1]>&self.t, TIMER),
+                ("rest_lp_time", <double[:1]>&self.lp_time, TIMER),
                 ("rest_started", <int[:1]><int*>&self.started, FLAG),
                 ("rest_samples", <long long[:1]>&self.n, COUNT)]
 
@@ -43,13 +46,18 @@ def _of_rest(attr, doc):
 
 
 #: The holder's rest properties, read from its `rest`: in its class body,
-#: ``rest_time, rest_gyro_tol, rest_acc_tol, rest_noise, at_rest, rest_samples = REST_PROPERTIES``
+#: ``rest_time, rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol, rest_noise,
+#: at_rest, rest_samples = REST_PROPERTIES``
 REST_PROPERTIES = (
     _of_rest("time", "s of rest before the gyro measures its bias; 0: rest detection off. "
              "rest_gyro_tol, rest_acc_tol, rest_noise: docs/estimators.md, \"Rest\"."),
     _of_rest("gyro_tol", "rad/s: at rest the gyro is within this of its low-pass, the low-pass "
              "within this of zero."),
     _of_rest("acc_tol", "m/s^2: at rest the accelerometer is within this of its low-pass."),
+    _of_rest("gyro_drift_tol", "rad/s: a still run ends when the gyro's low-pass moves this far "
+             "from its value at the run's start; 0: never."),
+    _of_rest("acc_drift_tol", "m/s^2: a still run ends when the accelerometer's low-pass moves "
+             "this far from its value at the run's start; 0: never."),
     _of_rest("noise", "rad/s/sqrt(Hz): the zero-rate measurement's noise density."),
     _of_rest("at_rest", "True while the rest detector holds (the last sample was a zero-rate update)."),
     _of_rest("samples", "Zero-rate updates (samples detected at rest) since the last reset."))

@@ -92,12 +92,20 @@ def table(*params: Param) -> dict[str, Param]:
 
 # rest detection (docs/estimators.md, "Rest"): 2 deg/s and 0.5 m/s^2 are VQF's thresholds
 REST = (
-    Param("rest_time", 1.5, "s", 1e-3, 1e4, "rest detection: after this long at rest the gyro "
+    Param("rest_time", 0.4, "s", 1e-3, 1e4, "rest detection: after this long at rest the gyro "
           "measures its bias (a zero-rate update); 0: off", allow_zero=True),
     Param("rest_gyro_tol", 0.034906585039886591, "rad/s", 1e-6, 10.0, "at rest: the gyro within "
           "this of its 0.5 s low-pass, and the low-pass within this of zero on every axis (2 deg/s)"),
     Param("rest_acc_tol", 0.5, "m/s²", 1e-6, 100.0, "at rest: the accelerometer within this of its "
           "0.5 s low-pass"),
+    # a still run's low-passes must stay where it began: the turning point of a slow oscillation
+    # passes the tests above for a moment (docs/accuracy.md, thirteenth pass)
+    Param("rest_gyro_drift_tol", 0.0034906585039886591, "rad/s", 1e-6, 10.0, "a still run ends "
+          "when the gyro's 0.5 s low-pass moves this far from its value at the run's start "
+          "(0.2 deg/s); 0: off", allow_zero=True),
+    Param("rest_acc_drift_tol", 0.1, "m/s²", 1e-6, 100.0, "a still run ends when the "
+          "accelerometer's 0.5 s low-pass moves this far from its value at the run's start "
+          "(about 0.6 deg of tilt); 0: off", allow_zero=True),
     Param("rest_noise", 1e-3, "rad/s/√Hz", 1e-7, 1.0, "the gyro's white-noise density as the "
           "zero-rate measurement's noise"),
 )

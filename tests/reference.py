@@ -451,12 +451,15 @@ class RestAndMagCounts:
 
 class RefMahony(RestAndMagCounts, RefEstimator):
     PARAMS = {"kp": 1.0, "ki": 0.01, "mag_weight": 1.0, "gyro_range": None, "mag_update": "heading", "acc_lowpass": 1.5,
-              "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_tau": 1.0,
+              "rest_time": 0.4, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+              "rest_gyro_drift_tol": math.radians(0.2),
+              "rest_acc_drift_tol": 0.1, "rest_tau": 1.0,
               **MAGDIST_PARAMS}
 
     def _reset_state(self):
         self.eps = np.zeros(3)
-        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol,
+                            self.rest_gyro_drift_tol, self.rest_acc_drift_tol)
         self.t_recover = 0.0
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, IDENTITY.copy()
@@ -541,9 +544,11 @@ class RefRest:
     """docs/estimators.md, "Rest": call with each sample; True at rest (counted in n)."""
     TAU = 0.5       # s, the low-passes
 
-    def __init__(self, time, gyro_tol, acc_tol):
+    def __init__(self, time, gyro_tol, acc_tol, gyro_drift_tol, acc_drift_tol):
         self.time, self.gyro_tol, self.acc_tol = time, gyro_tol, acc_tol
+        self.drift_tol = (gyro_drift_tol, acc_drift_tol)
         self.lp = None          # the low-passed (gyr, acc)
+        self.lp0 = None         # the low-passes where the still run began
         self.t = 0.0
         self.n = 0
 
@@ -555,12 +560,20 @@ class RefRest:
             return False
         if self.lp is None:
             self.lp = (gyr.copy(), acc.copy())
+            self.lp_time = 0.0
             return False
-        k = dt / (self.TAU + dt)
+        self.lp_time = min(self.lp_time + dt, self.TAU)     # a running mean for its first TAU s
+        k = dt / (self.lp_time + dt)
         lg, la = (lp + k * (x - lp) for lp, x in zip(self.lp, (gyr, acc)))
         self.lp = (lg, la)
         still = (np.linalg.norm(gyr - lg) < self.gyro_tol and np.linalg.norm(acc - la) < self.acc_tol
                  and np.max(np.abs(lg)) < self.gyro_tol)
+        # a still run ends when a low-pass drifts from where it began (a turning point)
+        if still and self.t == 0.0:
+            self.lp0 = (lg.copy(), la.copy())
+        elif still:
+            still = all(tol <= 0 or np.linalg.norm(lp - lp0) <= tol
+                        for lp, lp0, tol in zip(self.lp, self.lp0, self.drift_tol))
         self.t = self.t + dt if still else 0.0
         if self.t >= self.time:
             self.n += 1
@@ -571,14 +584,17 @@ class RefRest:
 class RefEKF(RestAndMagCounts, RefEstimator):
     PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.2,
               "q_init_std": 0.05, "bias_init_std": 0.0087, "gyro_range": None, "motion_rate": 1.0,
-              "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 1.5,
-              "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5, "rest_noise": 1e-3,
+              "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 0.4,
+              "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+              "rest_gyro_drift_tol": math.radians(0.2),
+              "rest_acc_drift_tol": 0.1, "rest_noise": 1e-3,
               "acc_update": "vector", **MAGDIST_PARAMS}
 
     def _reset_state(self):
         self.acc_lp = None          # acc_lowpass: the low-passed accelerometer, in the frame acc_qg
         self.acc_qg = IDENTITY.copy()   # the bias-corrected gyro integrated (never corrected)
-        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol,
+                            self.rest_gyro_drift_tol, self.rest_acc_drift_tol)
         self.magd = make_magdist(self)
         self.b = np.zeros(3)
         self.P = np.diag([self.q_init_std ** 2] * 4 + [self.bias_init_std ** 2] * 3)

@@ -41,7 +41,9 @@ def rotmat_unit_form(q):
 
 class RefMadgwick(RefEstimator):
     PARAMS = {"beta": 0.0075, "zeta": 5e-4, "gyro_range": None, "mag_update": "heading",
-              "acc_lowpass": 2.0, "rest_time": 1.5, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+              "acc_lowpass": 2.0, "rest_time": 0.4, "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
+              "rest_gyro_drift_tol": math.radians(0.2),
+              "rest_acc_drift_tol": 0.1,
               "rest_tau": 1.0, **MAGDIST_PARAMS}
     DEAD_ZONE = 1e-10
 
@@ -55,7 +57,8 @@ class RefMadgwick(RefEstimator):
     def _reset_state(self):
         self.bw = np.zeros(3)
         self.t_recover = 0.0
-        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol,
+                            self.rest_gyro_drift_tol, self.rest_acc_drift_tol)
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, IDENTITY.copy()
 
@@ -202,7 +205,8 @@ class RefUKF(RestAndMagCounts, RefEstimator):
         self.b = np.zeros(3)
         self.P = np.diag([(2 * self.q_init_std) ** 2] * 3 + [self.bias_init_std ** 2] * 3)
         self.t_run = 0.0
-        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol)
+        self.rest = RefRest(self.rest_time, self.rest_gyro_tol, self.rest_acc_tol,
+                            self.rest_gyro_drift_tol, self.rest_acc_drift_tol)
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
 

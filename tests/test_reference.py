@@ -348,6 +348,66 @@ def test_rest_update_equals_reference(data, name, params, nine_axis):
     assert one.rest_samples == est.rest_samples
 
 
+def _turning_point(axis, rate):
+    """10 s at FS of a rotation about body axis (0: x, a tilt; 2: z, the vertical) at the
+    rates rate(t) (rad/s), ideal sensors: (gyr, acc)."""
+    t = np.arange(int(10 * FS)) / FS
+    w = rate(t)
+    angle = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) / FS)])
+    gyr = np.zeros((t.size, 3))
+    gyr[:, axis] = w
+    acc = np.tile([0.0, 0.0, 9.81], (t.size, 1))
+    if axis == 0:
+        acc[:, 1], acc[:, 2] = 9.81 * np.sin(angle), 9.81 * np.cos(angle)
+    return gyr, acc
+
+
+@pytest.mark.parametrize("name", ["ekf", "aekf", "mahony", "madgwick", "ukf", "cf-ekf"])
+def test_a_turning_point_is_not_rest(name):
+    """Motion that the still tests alone take for rest (rate and accelerometer within their
+    tolerances of their low-passes, the mean rate under rest_gyro_tol for over rest_time).
+    The turning point of a slow turn about the vertical (the rate through zero at 2 deg/s^2,
+    under 2 deg/s for 2 s) ends every still run by the gyro's drift test. A steady tilt at
+    1.8 deg/s after 2 s at rest: the rest ends within 0.1 s, by the gyro's drift test while
+    its low-pass follows the step, by the accelerometer's after (the gyro's low-pass no longer
+    moves). With the drift test off both are taken for rest for over a second; the ekf kernel
+    equals its reference on both."""
+    ramp = _turning_point(2, lambda t: np.radians(2.0) * (t - 5.0))
+    tilt = _turning_point(0, lambda t: np.where(t < 2.0, 0.0, np.radians(1.8)))
+    n0 = int(2 * FS)
+    for (gyr, acc), off, still in ((ramp, {"rest_gyro_drift_tol": 0.0}, 0),
+                                   (tilt, {"rest_acc_drift_tol": 0.0}, n0)):
+        for p, most in (({}, 0.1 * FS), (off, None)):
+            est = fusion.make(name, FS, **p)
+            est.run(gyr[:still], acc[:still])
+            before = est.rest_samples
+            est.run(gyr[still:], acc[still:])
+            moving = est.rest_samples - before
+            if most is None:
+                assert moving > FS, moving
+            else:
+                assert moving <= most, moving
+        if name == "ekf":
+            for p in ({}, off):
+                est, r = fusion.make(name, FS, **p), ref.make(name, FS, **p)
+                assert qdiff(est.run(gyr, acc), r.run(gyr, acc)) < TOL
+                assert est.rest_samples == r.rest_samples
+
+
+def test_rest_starts_with_the_running_mean():
+    """The rest low-passes are the running mean of their first 0.5 s: a still sensor whose
+    first sample is noisy is at rest after rest_time (a start at that one sample would hold
+    its noise, 0.2 deg/s, over the drift tolerance for most of a second)."""
+    rng = np.random.default_rng(7)
+    n = int(5 * FS)
+    gyr = np.radians([0.3, -0.2, 0.1]) + rng.normal(0, 0.002, (n, 3))
+    gyr[0] += np.radians([0.15, -0.15, 0.15])
+    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.02, (n, 3))
+    est = fusion.make("ekf", FS)
+    est.run(gyr, acc)
+    assert est.rest_samples == n - 1 - round(est.rest_time * FS) + 1
+
+
 @pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "mahony"])
 def test_rest_learns_the_whole_gyro_bias(name):
     """A still sensor with a constant gyro bias, 6-axis: the accelerometer sees only the
