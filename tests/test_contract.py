@@ -53,7 +53,8 @@ def test_interface(name, make_estimator):
     assert type(again) is cls and again.params == est.params and again.fs == est.fs
 
 
-REST_PROPERTIES = ("rest_time", "rest_gyro_tol", "rest_acc_tol", "rest_noise", "at_rest", "rest_samples")
+REST_PROPERTIES = ("rest_time", "rest_gyro_tol", "rest_acc_tol", "rest_gyro_drift_tol", "rest_acc_drift_tol",
+                   "rest_noise", "at_rest", "rest_samples")
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -375,9 +375,9 @@ def test_a_turning_point_is_not_rest(name):
     ramp = _turning_point(2, lambda t: np.radians(2.0) * (t - 5.0))
     tilt = _turning_point(0, lambda t: np.where(t < 2.0, 0.0, np.radians(1.8)))
     n0 = int(2 * FS)
-    for (gyr, acc), off, still in ((ramp, {"rest_gyro_drift_tol": 0.0}, 0),
-                                   (tilt, {"rest_acc_drift_tol": 0.0}, n0)):
-        for p, most in (({}, 0.1 * FS), (off, None)):
+    for (gyr, acc), off, still, most_on in ((ramp, {"rest_gyro_drift_tol": 0.0}, 0, 0),
+                                            (tilt, {"rest_acc_drift_tol": 0.0}, n0, 0.1 * FS)):
+        for p, most in (({}, most_on), (off, None)):
             est = fusion.make(name, FS, **p)
             est.run(gyr[:still], acc[:still])
             before = est.rest_samples

@@ -170,7 +170,7 @@ def test_from_state_checks_the_class():
 @pytest.mark.parametrize("how", ["state", "json", "pickle"])
 def test_mahony_resumes_mid_rest(how):
     """mahony's rest detector (its low-passes, the time at rest, the count) and the bias it
-    pulled toward the rate are state: cut 3 s into a 6 s still spell (rest since 1.5 s), the
+    pulled toward the rate are state: cut 3 s into a 6 s still spell (rest since rest_time), the
     resumed filter goes on bit-identically."""
     fs, n = 100.0, 900
     rng = np.random.default_rng(7)
