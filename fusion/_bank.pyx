@@ -33,7 +33,7 @@ cdef extern from "_ekfbank.h" nogil:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
         EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_MDIRC, EB_MDIRS, EB_MTF, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
-        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_NFIELDS
+        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_RFG, EB_RFA, EB_NFIELDS
     int ekb_ix(int i, int j)
     size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g, const double* a,
                      const double* m, const double* h, double dt, double dtn)
@@ -62,6 +62,8 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
         _lane(d, cap, EB_RA + i, l)[0] = e.rest.acc[i]
         _lane(d, cap, EB_RG0 + i, l)[0] = e.rest.gyr0[i]
         _lane(d, cap, EB_RA0 + i, l)[0] = e.rest.acc0[i]
+        _lane(d, cap, EB_RFG + i, l)[0] = e.rest.fgyr[i]
+        _lane(d, cap, EB_RFA + i, l)[0] = e.rest.facc[i]
         _lane(d, cap, EB_LP + i, l)[0] = e.acc_lp.lp[i]
         _lane(d, cap, EB_MDIRC + i, l)[0] = e.magd.s.dir_cur[i]
         _lane(d, cap, EB_MDIRS + i, l)[0] = e.magd.s.dir_slow[i]
@@ -119,6 +121,8 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
         e.rest.acc[i] = _lane(d, cap, EB_RA + i, l)[0]
         e.rest.gyr0[i] = _lane(d, cap, EB_RG0 + i, l)[0]
         e.rest.acc0[i] = _lane(d, cap, EB_RA0 + i, l)[0]
+        e.rest.fgyr[i] = _lane(d, cap, EB_RFG + i, l)[0]
+        e.rest.facc[i] = _lane(d, cap, EB_RFA + i, l)[0]
         e.acc_lp.lp[i] = _lane(d, cap, EB_LP + i, l)[0]
         e.magd.s.dir_cur[i] = _lane(d, cap, EB_MDIRC + i, l)[0]
         e.magd.s.dir_slow[i] = _lane(d, cap, EB_MDIRS + i, l)[0]

@@ -32,7 +32,8 @@ ON_INVALID = ("raise", "skip")
 # the body frame (acc_lp; acc_qg gone), a version-5 acc_lp being in the frame acc_qg, and the
 # magnetic disturbance detector's settling (magd_t_settle); 7: the detector's test of a field
 # that turns with the sensor (magd_dir, magd_t_fixed); 8: the rest detector's drift test and
-# running-mean start (rest_gyr0, rest_acc0, rest_lp_time; rest_gyro_drift_tol, rest_acc_drift_tol)
+# running-mean start, its still tests' 10 ms low-pass (rest_gyr0, rest_acc0, rest_lp_time, rest_fgyr,
+# rest_facc; rest_gyro_drift_tol, rest_acc_drift_tol)
 STATE_VERSION = 8
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field

@@ -48,7 +48,8 @@ enum {
     EB_IG = 84, EB_IA = 87, EB_IM = 90, EB_IDT = 93, EB_FAST = 94,
     /* rest's drift tests and running-mean start: gyr0[3], acc0[3], lp_time; the parameters */
     EB_RG0 = 95, EB_RA0 = 98, EB_RLPT = 101, EB_RGDTOL = 102, EB_RADTOL = 103,
-    EB_NFIELDS = 104
+    EB_RFG = 104, EB_RFA = 107,                 /* the still tests' samples: fgyr[3], facc[3] */
+    EB_NFIELDS = 110
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -613,19 +614,27 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
     if (ekb_any(on)) {
         ekb_v lpt = EKB_LD(EB_RLPT) + dt, k, dg = ekb_bc(0.0), da = ekb_bc(0.0), gtol = EKB_LD(EB_RGTOL);
         ekb_v atol = EKB_LD(EB_RATOL), gdtol = EKB_LD(EB_RGDTOL), adtol = EKB_LD(EB_RADTOL);
-        ekb_v rg[3], ra[3], t, dd, drift_g, drift_a;
-        ekb_m still = on, rest, start;
+        ekb_v rg[3], ra[3], t, dd, drift_g, drift_a, fg, fa;
+        ekb_m still = on, rest, start, raw;
+        ekb_v kf = dt / 0.01;           /* rest_detect's STILL_TAU */
         lpt = ekb_sel(lpt > 0.5, ekb_bc(0.5), lpt);
         k = dt / (lpt + dt);
+        raw = kf >= 1.0;
         EKB_ST(EB_RLPT, ekb_sel(on, lpt, EKB_LD(EB_RLPT)));
         for (i = 0; i < 3; i++) {
             rg[i] = EKB_LD(EB_RG + i);
             ra[i] = EKB_LD(EB_RA + i);
             rg[i] = rg[i] + k * (g[i] - rg[i]);
             ra[i] = ra[i] + k * (a[i] - ra[i]);
-            dd = g[i] - rg[i];
+            fg = EKB_LD(EB_RFG + i);
+            fa = EKB_LD(EB_RFA + i);
+            fg = ekb_sel(raw, g[i], fg + kf * (g[i] - fg));
+            fa = ekb_sel(raw, a[i], fa + kf * (a[i] - fa));
+            EKB_ST(EB_RFG + i, ekb_sel(on, fg, EKB_LD(EB_RFG + i)));
+            EKB_ST(EB_RFA + i, ekb_sel(on, fa, EKB_LD(EB_RFA + i)));
+            dd = fg - rg[i];
             dg = dg + dd * dd;
-            dd = a[i] - ra[i];
+            dd = fa - ra[i];
             da = da + dd * dd;
             still = still & (ekb_abs(rg[i]) < gtol);
             EKB_ST(EB_RG + i, ekb_sel(on, rg[i], EKB_LD(EB_RG + i)));

@@ -14,12 +14,22 @@ cdef class RestDetector:
     cdef double acc[3]
     cdef double gyr0[3]             # the low-passes when the still run began
     cdef double acc0[3]
+    cdef double fgyr[3]             # the samples the still tests judge (STILL_TAU low-passes)
+    cdef double facc[3]
     cdef double t                   # s at rest so far
     cdef double lp_time             # s since the low-passes' first sample, held at 0.5 (the running-mean start)
     cdef bint started               # the low-passes have their first sample
     cdef long long n                # zero-rate updates since the reset
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
+
+
+cdef extern from *:
+    """
+    #define FUSION_REST_STILL_TAU 0.01
+    """
+    # s: the still tests' low-pass; at 100 Hz and below they judge the raw samples
+    double STILL_TAU "FUSION_REST_STILL_TAU"
 
 
 cdef inline void rest_clear(RestDetector r) noexcept nogil:
@@ -29,17 +39,46 @@ cdef inline void rest_clear(RestDetector r) noexcept nogil:
         r.acc[i] = 0.0
         r.gyr0[i] = 0.0
         r.acc0[i] = 0.0
+        r.fgyr[i] = 0.0
+        r.facc[i] = 0.0
     r.t = 0.0
     r.lp_time = 0.0
     r.started = False
     r.n = 0
 
 
+cdef inline void rest_start(RestDetector r, const double* gyr, const double* acc) noexcept nogil:
+    """The low-passes start at the first sample with both (which is not at rest)."""
+    cdef int i
+    for i in range(3):
+        r.gyr[i] = gyr[i]
+        r.acc[i] = acc[i]
+        r.fgyr[i] = gyr[i]
+        r.facc[i] = acc[i]
+    r.started = True
+    r.t = 0.0
+    r.lp_time = 0.0
+
+
+cdef inline bint rest_in_place(RestDetector r) noexcept nogil:
+    """The drift tests: True while both low-passes are within their drift tolerances of their
+    values at the still run's first sample (a tolerance of 0: that test off)."""
+    cdef double d, drift_g = 0.0, drift_a = 0.0
+    cdef int i
+    for i in range(3):
+        d = r.gyr[i] - r.gyr0[i]
+        drift_g += d * d
+        d = r.acc[i] - r.acc0[i]
+        drift_a += d * d
+    return ((r.gyro_drift_tol <= 0.0 or drift_g <= r.gyro_drift_tol * r.gyro_drift_tol)
+            and (r.acc_drift_tol <= 0.0 or drift_a <= r.acc_drift_tol * r.acc_drift_tol))
+
+
 cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* acc,
                              double dt) noexcept nogil:
     """One sample (gyr or acc NULL: the rest run ends); True when the body has been still for
     r.time s (counted in r.n): the caller then makes its zero-rate update."""
-    cdef double k, dg = 0.0, da = 0.0, d, m, drift_g = 0.0, drift_a = 0.0
+    cdef double k, kf, dg = 0.0, da = 0.0, d, m
     cdef bint still = True
     cdef int i
     if r.time <= 0.0:
@@ -47,13 +86,8 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     if gyr == NULL or acc == NULL:
         r.t = 0.0
         return False
-    if not r.started:           # the low-passes start at the first sample with both
-        for i in range(3):
-            r.gyr[i] = gyr[i]
-            r.acc[i] = acc[i]
-        r.started = True
-        r.t = 0.0
-        r.lp_time = 0.0
+    if not r.started:
+        rest_start(r, gyr, acc)
         return False
     # 0.5 s low-passes (VQF's restFilterTau), the running mean of the samples for their first
     # 0.5 s: a start at one sample would hold its noise for a second, and the drift test below
@@ -62,12 +96,22 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     if r.lp_time > 0.5:
         r.lp_time = 0.5
     k = dt / (r.lp_time + dt)
+    # the still tests judge the samples through a STILL_TAU low-pass above 1 / STILL_TAU Hz
+    # (the samples themselves below): their noise, which grows with the rate, would otherwise
+    # fail the tolerances at 1 kHz on a still sensor
+    kf = dt / STILL_TAU
     for i in range(3):
         r.gyr[i] += k * (gyr[i] - r.gyr[i])
         r.acc[i] += k * (acc[i] - r.acc[i])
-        d = gyr[i] - r.gyr[i]
+        if kf >= 1.0:
+            r.fgyr[i] = gyr[i]
+            r.facc[i] = acc[i]
+        else:
+            r.fgyr[i] += kf * (gyr[i] - r.fgyr[i])
+            r.facc[i] += kf * (acc[i] - r.facc[i])
+        d = r.fgyr[i] - r.gyr[i]
         dg += d * d
-        d = acc[i] - r.acc[i]
+        d = r.facc[i] - r.acc[i]
         da += d * d
         # a steady turn is not rest, however smooth: the mean rate must be bias-sized
         m = r.gyr[i] if r.gyr[i] > 0.0 else -r.gyr[i]
@@ -80,13 +124,7 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
             r.gyr0[i] = r.gyr[i]
             r.acc0[i] = r.acc[i]
     elif still:
-        for i in range(3):
-            d = r.gyr[i] - r.gyr0[i]
-            drift_g += d * d
-            d = r.acc[i] - r.acc0[i]
-            drift_a += d * d
-        still = ((r.gyro_drift_tol <= 0.0 or drift_g <= r.gyro_drift_tol * r.gyro_drift_tol)
-                 and (r.acc_drift_tol <= 0.0 or drift_a <= r.acc_drift_tol * r.acc_drift_tol))
+        still = rest_in_place(r)
     r.t = r.t + dt if still else 0.0
     if r.t < r.time:
         return False

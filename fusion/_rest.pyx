@@ -9,8 +9,9 @@ from fusion._core import FLAG, COUNT, TIMER
 
 cdef class RestDetector:
     """The thresholds and state of the rest detector a filter holds as `est.rest`: time,
-    gyro_tol, acc_tol, and noise (a Kalman filter's zero-rate update) or tau (the bias pull of
-    mahony and madgwick): the rest_* parameters; at_rest, samples."""
+    gyro_tol, acc_tol, gyro_drift_tol, acc_drift_tol, and noise (a Kalman filter's zero-rate
+    update) or tau (the bias pull of mahony and madgwick): the rest_* parameters; at_rest,
+    samples."""
 
     def __init__(self, p):
         """p: the holder's checked parameters (Estimator._take_params), REST's among them."""
@@ -25,6 +26,7 @@ cdef class RestDetector:
     cdef list fields(self):
         return [("rest_gyr", <double[:3]>self.gyr, None), ("rest_acc", <double[:3]>self.acc, None),
                 ("rest_gyr0", <double[:3]>self.gyr0, None), ("rest_acc0", <double[:3]>self.acc0, None),
+                ("rest_fgyr", <double[:3]>self.fgyr, None), ("rest_facc", <double[:3]>self.facc, None),
                 ("t_rest", <double[:1]>&self.t, TIMER),
                 ("rest_lp_time", <double[:1]>&self.lp_time, TIMER),
                 ("rest_started", <int[:1]><int*>&self.started, FLAG),
@@ -50,7 +52,8 @@ def _of_rest(attr, doc):
 #: at_rest, rest_samples = REST_PROPERTIES``
 REST_PROPERTIES = (
     _of_rest("time", "s of rest before the gyro measures its bias; 0: rest detection off. "
-             "rest_gyro_tol, rest_acc_tol, rest_noise: docs/estimators.md, \"Rest\"."),
+             "rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol, rest_noise: "
+             "docs/estimators.md, \"Rest\"."),
     _of_rest("gyro_tol", "rad/s: at rest the gyro is within this of its low-pass, the low-pass "
              "within this of zero."),
     _of_rest("acc_tol", "m/s^2: at rest the accelerometer is within this of its low-pass."),

@@ -543,6 +543,7 @@ def unmeasured_variance(t_run, gyr, dt, fs, sat, motion_rate):
 class RefRest:
     """docs/estimators.md, "Rest": call with each sample; True at rest (counted in n)."""
     TAU = 0.5       # s, the low-passes
+    STILL_TAU = 0.01    # s, the still tests' low-pass
 
     def __init__(self, time, gyro_tol, acc_tol, gyro_drift_tol, acc_drift_tol):
         self.time, self.gyro_tol, self.acc_tol = time, gyro_tol, acc_tol
@@ -560,13 +561,18 @@ class RefRest:
             return False
         if self.lp is None:
             self.lp = (gyr.copy(), acc.copy())
+            self.fast = (gyr.copy(), acc.copy())
             self.lp_time = 0.0
             return False
         self.lp_time = min(self.lp_time + dt, self.TAU)     # a running mean for its first TAU s
         k = dt / (self.lp_time + dt)
         lg, la = (lp + k * (x - lp) for lp, x in zip(self.lp, (gyr, acc)))
         self.lp = (lg, la)
-        still = (np.linalg.norm(gyr - lg) < self.gyro_tol and np.linalg.norm(acc - la) < self.acc_tol
+        # the still tests' samples: a STILL_TAU low-pass, the samples themselves at dt >= STILL_TAU
+        kf = dt / self.STILL_TAU
+        self.fast = tuple(x.copy() if kf >= 1 else f + kf * (x - f) for f, x in zip(self.fast, (gyr, acc)))
+        fg, fa = self.fast
+        still = (np.linalg.norm(fg - lg) < self.gyro_tol and np.linalg.norm(fa - la) < self.acc_tol
                  and np.max(np.abs(lg)) < self.gyro_tol)
         # a still run ends when a low-pass drifts from where it began (a turning point)
         if still and self.t == 0.0:
