@@ -28,6 +28,7 @@
 #include <math.h>
 #include <string.h>
 #include <float.h>
+#include "_rest.h"
 
 /* the fields, each an array of cap doubles (flags 0 / 1, counters exact below 2^53) */
 enum {
@@ -616,8 +617,8 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         ekb_v atol = EKB_LD(EB_RATOL), gdtol = EKB_LD(EB_RGDTOL), adtol = EKB_LD(EB_RADTOL);
         ekb_v rg[3], ra[3], t, dd, drift_g, drift_a, fg, fa;
         ekb_m still = on, rest, start, raw;
-        ekb_v kf = dt / 0.01;           /* rest_detect's STILL_TAU */
-        lpt = ekb_sel(lpt > 0.5, ekb_bc(0.5), lpt);
+        ekb_v kf = dt / FUSION_REST_STILL_TAU;
+        lpt = ekb_sel(lpt > FUSION_REST_TAU, ekb_bc(FUSION_REST_TAU), lpt);
         k = dt / (lpt + dt);
         raw = kf >= 1.0;
         EKB_ST(EB_RLPT, ekb_sel(on, lpt, EKB_LD(EB_RLPT)));

@@ -17,18 +17,16 @@ cdef class RestDetector:
     cdef double fgyr[3]             # the samples the still tests judge (STILL_TAU low-passes)
     cdef double facc[3]
     cdef double t                   # s at rest so far
-    cdef double lp_time             # s since the low-passes' first sample, held at 0.5 (the running-mean start)
+    cdef double lp_time             # s since the low-passes' first sample, held at REST_TAU (the running-mean start)
     cdef bint started               # the low-passes have their first sample
     cdef long long n                # zero-rate updates since the reset
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
 
 
-cdef extern from *:
-    """
-    #define FUSION_REST_STILL_TAU 0.01
-    """
-    # s: the still tests' low-pass; at 100 Hz and below they judge the raw samples
+cdef extern from "_rest.h":
+    # s: the low-passes (VQF's restFilterTau); the still tests' low-pass (fusion/_rest.h)
+    double REST_TAU "FUSION_REST_TAU"
     double STILL_TAU "FUSION_REST_STILL_TAU"
 
 
@@ -89,12 +87,11 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     if not r.started:
         rest_start(r, gyr, acc)
         return False
-    # 0.5 s low-passes (VQF's restFilterTau), the running mean of the samples for their first
-    # 0.5 s: a start at one sample would hold its noise for a second, and the drift test below
+    # REST_TAU low-passes, the running mean of the samples for their first REST_TAU s: a start at one sample would hold its noise for a second, and the drift test below
     # would take the low-pass settling from it for motion
     r.lp_time += dt
-    if r.lp_time > 0.5:
-        r.lp_time = 0.5
+    if r.lp_time > REST_TAU:
+        r.lp_time = REST_TAU
     k = dt / (r.lp_time + dt)
     # the still tests judge the samples through a STILL_TAU low-pass above 1 / STILL_TAU Hz
     # (the samples themselves below): their noise, which grows with the rate, would otherwise
