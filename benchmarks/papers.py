@@ -109,15 +109,15 @@ def _euler_runs(cases, names, seeds, tick, preset, params=None):
     """Every estimator on every (scenario, diagnosis?) case and seed: per-seed Euler-table rows
     (scenario label, seed, estimator, angle, mean, std, MAE, RMSE) and, per scenario, the
     first seed's per-sample Euler errors for figures (diagnosis runs: ``preset`` without the
-    gyro's turn-on bias). params: {name: keyword arguments} where a source's own setting
-    differs from the default."""
+    gyro's turn-on bias). params: {name: function of the scenario giving keyword arguments}
+    where a source's own setting differs from the default."""
     runs, keep = [], {}
     for case, diagnosis in cases:
         label = case + (NO_BIAS if diagnosis else "")
         for seed in seeds:
             s = scenarios.seed_scenario(case, seed, imu=_no_turn_on_bias(preset) if diagnosis else None)
             for n in names:
-                q = _run(n, s, **(params or {}).get(n, {}))
+                q = _run(n, s, **(params or {}).get(n, lambda s: {})(s))
                 for ang, st in metrics.euler_table(q, s.q_true).items():
                     runs.append(dict(scenario=label, seed=seed, estimator=n, angle=ang, **st))
                 if seed == seeds[0] and not diagnosis:
@@ -256,9 +256,9 @@ def _measure_003(seeds, tick):
 def _measure_004(seeds, tick):
     names = ("ekf", "cf-ekf")
     cases = [("seed004-static", False), ("seed004-fast", False), ("seed004-static", True)]
-    # the patent's sliding mean as it sets it: 10 samples at its 500 Hz (our default has none)
+    # the patent's sliding mean as it sets it: 20 ms at the scenario's rate (our default has none)
     runs, keep = _euler_runs(cases, names, seeds, tick, "mpu9250",
-                             params={"cf-ekf": {"window": seed_window(500.0)}})
+                             params={"cf-ekf": lambda s: {"window": seed_window(s.fs)}})
     per_seed, table, paired = {}, [], []
     for c in dict.fromkeys(r["scenario"] for r in runs):
         for a in ORDER:
