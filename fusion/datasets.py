@@ -98,14 +98,17 @@ def _get(d, key, path):
 
 def _float(d, key, path):
     """``d[key]`` as a float array; ValueError naming the file and key where it is not
-    numeric (strings, pickled objects)."""
+    int or float: the cast would silently change the meaning of the other dtypes (a complex
+    array loses its imaginary part, a timedelta64 't' becomes counts of its own unit, bool
+    and strings become numbers)."""
     arr = _get(d, key, path)
-    if np.iscomplexobj(arr):       # float() would drop the imaginary part without a word
+    if np.iscomplexobj(arr):
         raise ValueError(f"{path}: {key!r} must be real, {EXPECTED[key]} (got complex dtype {arr.dtype})")
-    try:
-        return np.asarray(arr, dtype=float)
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"{path}: {key!r} must be numeric, {EXPECTED[key]} ({e})") from None
+    if arr.dtype.kind not in "iuf":
+        hint = "; store times as float seconds" if arr.dtype.kind in "mM" else ""
+        raise ValueError(f"{path}: {key!r} must be numeric (int or float), {EXPECTED[key]} "
+                         f"(got dtype {arr.dtype}{hint})")
+    return np.asarray(arr, dtype=float)
 
 
 def _text(d, key, path):

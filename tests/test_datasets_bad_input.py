@@ -70,6 +70,26 @@ def test_bad_shape_or_type_names_file_and_key(tmp_path, key, bad, expect):
     assert str(p) in str(exc.value)
 
 
+@pytest.mark.parametrize("key, bad", [
+    ("t", (np.arange(20) * 10).astype("m8[ms]")),          # cast to float: 10 "s" steps
+    ("t", np.datetime64("2024-01-01T00:00:00.000") + (np.arange(20) * 10).astype("m8[ms]")),
+    ("fs", np.array(True)),
+    ("fs", np.array("100")),
+    ("gyr", np.full((20, 3), "1.5")),                      # would cast to 1.5 without a word
+    ("acc", np.ones((20, 3), dtype=bool)),
+])
+def test_dates_bools_and_strings_are_refused(tmp_path, key, bad):
+    a = _arrays()
+    a[key] = bad
+    p = _write(tmp_path / "s" / f"dtype_{key}.npz", **a)
+    with pytest.raises(ValueError, match=rf"'{key}' must be numeric \(int or float\)") as exc:
+        datasets.load_trial(p)
+    msg = str(exc.value)
+    assert str(p) in msg and datasets.EXPECTED[key] in msg and str(bad.dtype) in msg
+    if bad.dtype.kind in "mM":
+        assert "float seconds" in msg
+
+
 def test_pickled_object_array_is_a_clear_error(tmp_path):
     a = _arrays()
     a["extra"] = np.array([{"a": 1}], dtype=object)     # np.load refuses it without allow_pickle
