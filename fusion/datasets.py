@@ -16,6 +16,7 @@ the file (e.g. ``q_align``, ``q_earth_fix``) are kept in ``Trial.extra``.
 """
 import os
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,11 +90,15 @@ class Trial:
 
 def _get(d, key, path):
     """``d[key]``; ValueError naming the file and key for what numpy will not load (a pickled
-    object array under allow_pickle=False)."""
+    object array under allow_pickle=False) or loads as raw bytes (a member stored without
+    ``.npy``, which ``NpzFile`` hands back unparsed)."""
     try:
-        return d[key]
+        arr = d[key]
     except ValueError as e:
         raise ValueError(f"{path}: key {key!r} cannot be read ({e})") from None
+    if not isinstance(arr, np.ndarray):
+        raise ValueError(f"{path}: key {key!r} cannot be read (not a .npy array but {type(arr).__name__})")
+    return arr
 
 
 def _float(d, key, path):
@@ -137,7 +142,8 @@ def _rows(d, n, cols, key, path):
 def load_trial(path: str | os.PathLike) -> Trial:
     """Read one ``.npz`` trial into a ``Trial``. FileNotFoundError for a missing file;
     ValueError naming the file, the key and what it must hold for a missing key, a bad shape
-    or a non-numeric array, and for a file numpy cannot read as ``.npz``."""
+    or a non-numeric array, and for a file numpy cannot read as ``.npz`` (not a zip, a member
+    that fails its CRC or is not ``.npy``)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"trial file {str(path)!r} does not exist")
@@ -148,6 +154,13 @@ def load_trial(path: str | os.PathLike) -> Trial:
     if not isinstance(d, np.lib.npyio.NpzFile):
         raise ValueError(f"{path}: expected an .npz archive of named arrays, got a single array")
     with d:
+        # every member's CRC first: numpy would parse a corrupt header into any kind of error
+        try:
+            corrupt = d.zip.testzip()
+        except (OSError, EOFError, zlib.error, NotImplementedError, RuntimeError) as e:   # RuntimeError: encrypted
+            raise ValueError(f"{path}: not a readable .npz trial ({e})") from None
+        if corrupt is not None:
+            raise ValueError(f"{path}: not a readable .npz trial (member {corrupt!r} is corrupt: bad CRC)")
         missing = [k for k in REQUIRED if k not in d.files]
         if missing:
             want = "; ".join(f"{k!r}: {EXPECTED[k]}" for k in missing)

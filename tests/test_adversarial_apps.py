@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -158,10 +159,17 @@ def test_estimators_bad_npz_is_skipped(tmp_path):
     rng = np.random.default_rng(0)
     _trial(data / "good.npz", gyr=rng.normal(0, 0.01, (20, 3)))
     (data / "bad.npz").write_bytes(b"PK\x03\x04 truncated")
+    with zipfile.ZipFile(_trial(tmp_path / "whole.npz")) as src, zipfile.ZipFile(data / "raw.npz", "w") as z:
+        for m in src.namelist():                 # 't' without .npy: was an AttributeError
+            if m == "t.npy":
+                z.writestr("t", b"no npy header")
+            else:
+                z.writestr(m, src.read(m))
     r = run([SCRIPT, "--out", str(tmp_path / "out"), "--quick", "--estimators", "gyro",
              "--data", str(tmp_path / "data")], timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "s/bad" in r.stdout and "s,good," in (tmp_path / "out" / "trials.csv").read_text()
+    assert "s/bad" in r.stdout and "s/raw" in r.stdout
+    assert "s,good," in (tmp_path / "out" / "trials.csv").read_text()
     assert "s/bad" in (tmp_path / "out" / "report.md").read_text()
 
 

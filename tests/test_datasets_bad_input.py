@@ -1,5 +1,8 @@
 """fusion.datasets on bad input: every error names the file (or folder), the key and what is
 expected, instead of a raw numpy traceback."""
+import io
+import zipfile
+
 import numpy as np
 import pytest
 
@@ -135,3 +138,75 @@ def test_file_given_as_folder(tmp_path):
     with pytest.raises(ValueError, match="is not a folder") as exc:
         datasets.load_folder(p)
     assert str(p) in str(exc.value)
+
+
+def _corrupt_member(path, member="gyr.npy"):
+    """Flip one byte in the middle of ``member``'s stored data (the zip directory stays valid)."""
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo(member)
+    raw = bytearray(path.read_bytes())
+    raw[info.header_offset + 30 + len(info.filename) + len(info.extra) + info.compress_size // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+
+
+def _raw_member(path, key):
+    """The trial with ``key`` stored as raw bytes, without the ``.npy`` format (NpzFile gives bytes)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(path, "w") as z:
+        for k, v in _arrays().items():
+            if k == key:
+                z.writestr(k, b"ok")
+            else:
+                buf = io.BytesIO()
+                np.save(buf, v)
+                z.writestr(f"{k}.npy", buf.getvalue())
+    return path
+
+
+@pytest.mark.parametrize("save", [np.savez, np.savez_compressed])
+def test_corrupt_member_is_a_value_error(tmp_path, save):
+    p = tmp_path / "s" / "crc.npz"
+    p.parent.mkdir()
+    save(p, **_arrays(n=2000))
+    _corrupt_member(p)
+    with pytest.raises(ValueError, match="member 'gyr.npy' is corrupt") as exc:
+        datasets.load_trial(p)                   # was: zipfile.BadZipFile
+    assert str(p) in str(exc.value)
+
+
+@pytest.mark.parametrize("local, central, value, expect", [
+    (8, 10, 99, "compression method"),           # an unknown compression method: NotImplementedError
+    (6, 8, 1, "encrypted"),                      # the encryption flag: RuntimeError
+])
+def test_unsupported_member_is_a_value_error(tmp_path, local, central, value, expect):
+    p = _write(tmp_path / "s" / "odd.npz", **_arrays())
+    with zipfile.ZipFile(p) as z:
+        first = z.infolist()[0]
+    raw = bytearray(p.read_bytes())
+    raw[first.header_offset + local] |= value                   # the local header's field
+    raw[raw.find(b"PK\x01\x02") + central] |= value             # and the central directory's
+    p.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=f"not a readable .npz trial .*{expect}") as exc:
+        datasets.load_trial(p)
+    assert str(p) in str(exc.value)
+
+
+@pytest.mark.parametrize("key", ["gyr", "quality"])
+def test_member_without_npy_is_a_value_error(tmp_path, key):
+    p = _raw_member(tmp_path / "s" / "raw.npz", key)
+    with pytest.raises(ValueError, match=f"'{key}' cannot be read .*not a .npy array") as exc:
+        datasets.load_trial(p)                   # was: AttributeError
+    assert str(p) in str(exc.value)
+
+
+def test_load_folder_collects_corrupt_files(tmp_path):
+    _write(tmp_path / "s" / "good.npz", **_arrays())
+    _raw_member(tmp_path / "s" / "raw.npz", "quality")
+    crc = tmp_path / "s" / "crc.npz"
+    np.savez(crc, **_arrays(n=2000))
+    _corrupt_member(crc)
+    bad = []
+    trials = datasets.load_folder(tmp_path, unreadable=bad)
+    assert [tr.key for tr in trials] == ["s/good"]
+    assert [k for k, _ in bad] == ["s/crc", "s/raw"]
+    assert str(crc) in bad[0][1]
