@@ -49,7 +49,8 @@ def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="spherebot-estimators", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="results/compare", help="output folder (default: %(default)s)")
     p.add_argument("--data", default=None,
-                   help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
+                   help=f"recorded-data folder, an error if absent "
+                        f"(default: {datasets.DATA_LOCATION}, skipped if absent)")
     p.add_argument("--estimators", nargs="+", default=None, metavar="NAME",
                    help=f"estimators to score, names or comma-separated lists (default: all of {fusion.available()})")
     p.add_argument("--quick", action="store_true",
@@ -93,9 +94,8 @@ def _recorded(names, args, out):
     written = []
     data_dir = Path(args.data) if args.data else datasets.default_data_dir()
     trial_rows, agg_rows, skipped = [], [], []
-    if data_dir is None or not data_dir.is_dir():
-        where = args.data or datasets.DATA_LOCATION
-        print(f"recorded data: folder not found ({where}); skipping the recorded-trial comparison")
+    if data_dir is None:
+        print(f"recorded data: folder not found ({datasets.DATA_LOCATION}); skipping the recorded-trial comparison")
     else:
         unreadable = []
         trials = datasets.load_folder(data_dir, unreadable=unreadable)
@@ -165,6 +165,10 @@ def main(argv=None):
     unknown = [n for n in names if n not in fusion.available()]
     if unknown:
         sys.exit(f"error: unknown estimator(s) {unknown}; available: {fusion.available()}")
+    # only the default folder may be absent (an installed package without the data)
+    if args.data is not None and not Path(args.data).is_dir():
+        sys.exit(f"error: --data {args.data!r} is not a folder; give the recorded-data folder "
+                 f"or leave --data out (default: {datasets.DATA_LOCATION})")
     out = Path(args.out)
     problem = _writable(out)
     if problem:

@@ -153,6 +153,14 @@ def test_estimators_bad_options(tmp_path, args, word):
     assert not (tmp_path / "report.md").exists()
 
 
+@pytest.mark.parametrize("name", ["missing", "file"])
+def test_estimators_data_must_be_a_folder(tmp_path, name):
+    (tmp_path / "file").write_text("x")
+    r = run([SCRIPT, "--out", str(tmp_path / "out"), "--quick", "--data", str(tmp_path / name)], timeout=60)
+    assert r.returncode != 0 and "--data" in r.stderr and str(tmp_path / name) in r.stderr, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()     # was: a note, exit 0
+
+
 def test_estimators_bad_npz_is_skipped(tmp_path):
     data = tmp_path / "data" / "s"
     data.mkdir(parents=True)
