@@ -185,7 +185,7 @@ def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0
     """
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; available: {', '.join(SCENARIOS)}")
-    fs, duration = float(fs), float(duration)
+    fs, duration, seed = float(fs), float(duration), integer("seed", seed, 0)
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"fs must be a positive sample rate in Hz, got {fs}")
     n = int(round(duration * fs))

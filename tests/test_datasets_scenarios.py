@@ -155,6 +155,15 @@ def test_scenario_bad_arguments():
         scenarios.make_scenario("mixed", wobble=3)
 
 
+@pytest.mark.parametrize("seed", [-1, "a", 1.5, True, None])
+def test_scenario_bad_seed_names_seed(seed):
+    # was numpy's SeedSequence error (or, for True, seed 1 without a word)
+    with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got"):
+        scenarios.make_scenario("static", duration=1.0, seed=seed)
+    with pytest.raises(ValueError, match=r"seed must be an integer >= 0, got"):
+        scenarios.failure_scenario("tapping", duration=1.0, seed=seed)
+
+
 # --- comparison loops --------------------------------------------------------------------
 
 def test_filters_beat_gyro_on_the_mixed_scenario():
