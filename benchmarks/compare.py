@@ -115,7 +115,7 @@ def compare_trials(names, trials, params=None, log=print, progress=True, keep_cu
             q = run_estimator(name, tr.fs, tr.gyr, tr.acc, tr.mag if mode == "9-axis" else None,
                               dt=tr.dt, **params.get(name, {}))
             sc, err, offset, _ = score_mode(q, tr.quat, mode)
-        except ValueError as exc:     # bad samples (on_invalid='raise') or nothing to score
+        except ValueError as exc:     # bad samples (on_invalid='raise'), non-finite output or nothing to score
             skipped.append((f"{tr.key} {mode} {name}", str(exc)))
             log(f"skip {tr.key} {mode} {name}: {exc}")
         else:

@@ -10,7 +10,9 @@
 - ``spectrum``: one-sided amplitude spectrum (the vibration analysis of
   "IIR-EKF, IMU dynamic error suppression").
 
-Rows whose reference quaternion is not finite (a lost reference) are ignored everywhere.
+Rows whose reference quaternion is not finite (a lost reference) are ignored everywhere; an
+estimate that is not a finite, nonzero quaternion on any other row is a ValueError (scoring the
+other rows would hide the failure).
 """
 from typing import Literal, overload
 
@@ -28,7 +30,8 @@ STATS = ("mean", "std", "MAE", "RMSE")
 
 
 def _pair(q_est, q_ref, names=("q_est", "q_ref")):
-    """Both as float (N, 4) arrays of the same N (a single (4,) quaternion broadcasts)."""
+    """Both as float (N, 4) arrays of the same N (a single (4,) quaternion broadcasts);
+    ValueError where the estimate cannot be normalised on a row with a finite reference."""
     a, b = (quat.as_quat(q, n) for q, n in zip((q_est, q_ref), names))
     if a.ndim == 1:
         a = a[None]
@@ -44,6 +47,12 @@ def _pair(q_est, q_ref, names=("q_est", "q_ref")):
         else:
             raise ValueError(f"{names[0]} and {names[1]} must have the same number of rows, "
                              f"got {a.shape[0]} and {b.shape[0]}")
+    bad = np.isfinite(b).all(axis=1) & ~np.isfinite(quat.normalise(a)).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{names[0]} must be a finite, nonzero quaternion on every row with a finite "
+                         f"{names[1]}: {int(bad.sum())} of {a.shape[0]} rows are not (first: row "
+                         f"{int(np.argmax(bad))}, {a[np.argmax(bad)]}); only rows with a non-finite "
+                         f"{names[1]} are dropped")
     return a, b
 
 
@@ -93,7 +102,8 @@ def attitude_errors(q_est: ArrayLike, q_ref: ArrayLike) -> dict[str, Array]:
     ``e``, but exact near zero where acos loses half the digits, and defined at ``e_w = 0``).
 
     Returns a dict of (N,) arrays ``total``, ``heading``, ``inclination``; rows with a
-    non-finite reference are NaN (``score`` ignores them).
+    non-finite reference are NaN (``score`` ignores them). ValueError where the estimate is not
+    a finite, nonzero quaternion on another row.
     """
     e = _error_quaternion(q_est, q_ref)
     w, x, y, z = np.abs(np.moveaxis(e, -1, 0))
@@ -145,7 +155,8 @@ def remove_heading_offset(q_est: ArrayLike, q_ref: ArrayLike,
 
 
 def rmse(x: ArrayLike) -> float:
-    """Root mean square over the finite entries (NaN if none)."""
+    """Root mean square over the finite entries (NaN if none). Meant for ``attitude_errors``'
+    arrays, whose only NaN rows are those without a reference (it refuses bad estimates)."""
     a = np.asarray(x, dtype=float)
     a = a[np.isfinite(a)]
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
@@ -153,7 +164,8 @@ def rmse(x: ArrayLike) -> float:
 
 def score(q_est: ArrayLike, q_ref: ArrayLike, six_axis: bool = False) -> dict[str, float]:
     """RMSE in degrees of the total, heading and inclination errors over the rows with a
-    finite reference: ``{"total", "heading", "inclination"}``. With ``six_axis=True`` one
+    finite reference: ``{"total", "heading", "inclination"}``; ValueError where the estimate is
+    not a finite, nonzero quaternion on one of them. With ``six_axis=True`` one
     constant heading offset is removed first (``remove_heading_offset``), as
     the data folder's README asks for estimators without a magnetometer."""
     err = attitude_errors(remove_heading_offset(q_est, q_ref) if six_axis else q_est, q_ref)

@@ -145,6 +145,22 @@ def test_nan_reference_rows_are_ignored():
         metrics.score(q_est, np.full((100, 4), np.nan))
 
 
+@pytest.mark.parametrize("bad", [[np.nan, 0, 0, 0], [np.inf, 0, 0, 0], [0, 0, 0, 0]])
+@pytest.mark.parametrize("fn", [metrics.score, lambda a, b: metrics.score(a, b, six_axis=True),
+                                metrics.heading_offset, metrics.attitude_errors, metrics.euler_table])
+def test_bad_estimate_rows_are_an_error_not_dropped(fn, bad):
+    # was: dropped with the reference's lost rows, so a filter that fails on most rows scored 0
+    q_ref = random_quats(10)
+    q_est = q_ref.copy()
+    q_est[3:] = bad
+    with pytest.raises(ValueError, match=r"q_est must be a finite, nonzero quaternion .*7 of 10 rows .*row 3"):
+        fn(q_est, q_ref)
+    q_ref[3:] = np.nan              # the same rows without a reference are dropped, as documented
+    with np.errstate(invalid="ignore"):     # 6-axis turns the inf rows too: inf * 0
+        fn(q_est, q_ref)
+    assert metrics.score(q_est, q_ref)["total"] < 1e-6
+
+
 def test_heading_offset_removal():
     q_ref = random_quats(400)
     wobble = np.radians(2.0) * np.sin(np.linspace(0, 20, 400))
