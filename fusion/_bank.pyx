@@ -33,7 +33,7 @@ cdef extern from "_ekfbank.h" nogil:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
         EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_MDIRC, EB_MDIRS, EB_MTF, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
-        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_RFG, EB_RFA, EB_NFIELDS
+        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_RFG, EB_RFA, EB_RGATE, EB_RGATET, EB_NFIELDS
     int ekb_ix(int i, int j)
     size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g, const double* a,
                      const double* m, const double* h, double dt, double dtn)
@@ -102,6 +102,8 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
     _lane(d, cap, EB_RNOISE, l)[0] = e.rest.noise
     _lane(d, cap, EB_RGDTOL, l)[0] = e.rest.gyro_drift_tol
     _lane(d, cap, EB_RADTOL, l)[0] = e.rest.acc_drift_tol
+    _lane(d, cap, EB_RGATE, l)[0] = e.rest.gate
+    _lane(d, cap, EB_RGATET, l)[0] = e.rest.gate_time
     _lane(d, cap, EB_MTIME, l)[0] = e.magd.time
     _lane(d, cap, EB_MNTOL, l)[0] = e.magd.norm_tol
     _lane(d, cap, EB_MDTOL, l)[0] = e.magd.dip_tol

@@ -15,7 +15,7 @@ from fusion._prefilter import WINDOW_MAX
 from fusion._core import struct_fields, TIMER
 from fusion._ekf import EKF as _EKF
 from fusion._mahony import Mahony as _Mahony
-from fusion._rest import REST_PROPERTIES
+from fusion._rest import REST_PROPERTIES, REST_GATE_PROPERTIES
 from fusion._magdist import MAGDIST_PROPERTIES
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from libc.math cimport sqrt, fabs
@@ -146,6 +146,7 @@ cdef class CFEKF(Estimator):
     # the rest parameters and counts, read from the core's detector (fusion._rest)
     (rest_time, rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol, rest_noise, at_rest,
      rest_samples) = REST_PROPERTIES
+    rest_bias_gate, rest_gate_time = REST_GATE_PROPERTIES
     # the disturbance parameters and count, read from the complementary filter's (its magd)
     magdist_time, magdist_norm_tol, magdist_dip_tol, magdist_new_time, mag_rejected = MAGDIST_PROPERTIES
     # its EKF parameters, the gyro bias and the 7x7 covariance of [q (in the estimator's frame),

@@ -6,6 +6,7 @@ import numpy as np
 from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._rest cimport rest_gate_open
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
@@ -279,7 +280,7 @@ cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
     cdef double* b = st.b
     cdef double* P = st.P
     cdef int i, j
-    if not rest_now(e, gyr, acc, dt):
+    if not rest_now(e, gyr, acc, dt) or not rest_gate_open(e.rest, b, P[32], P[40], P[48]):
         return
     for i in range(7):
         for j in range(3):

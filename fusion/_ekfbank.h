@@ -50,7 +50,8 @@ enum {
     /* rest's drift tests and running-mean start: gyr0[3], acc0[3], lp_time; the parameters */
     EB_RG0 = 95, EB_RA0 = 98, EB_RLPT = 101, EB_RGDTOL = 102, EB_RADTOL = 103,
     EB_RFG = 104, EB_RFA = 107,                 /* the still tests' samples: fgyr[3], facc[3] */
-    EB_NFIELDS = 110
+    EB_RGATE = 110, EB_RGATET = 111,            /* the zero-rate update's gate (rest_gate_open) */
+    EB_NFIELDS = 112
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -663,8 +664,19 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         EKB_ST(EB_RT, t);
         rest = on & (t >= EKB_LD(EB_RTIME));
         if (ekb_any(rest)) {
-            ekb_v p2[49], q2[4], b2[3], rn = EKB_LD(EB_RNOISE);
+            ekb_v gk = EKB_LD(EB_RGATE), lim;
+            /* rest_gate_open: a short still run whose low-pass is far from the bias waits */
+            ekb_m gated = (gk > 0.0) & (t < EKB_LD(EB_RGATET)), far = {0, 0, 0, 0};
             EKB_ST(EB_RN, EKB_LD(EB_RN) + ekb_sel(rest, ekb_bc(1.0), ekb_bc(0.0)));
+            for (i = 0; i < 3; i++) {
+                dd = rg[i] - b[i];
+                lim = gk * ekb_sqrt(p[8 * (4 + i)]) + gdtol;
+                far = far | (dd * dd > lim * lim);
+            }
+            rest = rest & ~(gated & far);
+        }
+        if (ekb_any(rest)) {
+            ekb_v p2[49], q2[4], b2[3], rn = EKB_LD(EB_RNOISE);
             memcpy(p2, p, sizeof p2);
             memcpy(q2, q, sizeof q2);
             memcpy(b2, b, sizeof b2);

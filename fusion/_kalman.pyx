@@ -4,7 +4,7 @@
 fusion._aided.AidedFilter."""
 from fusion._aided cimport AidedFilter
 from fusion._core import BIAS, COV, TIMER
-from fusion._rest import REST_PROPERTIES
+from fusion._rest import REST_PROPERTIES, REST_GATE_PROPERTIES
 
 NOISE = ("gyro_noise", "bias_noise", "acc_noise", "mag_noise", "q_init_std", "bias_init_std",
          "motion_rate")
@@ -26,6 +26,7 @@ cdef class KalmanFilter(AidedFilter):
     configure(p) (the noise struct, then AidedFilter's parts)."""
     gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = NOISE_PROPERTIES
     rest_noise = REST_PROPERTIES[5]     # the zero-rate update's noise (its rest detector's)
+    rest_bias_gate, rest_gate_time = REST_GATE_PROPERTIES   # and its gate
 
     cdef int configure(self, dict p) except -1:
         self.kalman = p     # before the reset, which reads the initial stds

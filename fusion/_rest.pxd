@@ -2,6 +2,9 @@
 # at rest hold (the ekf family, the ukf, cf-ekf through its EKF core); each does its own
 # zero-rate update when rest_detect says so. docs/contributing.md says how a filter takes it.
 
+from libc.math cimport sqrt
+
+
 cdef class RestDetector:
     cdef readonly double time       # s at rest before the gyro measures its bias (0: detection off)
     cdef readonly double gyro_tol   # rad/s: gyro within this of its low-pass, the low-pass within this of 0
@@ -10,6 +13,8 @@ cdef class RestDetector:
     cdef readonly double acc_drift_tol    # m/s^2: ... or the accelerometer's (0: never)
     cdef readonly double noise      # rad/s/sqrt(Hz): the zero-rate measurement's noise density (REST)
     cdef readonly double tau        # s: the bias pulled toward the measured rate at rest (REST_PULL)
+    cdef readonly double gate       # bias standard deviations: a Kalman filter's zero-rate update gate (REST; 0: off)
+    cdef readonly double gate_time  # s: a still run this long passes the gate
     cdef double gyr[3]              # the low-passes
     cdef double acc[3]
     cdef double gyr0[3]             # the low-passes when the still run began
@@ -19,7 +24,7 @@ cdef class RestDetector:
     cdef double t                   # s at rest so far
     cdef double lp_time             # s since the low-passes' first sample, held at REST_TAU (the running-mean start)
     cdef bint started               # the low-passes have their first sample
-    cdef long long n                # zero-rate updates since the reset
+    cdef long long n                # samples at rest since the reset (zero-rate updates and gated ones)
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
 
@@ -126,4 +131,26 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     if r.t < r.time:
         return False
     r.n += 1
+    return True
+
+
+cdef inline bint rest_gate_open(RestDetector r, const double* b, double v0, double v1,
+                                double v2) noexcept nogil:
+    """A Kalman filter's zero-rate update at rest (rest_detect True) goes ahead unless the still
+    run is shorter than r.gate_time and the gyro's low-pass is more than r.gate bias standard
+    deviations (variances v0, v1, v2 of the estimate b) plus r.gyro_drift_tol from b on some
+    axis: the turning point of a slow turn about the vertical, whose rate stays under the
+    rest tolerances for a second, is not taken for a bias the filter already knows better."""
+    cdef double v[3]
+    cdef double d
+    cdef int i
+    if r.gate <= 0.0 or r.t >= r.gate_time:
+        return True
+    v[0] = v0
+    v[1] = v1
+    v[2] = v2
+    for i in range(3):
+        d = r.gyr[i] - b[i]
+        if d * d > (r.gate * sqrt(v[i]) + r.gyro_drift_tol) ** 2:
+            return False
     return True

@@ -21,6 +21,7 @@ cdef class RestDetector:
         # what the holder does at rest: REST's zero-rate update (rest_noise) or REST_PULL's
         # pull of the bias (rest_tau); the one it does not declare is 0
         self.noise, self.tau = p.get("rest_noise", 0.0), p.get("rest_tau", 0.0)
+        self.gate, self.gate_time = p.get("rest_bias_gate", 0.0), p.get("rest_gate_time", 0.0)
         rest_clear(self)
 
     cdef list fields(self):
@@ -39,7 +40,8 @@ cdef class RestDetector:
 
     @property
     def samples(self):
-        """Zero-rate updates (samples detected at rest) since the last reset."""
+        """Samples detected at rest since the last reset (a Kalman filter's zero-rate updates, and
+        the ones its rest_bias_gate held)."""
         return self.n
 
 
@@ -63,7 +65,15 @@ REST_PROPERTIES = (
              "this far from its value at the run's start; 0: never."),
     _of_rest("noise", "rad/s/sqrt(Hz): the zero-rate measurement's noise density."),
     _of_rest("at_rest", "True while the rest detector holds (the last sample was a zero-rate update)."),
-    _of_rest("samples", "Zero-rate updates (samples detected at rest) since the last reset."))
+    _of_rest("samples", "Samples detected at rest since the last reset (the zero-rate updates, and the "
+             "ones rest_bias_gate held)."))
+
+#: rest_bias_gate and rest_gate_time, the zero-rate update's gate, of the holders that declare
+#: REST (the Kalman filters: rest_gate_open)
+REST_GATE_PROPERTIES = (
+    _of_rest("gate", "bias standard deviations: the zero-rate update waits while the gyro's "
+             "low-pass is further than this (plus rest_gyro_drift_tol) from the bias estimate; 0: off."),
+    _of_rest("gate_time", "s: a still run this long updates the bias whatever the gate says."))
 
 #: rest_tau, the bias pull's time constant, of the holders that declare REST_PULL (mahony, madgwick)
 REST_TAU_PROPERTY = _of_rest("tau", "s: at rest the gyro bias is pulled toward the measured rate with "

@@ -7,6 +7,7 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._rest cimport rest_gate_open
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
@@ -370,7 +371,8 @@ cdef class UKF(KalmanFilter):
             self.s.P[0] += v
             self.s.P[7] += v
             self.s.P[14] += v
-        if rest_now(self, gyr, acc, dt):
+        if rest_now(self, gyr, acc, dt) and rest_gate_open(self.rest, self.s.b, self.s.P[21],
+                                                           self.s.P[28], self.s.P[35]):
             self.zero_rate_update(gyr, dt)
         acc = acc_input(self, gyr, not measured and gyr != NULL, self.s.b, acc, dt, af)
         if acc != NULL:

@@ -108,11 +108,20 @@ REST = (
           "(about 0.6 deg of tilt); 0: off", allow_zero=True),
     Param("rest_noise", 1e-3, "rad/s/√Hz", 1e-7, 1.0, "the gyro's white-noise density as the "
           "zero-rate measurement's noise"),
+    # a slow turn about the vertical passes every test above for a second or so; the filter's own
+    # bias uncertainty tells it from rest. Off by default: it delays a large turn-on bias and
+    # costs a little under linear acceleration (docs/accuracy.md, fourteenth pass)
+    Param("rest_bias_gate", 0.0, "1", 0.5, 100.0, "the zero-rate update waits while the gyro's "
+          "0.5 s low-pass is more than this many bias standard deviations (plus "
+          "rest_gyro_drift_tol) from the bias estimate on some axis (2: slow turns about the "
+          "vertical without a magnetometer); 0: off", allow_zero=True),
+    Param("rest_gate_time", 2.0, "s", 1e-3, 1e4, "a still run this long updates the bias whatever "
+          "rest_bias_gate says (a turn-on bias beyond the gate is learned after it)"),
 )
 
 # the complementary filters' rest learning (no zero-rate update there, so no rest_noise): at
 # rest their gyro bias is pulled toward the measured rate
-REST_PULL = (*[d for d in REST if d.name != "rest_noise"],
+REST_PULL = (*[d for d in REST if d.name not in ("rest_noise", "rest_bias_gate", "rest_gate_time")],
              Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest: the time constant with which the gyro "
                    "bias is pulled toward the measured rate"))
 

@@ -586,6 +586,14 @@ class RefRest:
             return True
         return False
 
+    def gate_open(self, b, var, gate, gate_time):
+        """A Kalman filter's zero-rate update at rest goes ahead unless the still run is shorter
+        than gate_time and the gyro's low-pass is more than gate standard deviations (var: the
+        bias estimate b's variances) plus the gyro drift tolerance from b on some axis."""
+        if gate <= 0 or self.t >= gate_time:
+            return True
+        return bool(np.all(np.abs(self.lp[0] - b) <= gate * np.sqrt(var) + self.drift_tol[0]))
+
 
 class RefEKF(RestAndMagCounts, RefEstimator):
     PARAMS = {"gyro_noise": 0.015, "bias_noise": 1e-4, "acc_noise": 0.5, "mag_noise": 0.2,
@@ -593,7 +601,7 @@ class RefEKF(RestAndMagCounts, RefEstimator):
               "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 0.4,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
               "rest_gyro_drift_tol": math.radians(0.2),
-              "rest_acc_drift_tol": 0.1, "rest_noise": 1e-3,
+              "rest_acc_drift_tol": 0.1, "rest_noise": 1e-3, "rest_bias_gate": 0.0, "rest_gate_time": 2.0,
               "acc_update": "vector", **MAGDIST_PARAMS}
 
     def _reset_state(self):
@@ -648,7 +656,8 @@ class RefEKF(RestAndMagCounts, RefEstimator):
 
     def _rest(self, gyr, acc, dt):
         """Rest detection; at rest the zero-rate update z = gyr, h = b, H = [0 I3] (bias only)."""
-        if self.rest(gyr, acc, dt):
+        if self.rest(gyr, acc, dt) and self.rest.gate_open(self.b, np.diag(self.P)[4:],
+                                                           self.rest_bias_gate, self.rest_gate_time):
             H = np.zeros((3, 7))
             H[:, 4:] = I3
             self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")

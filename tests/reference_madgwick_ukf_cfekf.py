@@ -272,7 +272,9 @@ class RefUKF(RestAndMagCounts, RefEstimator):
         if gyr is not None:
             self._predict(gyr, dt)
         self.P[:3, :3] += v * I3
-        if self.rest(gyr, acc, dt):     # zero-rate update, linear, on the bias only
+        # zero-rate update, linear, on the bias only
+        if self.rest(gyr, acc, dt) and self.rest.gate_open(self.b, np.diag(self.P)[3:], self.rest_bias_gate,
+                                                           self.rest_gate_time):
             H = np.zeros((3, 6))
             H[:, 3:] = I3
             Rm = self.rest_noise ** 2 / dt * I3

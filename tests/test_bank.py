@@ -512,3 +512,23 @@ def test_ekf_bank_other_configurations_keep_the_objects(data):
         ests = _separate("ekf", per)
         assert np.array_equal(Q, np.stack([e.run(G[:, i], A[:, i], M[:, i]) for i, e in enumerate(ests)], 1))
     assert not fusion.make_bank("iir-ekf", 100.0, COUNT)._soa
+
+
+def test_ekf_bank_rest_bias_gate_per_lane():
+    """rest_bias_gate in the four-lane step: a steady 1 deg/s turn about the vertical that the
+    rest tests pass for about 1.6 s (tests/test_reference.py, slow_steady_turn), lanes with the
+    gate off, at 1 and 2 bias standard deviations, and lifted after 0.5 s, against separate
+    ekf: equal, and the gate did hold the bias in some lanes and not in others."""
+    from test_reference import slow_steady_turn
+    gyr, acc, bias = slow_steady_turn()
+    per = dict(rest_bias_gate=[0.0, 2.0, 1.0, 2.0], rest_gate_time=[2.0, 2.0, 2.0, 0.5])
+    bank = fusion.make_bank("ekf", 100.0, 4, **per)
+    assert bank._soa == SOA
+    ests = [fusion.make("ekf", 100.0, **{k: v[i] for k, v in per.items()}) for i in range(4)]
+    G, A = np.repeat(gyr[:, None], 4, 1), np.repeat(acc[:, None], 4, 1)
+    Q = bank.run(G, A)
+    ref = np.stack([e.run(gyr, acc) for e in ests], 1)
+    assert np.abs(Q - ref).max() <= TOL
+    assert _states_close(bank.state()["filters"], [e.state() for e in ests])
+    off = np.degrees(np.abs([e.bias[2] - bias[2] for e in ests]))
+    assert off[1] < 0.04 and off[2] < 0.04 and off[0] > 0.1 and off[3] > 0.1, off
