@@ -14,7 +14,7 @@ import math
 import os
 import sys
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -47,6 +47,11 @@ MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() 
 # stuck (an episode end): slower than STUCK_SPEED (m/s) while driven harder than STUCK_ACTION
 # (|action[0]|) for STUCK_TIME (s)
 STUCK_SPEED, STUCK_ACTION, STUCK_TIME = 0.02, 0.5, 3.0
+#: fusion.make's arguments that the environment sets itself, refused in estimator_params: why
+ESTIMATOR_OWNED = {"name": "name is the estimator argument",
+                   "fs": "fs is imu_hz",
+                   "frame": "frame is 'ENU', the frame the observation and info read the quaternion in",
+                   "on_invalid": "on_invalid is 'skip', so a bad IMU sample cannot end an episode"}
 #: what step() says before the first reset() or after an episode ended
 NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
@@ -125,7 +130,8 @@ class SphereRobotBase(gym.Env):
     argument); the tasks' docstrings list them with their defaults:
 
     estimator: a name of ``fusion.available()`` or "truth" (the true attitude and rate).
-    estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters).
+    estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters; fs,
+        frame and on_invalid are the environment's: ``ESTIMATOR_OWNED``).
     imu: a preset of ``fusion.imu.available()`` (default "mpu9250") or an ``IMUSpec``.
     imu_calibrated: use the preset's residuals after a power-on calibration (default True).
     imu_hz: IMU output rate (Hz, default 200, in [1, 10000]); physics_hz: physics rate, a
@@ -279,7 +285,14 @@ class SphereRobotBase(gym.Env):
         self.earth_field = ef
 
     def _make_estimator(self, estimator, estimator_params):
+        if estimator_params is not None and not isinstance(estimator_params, Mapping):
+            raise ValueError(f"estimator_params must be None or a dict of the estimator's parameters "
+                             f"(fusion.make's **params), got {estimator_params!r}")
         self._est_params = dict(estimator_params or {})
+        owned = [k for k in ESTIMATOR_OWNED if k in self._est_params]
+        if owned:
+            raise ValueError(f"estimator_params must not set {', '.join(owned)}: the environment sets them "
+                             f"({'; '.join(ESTIMATOR_OWNED[k] for k in owned)})")
         if estimator != "truth":
             # build once here so that bad parameters fail at construction
             self._est = fusion.make(estimator, self.imu_hz, on_invalid="skip", **self._est_params)

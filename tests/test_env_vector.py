@@ -120,3 +120,10 @@ def test_train_cli_trains_on_the_batched_vector_env(tmp_path):
                          "--env-kwargs", "episode_s:1"])
     assert rc in (0, None) and out.with_suffix(".zip").is_file()
     assert (tmp_path / "ppo-track.run" / "monitor" / "0.monitor.csv").is_file()
+
+
+def test_estimator_params_the_environment_owns_are_refused():
+    # the bank takes the robots' estimator_params: NED would be read as ENU there too
+    with pytest.raises(ValueError, match="frame"):
+        gym.make_vec("SphereBotTrack-v1", num_envs=2, vectorization_mode="vector_entry_point",
+                     estimator="ekf", estimator_params={"frame": "NED"})

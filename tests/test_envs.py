@@ -395,3 +395,18 @@ def test_human_render_without_display_fails_clearly(monkeypatch):
     env = SphereRobotEnv(render_mode="human")
     with pytest.raises(RuntimeError, match="needs a display"):
         env.reset(seed=0)
+
+
+@pytest.mark.parametrize("params, words", [
+    # NED quaternions read as ENU: the observation and info["attitude_error_deg"] were wrong (179 deg)
+    ({"frame": "NED"}, ["estimator_params", "frame", "ENU"]),
+    ({"on_invalid": "raise"}, ["estimator_params", "on_invalid", "skip"]),    # was: TypeError (multiple values)
+    ({"fs": 100.0, "acc_noise": 0.5}, ["estimator_params", "fs", "imu_hz"]),
+    ("abc", ["estimator_params", "dict", "'abc'"]),                           # was: dict()'s own error
+])
+def test_estimator_params_the_environment_owns_are_refused(params, words):
+    with pytest.raises(ValueError) as e:
+        SphereRobotEnv(estimator="ekf", estimator_params=params)
+    for w in words:
+        assert w in str(e.value)
+    SphereRobotEnv(estimator="ekf", estimator_params={"acc_noise": 0.5}).close()    # its own parameters pass
