@@ -785,7 +785,7 @@ class SphereRobotBase(gym.Env):
         if self._client is None:
             self._connect()
         self._xy0, self._yaw0, bumps, ramps = self._draw_layout()
-        if options:
+        if options is not None:
             self._apply_options(options)
         self._draw_task()
         if self._imu is None:
@@ -829,14 +829,21 @@ class SphereRobotBase(gym.Env):
         return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
 
     def _apply_options(self, options):
-        bad = sorted(set(options) - {"start_xy", "start_yaw"})
+        if not isinstance(options, Mapping):
+            raise ValueError(f"options must be None or a dict with start_xy and/or start_yaw, got {options!r}")
+        bad = sorted(map(str, set(options) - {"start_xy", "start_yaw"}))
         if bad:
             raise ValueError(f"unknown reset option(s) {', '.join(bad)}; accepted: start_xy, start_yaw")
         if "start_xy" in options:
-            xy = np.asarray(options["start_xy"], dtype=float)
-            if xy.shape != (2,) or not np.all(np.isfinite(xy)) or np.any(np.abs(xy) > 0.5 * self.arena_size):
-                raise ValueError(f"options['start_xy'] must be (x, y) inside the arena, got {options['start_xy']!r}")
-            self._xy0 = xy
+            try:
+                xy = np.asarray(options["start_xy"])
+            except (TypeError, ValueError):
+                xy = np.array(())
+            if (xy.dtype.kind not in "iuf" or xy.shape != (2,) or not np.all(np.isfinite(xy))
+                    or np.any(np.abs(xy) > 0.5 * self.arena_size)):
+                raise ValueError(f"options['start_xy'] must be 2 real numbers (x, y) inside the arena "
+                                 f"(|x|, |y| <= {0.5 * self.arena_size:g} m), got {options['start_xy']!r}")
+            self._xy0 = xy.astype(float)
         if "start_yaw" in options:
             self._yaw0 = number("options['start_yaw']", options["start_yaw"])
 
@@ -886,9 +893,15 @@ class SphereRobotBase(gym.Env):
             a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
         else:
             try:
-                a = np.asarray(action, dtype=np.float64)
+                a = np.asarray(action)
             except (TypeError, ValueError):
-                raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
+                a = None
+            # real numbers only: a cast would drop a complex action's imaginary part and read
+            # True as 1.0 (and parse strings)
+            if a is None or a.dtype.kind not in "iuf":
+                raise ValueError(f"action must be 2 finite real numbers in [-1, 1] (float or int), "
+                                 f"got {action!r}")
+            a = a.astype(np.float64)
             if a.shape != (2,):
                 raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
             a0, a1 = float(a[0]), float(a[1])
