@@ -256,6 +256,12 @@ def _write_atomic(path, text):
     atomic_write(path, lambda f: f.write(data))
 
 
+def _save_figure(fig, path):
+    """``fig`` as a PNG at ``path``, whole or not at all (``policy_io.atomic_write``)."""
+    from controllers.policy_io import atomic_write
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
+
+
 def _load_cached(path, key):
     try:
         d = json.loads(Path(path).read_text())
@@ -684,7 +690,7 @@ def _plot_headline(summary, path):
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path)
     return None
 
 
@@ -711,7 +717,7 @@ def _plot_paths(path_rows, path):
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------
