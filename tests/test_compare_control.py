@@ -395,3 +395,30 @@ def test_figures_are_written_atomically(tmp_path, monkeypatch):
             call()
     assert {p: p.read_bytes() for p in (head, paths)} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["headline.png", "paths.png"]    # no temporary left
+
+
+def test_code_version_covers_the_build_and_the_libraries(tmp_path, monkeypatch):
+    """The compiled kernels imported (another build, FUSION_MARCH say) and the versions of
+    pybullet, torch, stable-baselines3, ... are part of the code version; the same build
+    gives the same version in every run."""
+    import subprocess
+    import sys
+    from importlib import metadata
+    v0 = compare.code_version()
+    assert compare.code_version() == v0
+    run = subprocess.run([sys.executable, "-c", "from controllers import compare; print(compare.code_version())"],
+                         capture_output=True, text=True, cwd=compare.PACKAGE_ROOT, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split()[-1] == v0                 # another process, the same build
+    import fusion._core as kernel
+    other = tmp_path / Path(kernel.__file__).name
+    other.write_bytes(Path(kernel.__file__).read_bytes() + b"\0")     # a kernel built otherwise
+    monkeypatch.setattr(kernel, "__file__", str(other))
+    assert compare.code_version() != v0
+    monkeypatch.undo()
+    assert compare.code_version() == v0
+    real = metadata.version
+    for dist in ("pybullet", "torch", "stable-baselines3"):
+        monkeypatch.setattr(metadata, "version", lambda d, dist=dist: "0.0.1" if d == dist else real(d))
+        assert compare.code_version() != v0, dist
+    monkeypatch.undo()
