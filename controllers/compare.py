@@ -11,8 +11,9 @@ same episode seeds (paired differences, ``controllers.evaluation.paired_differen
 Every cell is an independent job (``run_job``), run in a local process pool or as Ray
 tasks with the same results for the same seeds. Finished cells are cached under the output
 folder (``cells/<key>.json``, written atomically), keyed by the cell and by the code version
-(a hash of the package sources and of the cell's policy files), so that ``--resume``
-continues an interrupted grid and a cache from other code is never reused.
+(a hash of the package sources, the compiled kernels, the versions of ``VERSIONED`` and of
+the cell's policy files), so that ``--resume`` continues an interrupted grid and a cache
+from other code or another build is never reused.
 
 The command line is ``main`` (``spherebot-compare``, ``scripts/compare_control.py``).
 """
@@ -33,6 +34,7 @@ import textwrap
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +70,9 @@ UNITS = {"heading_ss": "deg", "speed_ss": "m/s", "settle_time": "s", "attitude_e
          "heading_est_error": "deg", "success": "", "time_to_goal": "s", "cross_track": "m"}
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("fusion", "envs", "controllers")
+#: the distributions whose versions are part of the code version: the physics, the
+#: environment API, the policies' network and loader, the arrays
+VERSIONED = ("pybullet", "gymnasium", "torch", "stable-baselines3", "numpy")
 #: what the Ray runtime_env does not upload (build products, training work directories)
 RAY_EXCLUDES = [".venv", "results", ".git", "build", "__pycache__", "*.c", "*.html", "*.run", "*.run.old-*",
                 "*.egg-info"]
@@ -94,9 +99,19 @@ def _file_hash(paths):
     return h.hexdigest()
 
 
+def _kernel_files():
+    """The compiled kernels (every ``_*.pyx`` of the packages, as setup.py builds them) as
+    imported by this process: their files."""
+    import importlib
+    names = sorted(f"{pkg}.{f.stem}" for pkg in PACKAGES for f in (PACKAGE_ROOT / pkg).glob("_*.pyx"))
+    return [Path(importlib.import_module(n).__file__) for n in names]
+
+
 def code_version():
-    """A hash of every source file of the packages (Python, Cython, hyperparameters): a
-    change anywhere gives a new version, so no cached cell of other code is reused."""
+    """A hash of every source file of the packages (Python, Cython, hyperparameters), of the
+    compiled kernels imported (their bytes: a build with other flags, FUSION_MARCH say,
+    differs) and of the versions of ``VERSIONED``: a change anywhere gives a new version,
+    so no cached cell of other code or another build is reused."""
     files = []
     for pkg in PACKAGES:
         d = PACKAGE_ROOT / pkg
@@ -107,6 +122,15 @@ def code_version():
     for f in files:
         h.update(str(f.relative_to(PACKAGE_ROOT)).encode())
         h.update(f.read_bytes())
+    for f in _kernel_files():
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    for dist in VERSIONED:
+        try:
+            v = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            v = "absent"
+        h.update(f"{dist}=={v}".encode())
     return h.hexdigest()[:16]
 
 
@@ -254,6 +278,12 @@ def _write_atomic(path, text):
     from controllers.policy_io import atomic_write
     data = text.encode()
     atomic_write(path, lambda f: f.write(data))
+
+
+def _save_figure(fig, path):
+    """``fig`` as a PNG at ``path``, whole or not at all (``policy_io.atomic_write``)."""
+    from controllers.policy_io import atomic_write
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
 def _load_cached(path, key):
@@ -684,7 +714,7 @@ def _plot_headline(summary, path):
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path)
     return None
 
 
@@ -711,7 +741,7 @@ def _plot_paths(path_rows, path):
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------

@@ -163,13 +163,20 @@ def _timesteps(items, tasks):
     """-n: None, one N for every task, or TASK:N items (a dict task -> N)."""
     if items is None:
         return None
+
+    def steps(text, task=None):
+        # -n is parsed here, not by an argparse type= (whose errors argparse prefixes with the option)
+        try:
+            return _int(1)(text)
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"-n/--n-timesteps{'' if task is None else f' ({task}:N)'} {e}") from None
     if len(items) == 1 and ":" not in items[0] and "=" not in items[0]:
-        return _int(1)(items[0])
+        return steps(items[0])
     out = {}
     for task, n in _pairs(items, "-n").items():
         if task not in rl.TASK_IDS:
             raise ValueError(f"-n: unknown task {task!r} in TASK:N; accepted: {', '.join(rl.TASK_IDS)}")
-        out[task] = _int(1)(str(n))
+        out[task] = steps(str(n), task)
     missing = [t for t in tasks if t not in out]
     if missing:
         raise ValueError(f"-n gives no steps for task {', '.join(missing)}")

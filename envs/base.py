@@ -14,7 +14,7 @@ import math
 import os
 import sys
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -47,6 +47,11 @@ MAX_SUBSTEPS = 10_000    # physics steps per step(): bounds the time one step() 
 # stuck (an episode end): slower than STUCK_SPEED (m/s) while driven harder than STUCK_ACTION
 # (|action[0]|) for STUCK_TIME (s)
 STUCK_SPEED, STUCK_ACTION, STUCK_TIME = 0.02, 0.5, 3.0
+#: fusion.make's arguments that the environment sets itself, refused in estimator_params: why
+ESTIMATOR_OWNED = {"name": "name is the estimator argument",
+                   "fs": "fs is imu_hz",
+                   "frame": "frame is 'ENU', the frame the observation and info read the quaternion in",
+                   "on_invalid": "on_invalid is 'skip', so a bad IMU sample cannot end an episode"}
 #: what step() says before the first reset() or after an episode ended
 NEEDS_RESET = "call reset() before step() (and after an episode ended)"
 PATCH_RADIUS = (0.5, 1.5)   # (m) the range of a slippery patch's radius (drawn uniformly)
@@ -125,7 +130,8 @@ class SphereRobotBase(gym.Env):
     argument); the tasks' docstrings list them with their defaults:
 
     estimator: a name of ``fusion.available()`` or "truth" (the true attitude and rate).
-    estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters).
+    estimator_params: dict passed to ``fusion.make`` (the estimator's own parameters; fs,
+        frame and on_invalid are the environment's: ``ESTIMATOR_OWNED``).
     imu: a preset of ``fusion.imu.available()`` (default "mpu9250") or an ``IMUSpec``.
     imu_calibrated: use the preset's residuals after a power-on calibration (default True).
     imu_hz: IMU output rate (Hz, default 200, in [1, 10000]); physics_hz: physics rate, a
@@ -279,7 +285,14 @@ class SphereRobotBase(gym.Env):
         self.earth_field = ef
 
     def _make_estimator(self, estimator, estimator_params):
+        if estimator_params is not None and not isinstance(estimator_params, Mapping):
+            raise ValueError(f"estimator_params must be None or a dict of the estimator's parameters "
+                             f"(fusion.make's **params), got {estimator_params!r}")
         self._est_params = dict(estimator_params or {})
+        owned = [k for k in ESTIMATOR_OWNED if k in self._est_params]
+        if owned:
+            raise ValueError(f"estimator_params must not set {', '.join(owned)}: the environment sets them "
+                             f"({'; '.join(ESTIMATOR_OWNED[k] for k in owned)})")
         if estimator != "truth":
             # build once here so that bad parameters fail at construction
             self._est = fusion.make(estimator, self.imu_hz, on_invalid="skip", **self._est_params)
@@ -772,7 +785,7 @@ class SphereRobotBase(gym.Env):
         if self._client is None:
             self._connect()
         self._xy0, self._yaw0, bumps, ramps = self._draw_layout()
-        if options:
+        if options is not None:
             self._apply_options(options)
         self._draw_task()
         if self._imu is None:
@@ -816,14 +829,21 @@ class SphereRobotBase(gym.Env):
         return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
 
     def _apply_options(self, options):
-        bad = sorted(set(options) - {"start_xy", "start_yaw"})
+        if not isinstance(options, Mapping):
+            raise ValueError(f"options must be None or a dict with start_xy and/or start_yaw, got {options!r}")
+        bad = sorted(map(str, set(options) - {"start_xy", "start_yaw"}))
         if bad:
             raise ValueError(f"unknown reset option(s) {', '.join(bad)}; accepted: start_xy, start_yaw")
         if "start_xy" in options:
-            xy = np.asarray(options["start_xy"], dtype=float)
-            if xy.shape != (2,) or not np.all(np.isfinite(xy)) or np.any(np.abs(xy) > 0.5 * self.arena_size):
-                raise ValueError(f"options['start_xy'] must be (x, y) inside the arena, got {options['start_xy']!r}")
-            self._xy0 = xy
+            try:
+                xy = np.asarray(options["start_xy"])
+            except (TypeError, ValueError):
+                xy = np.array(())
+            if (xy.dtype.kind not in "iuf" or xy.shape != (2,) or not np.all(np.isfinite(xy))
+                    or np.any(np.abs(xy) > 0.5 * self.arena_size)):
+                raise ValueError(f"options['start_xy'] must be 2 real numbers (x, y) inside the arena "
+                                 f"(|x|, |y| <= {0.5 * self.arena_size:g} m), got {options['start_xy']!r}")
+            self._xy0 = xy.astype(float)
         if "start_yaw" in options:
             self._yaw0 = number("options['start_yaw']", options["start_yaw"])
 
@@ -873,9 +893,15 @@ class SphereRobotBase(gym.Env):
             a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
         else:
             try:
-                a = np.asarray(action, dtype=np.float64)
+                a = np.asarray(action)
             except (TypeError, ValueError):
-                raise ValueError(f"action must be 2 finite numbers in [-1, 1], got {action!r}") from None
+                a = None
+            # real numbers only: a cast would drop a complex action's imaginary part and read
+            # True as 1.0 (and parse strings)
+            if a is None or a.dtype.kind not in "iuf":
+                raise ValueError(f"action must be 2 finite real numbers in [-1, 1] (float or int), "
+                                 f"got {action!r}")
+            a = a.astype(np.float64)
             if a.shape != (2,):
                 raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
             a0, a1 = float(a[0]), float(a[1])

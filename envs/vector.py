@@ -35,6 +35,7 @@ about half of the time, profiled) is not shared by batching.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -107,17 +108,27 @@ class SphereBotVectorEnv(VectorEnv):
                     for (a, la) in mine:
                         p.setCollisionFilterPair(a, b, la, link, 0, physicsClientId=c)
 
-    def reset(self, *, seed: int | list[int] | None = None,
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
+        """Reset every robot. ``seed``: None (each robot draws its own), an integer s >= 0
+        (robot i: s + i) or a list of ``num_envs`` seeds, each an integer >= 0 or None (as
+        gymnasium's SyncVectorEnv takes them)."""
+        if isinstance(seed, (list, tuple)) or (isinstance(seed, np.ndarray) and seed.ndim == 1):
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed must be None, an integer >= 0 or a list of num_envs = {self.num_envs} "
+                                 f"seeds, got {len(seed)} seeds")
+            seeds = [integer(f"seed[{i}]", s, 0, allow_none=True) for i, s in enumerate(seed)]
+            first = None        # gymnasium's VectorEnv.reset takes one integer: its own generator is left as it is
+        else:
+            try:
+                first = integer("seed", seed, 0, allow_none=True)
+            except ValueError:
+                raise ValueError(f"seed must be None, an integer >= 0 or a list of num_envs = {self.num_envs} "
+                                 f"seeds (each an integer >= 0 or None), got {seed!r}") from None
+            seeds = [None if first is None else first + i for i in range(self.num_envs)]
+        super().reset(seed=first)
         if self._client is None:
             self._connect()
-        if seed is None or isinstance(seed, (int, np.integer)):
-            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed must be None, an int or {self.num_envs} seeds, got {len(seeds)}")
         infos = {}
         out = self._reset_some(range(self.num_envs), seeds, options)
         for i, (_, info) in enumerate(out):

@@ -365,3 +365,60 @@ def test_paired_between(tmp_path):
     assert all(e[k] == (v if isinstance(v, str) else pytest.approx(v)) for k, v in d.items())
     with pytest.raises(ValueError, match="estimator 'ukf' is not in the rows; they hold: ekf, iir-ekf"):
         compare.paired_between(rows, "ukf", "ekf")
+
+
+def test_figures_are_written_atomically(tmp_path, monkeypatch):
+    """headline.png and paths.png: a save that fails halfway keeps the previous file whole
+    (they were written by a plain savefig, which truncates it first)."""
+    import matplotlib.figure
+    rows = [dict(dict.fromkeys(compare.SHOWN["track"], 1.0), task="track", scenario="flat", estimator=est,
+                 controller="pid", episode_seed=i, heading_ss=h + 0.1 * i)
+            for est, h in (("truth", 1.0), ("gyro", 3.0)) for i in range(4)]
+    summary = compare.summarise(rows)
+    path_rows = [dict(task="track", scenario="flat", episode_seed=0, estimator="gyro", controller="pid",
+                      start=np.zeros(2), waypoints=None, path=np.array([[0.0, 0.0], [1.0, 1.0]]))]
+    head, paths = tmp_path / "headline.png", tmp_path / "paths.png"
+    assert compare._plot_headline(summary, head) is None
+    compare._plot_paths(path_rows, paths)
+    before = {p: p.read_bytes() for p in (head, paths)}
+    assert all(b.startswith(b"\x89PNG") for b in before.values())
+
+    def broken(self, fname, *a, **k):
+        if hasattr(fname, "write"):
+            fname.write(b"partial")
+        else:
+            Path(fname).write_bytes(b"partial")
+        raise OSError("disk full")
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", broken)
+    for call in (lambda: compare._plot_headline(summary, head), lambda: compare._plot_paths(path_rows, paths)):
+        with pytest.raises(OSError, match="disk full"):
+            call()
+    assert {p: p.read_bytes() for p in (head, paths)} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["headline.png", "paths.png"]    # no temporary left
+
+
+def test_code_version_covers_the_build_and_the_libraries(tmp_path, monkeypatch):
+    """The compiled kernels imported (another build, FUSION_MARCH say) and the versions of
+    pybullet, torch, stable-baselines3, ... are part of the code version; the same build
+    gives the same version in every run."""
+    import subprocess
+    import sys
+    from importlib import metadata
+    v0 = compare.code_version()
+    assert compare.code_version() == v0
+    run = subprocess.run([sys.executable, "-c", "from controllers import compare; print(compare.code_version())"],
+                         capture_output=True, text=True, cwd=compare.PACKAGE_ROOT, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split()[-1] == v0                 # another process, the same build
+    import fusion._core as kernel
+    other = tmp_path / Path(kernel.__file__).name
+    other.write_bytes(Path(kernel.__file__).read_bytes() + b"\0")     # a kernel built otherwise
+    monkeypatch.setattr(kernel, "__file__", str(other))
+    assert compare.code_version() != v0
+    monkeypatch.undo()
+    assert compare.code_version() == v0
+    real = metadata.version
+    for dist in ("pybullet", "torch", "stable-baselines3"):
+        monkeypatch.setattr(metadata, "version", lambda d, dist=dist: "0.0.1" if d == dist else real(d))
+        assert compare.code_version() != v0, dist
+    monkeypatch.undo()

@@ -120,3 +120,33 @@ def test_train_cli_trains_on_the_batched_vector_env(tmp_path):
                          "--env-kwargs", "episode_s:1"])
     assert rc in (0, None) and out.with_suffix(".zip").is_file()
     assert (tmp_path / "ppo-track.run" / "monitor" / "0.monitor.csv").is_file()
+
+
+def test_estimator_params_the_environment_owns_are_refused():
+    # the bank takes the robots' estimator_params: NED would be read as ENU there too
+    with pytest.raises(ValueError, match="frame"):
+        gym.make_vec("SphereBotTrack-v1", num_envs=2, vectorization_mode="vector_entry_point",
+                     estimator="ekf", estimator_params={"frame": "NED"})
+
+
+def test_reset_takes_a_seed_per_robot():
+    """gymnasium's VectorEnv.reset takes one integer seed; a list of num_envs seeds (as
+    SyncVectorEnv takes them) and numpy integers were refused by it before the robots were
+    reset ("Seed must be a python integer")."""
+    venv = gym.make_vec("SphereBotTrack-v1", num_envs=2, vectorization_mode="vector_entry_point",
+                        estimator="truth", episode_s=0.2)
+    try:
+        by_int = venv.reset(seed=3)[0]                  # robots: seeds 3, 4
+        assert not np.array_equal(by_int[0], by_int[1])
+        np.testing.assert_array_equal(venv.reset(seed=np.int64(3))[0], by_int)
+        np.testing.assert_array_equal(venv.reset(seed=[4, np.int64(3)])[0], by_int[::-1])
+        np.testing.assert_array_equal(venv.reset(seed=np.array([3, 4]))[0], by_int)
+        assert venv.reset(seed=[None, 4])[0].shape == by_int.shape
+        for seed, words in (([1, 2, 3], ["num_envs = 2", "3 seeds"]), ("abc", ["seed", "'abc'"]),
+                            ([0, -1], ["seed[1]", ">= 0"]), (-5, ["seed", "-5"]), (True, ["seed", "True"])):
+            with pytest.raises(ValueError) as e:
+                venv.reset(seed=seed)
+            for w in words:
+                assert w in str(e.value)
+    finally:
+        venv.close()

@@ -395,3 +395,40 @@ def test_human_render_without_display_fails_clearly(monkeypatch):
     env = SphereRobotEnv(render_mode="human")
     with pytest.raises(RuntimeError, match="needs a display"):
         env.reset(seed=0)
+
+
+@pytest.mark.parametrize("params, words", [
+    # NED quaternions read as ENU: the observation and info["attitude_error_deg"] were wrong (179 deg)
+    ({"frame": "NED"}, ["estimator_params", "frame", "ENU"]),
+    ({"on_invalid": "raise"}, ["estimator_params", "on_invalid", "skip"]),    # was: TypeError (multiple values)
+    ({"fs": 100.0, "acc_noise": 0.5}, ["estimator_params", "fs", "imu_hz"]),
+    ("abc", ["estimator_params", "dict", "'abc'"]),                           # was: dict()'s own error
+])
+def test_estimator_params_the_environment_owns_are_refused(params, words):
+    with pytest.raises(ValueError) as e:
+        SphereRobotEnv(estimator="ekf", estimator_params=params)
+    for w in words:
+        assert w in str(e.value)
+    SphereRobotEnv(estimator="ekf", estimator_params={"acc_noise": 0.5}).close()    # its own parameters pass
+
+
+def test_bad_reset_options_and_action_types_are_refused():
+    import warnings
+    env = SphereRobotEnv(estimator="truth", imu="ideal")
+    for options, words in (([("start_xy", (0.0, 0.0))], ["options", "dict", "start_xy"]),  # was: TypeError
+                           ({"start_xy": "ab"}, ["options['start_xy']", "real numbers", "'ab'"]),   # was: numpy's
+                           ({"start_xy": (1j, 0.0)}, ["options['start_xy']", "real numbers"])):
+        with pytest.raises(ValueError) as e:
+            env.reset(seed=0, options=options)
+        for w in words:
+            assert w in str(e.value)
+    env.reset(seed=0, options={"start_xy": np.array([1, -1])})     # integers are real numbers
+    assert np.allclose(env.true_state()["position"][:2], [1.0, -1.0], atol=0.05)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")      # no ComplexWarning: refused before any cast
+        for bad in (np.array([0.5 + 1j, 0.0]), np.array([True, False]), [True, False], ["0.5", "0.1"]):
+            with pytest.raises(ValueError, match=r"action must be 2 finite real numbers"):
+                env.step(bad)
+    _, _, _, _, info = env.step(np.array([2, 0]))      # an integer action is clipped and counted
+    assert info["action_clipped"] == 1
+    env.close()

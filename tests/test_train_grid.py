@@ -81,3 +81,12 @@ def test_ray_grid_equals_local(tmp_path):
     a = rl.load_policy(local / "ppo-track-truth", trusted=True).act(obs)
     b = rl.load_policy(remote / "ppo-track-truth", trusted=True).act(obs)
     np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+@pytest.mark.parametrize("n, words", [("-5", "-n/--n-timesteps must be an integer >= 1, got '-5'"),
+                                      ("track:0", "-n/--n-timesteps (track:N) must be an integer >= 1")])
+def test_bad_timesteps_name_the_option(n, words, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        train_cli.main(["--algo", "ppo", "--env", "track", "--estimator", "truth", "-n", n, "-f", str(tmp_path)])
+    assert words in capsys.readouterr().err          # was: "error: must be an integer >= 1"
+    assert not any(tmp_path.iterdir())
