@@ -83,7 +83,7 @@ cdef class AEKF(EKF):
               "then the accelerometer's low-passed norm at rest (the paper's e_a1)", open_low=True),
         Param("acc_pred_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if |a - g u| > this, u "
               "the predicted vertical (e_a2)", open_low=True),
-        Param("acc_pred_timeout", 2.0, "s", 0.0, None, "a distance-test failure lasting longer than "
+        Param("acc_pred_timeout", 2.0, "s", 0.0, 1e4, "a distance-test failure lasting longer than "
               "this is the estimate's fault", open_low=True),
         Param("mag_norm_tol", 0.1, "1", 0.0, None, "magnetometer rejected if | |m| / B_ref - 1 | > "
               "this (e_m1)", open_low=True),

@@ -37,12 +37,23 @@ ON_INVALID = ("raise", "skip")
 STATE_VERSION = 8
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
-COUNT = (0, None)       # check of a counter
+# check of a counter: below 2**62, so that stepping a loaded counter (one a sample) never
+# overflows its long long (2**62 samples: 146 years at 1 GHz)
+COUNT = (0, 2 ** 62)
 # checks of float fields (_checked_field): (lo, hi) for every element; "unit" a unit vector
 # (the quaternions); "cov" a covariance; None the default magnitude bound VALUE_MAX
 BIAS_MAX = 100.0        # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70)
 BIAS = (-BIAS_MAX, BIAS_MAX)
 TIME_MAX = 1e9          # s (32 years): the timers (rest, unmeasured run, ...)
+# A timer grows without bound (4 s of run() at dt=100 passes 1e9 s); est.state() exports it
+# clamped at TIME_MAX, so that a state produced always loads. That changes no output: each
+# timer is compared only with a time far below TIME_MAX (fusion/params.py and the PARAMS):
+# rest t_rest with rest_time <= 1e4 s; the low-pass starts (rest_lp_time, acc_lp_time) are
+# held at rest_tau / acc_lowpass <= 1e4 s; cf-ekf t_quiet with LEARN_HOLD = 0.5 s; aekf t_dir
+# with acc_pred_timeout <= 1e4 s; t_unmeasured enters motion_rate t, whose square is capped
+# at pi² from t = pi / motion_rate on: <= TIME_MAX for motion_rate >= 3.2e-9 rad/s (a smaller
+# one, (0, 3.2e-9), still grows the variance after 32 years unmeasured: the one exception).
+# The magnetic detector's timers (magd_*) are bounded by VALUE_MAX only: not clamped.
 TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
@@ -598,6 +609,8 @@ cdef class Estimator:
         fields = {}
         for name, view, check in _fields_of(self):
             a = np.asarray(view)
+            if check == TIMER:      # clamped: see TIMER
+                a = np.minimum(a, TIME_MAX)
             fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
         return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
                 "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,
