@@ -279,6 +279,18 @@ cdef class AEKF(EKF):
             self.log[self.log_n] = <unsigned char>self.ad.last_code
             self.log_n += 1
 
+    def _run(self, gyr, acc, mag, dt):
+        # a refused batch (on_invalid="raise" past FUSED_CHECK_MIN: the state is put back)
+        # takes back the codes it logged too
+        cdef Py_ssize_t n0 = self.log_n
+        cdef bint on = self.logging
+        try:
+            return Estimator._run(self, gyr, acc, mag, dt)
+        except BaseException:
+            self.log_n = n0
+            self.logging = on
+            raise
+
     # --- the switching, for figures ------------------------------------------------------
     def record_decisions(self, on=True):
         """Start (on=True) or stop recording one decision code per sample (est.decisions);
