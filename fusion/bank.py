@@ -26,11 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
-from fusion._core import Estimator, check_dt
-from fusion.checks import integer, state_header
+from fusion._core import Estimator, check_dt, unit_q0
+from fusion.checks import integer, not_masked, state_header
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
+# filters in one bank: building one takes 0.1-0.6 ms and a few kB (ekf to cf-ekf), so the
+# largest bank takes 10-60 s; a count beyond it is a mistake (10**12 would build for years)
+COUNT_MAX = 100_000
 
 
 def _per_filter(value):
@@ -115,6 +118,8 @@ class Bank(BankCore):
         dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
         (T, count, 4) quaternions, the same numbers as count separate est.run calls."""
         n = self._count
+        for name, x in (("gyr", gyr), ("acc", acc), ("mag", mag), ("dt", dt)):
+            not_masked(name, x)
         g = np.asarray(gyr)
         T = g.shape[0] if g.ndim == 3 else -1
         what = f"(T, {n}, 3)"
@@ -163,16 +168,10 @@ class Bank(BankCore):
                 q0s = [q0] * n
         self._enter()
         try:
-            # check every q0 before resetting any filter: one bad row changes nothing
+            # check every q0 before resetting any filter (est.reset's check): one bad row changes nothing
             for i, q in enumerate(q0s):
                 if q is not None:
-                    a = np.asarray(q)
-                    ok = a.dtype.kind in "fiu" and a.shape == (4,)
-                    nrm = float(np.sqrt(np.sum(np.asarray(a, dtype=float) ** 2))) if ok else 0.0
-                    if not (ok and np.isfinite(nrm) and nrm > 0.0):
-                        row = "" if len(q0s) == 1 or np.ndim(q0) == 1 else f"[{i}]"
-                        raise ValueError(f"q0{row} must be 4 finite real numbers [w, x, y, z], "
-                                         f"not all zero, got {q!r}")
+                    unit_q0(q, "q0" if len(q0s) == 1 or np.ndim(q0) == 1 else f"q0[{i}]")
             for e, q in zip(targets, q0s):
                 e.reset(q)
         finally:
