@@ -49,7 +49,7 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     A parameter given as a sequence of length count gives each filter its own value; any
     other value is shared. frame and on_invalid are the bank's (fusion.make's meanings)."""
     import fusion
-    count = integer("count", count, 1)
+    count = integer("count", count, 1, COUNT_MAX)
     per = {k: v for k, v in params.items() if _per_filter(v)}
     for k, v in per.items():
         if len(v) != count:
@@ -244,6 +244,7 @@ class Bank(BankCore):
     @staticmethod
     def _check_header(state):
         state_header(state, BANK_STATE_KEYS, BANK_STATE_VERSION, "bank.state()")
+        integer("state['count']", state["count"], 1, COUNT_MAX)
         fl = state["filters"]
         if not isinstance(fl, list) or len(fl) != state["count"]:
             raise ValueError(f"state['filters'] must be a list of {state['count']!r} filter states")
@@ -280,6 +281,9 @@ class Bank(BankCore):
                 filters.append(Estimator.from_state(s))
             except ValueError as err:
                 raise ValueError(f"state['filters'][{i}]: {err}") from None
+            if filters[i].name != state["estimator"]:
+                raise ValueError(f"state['filters'][{i}] is of estimator {filters[i].name!r} but "
+                                 f"state['estimator'] is {state['estimator']!r}; they must agree")
         return cls._own(filters)
 
     def __reduce__(self):
