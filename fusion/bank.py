@@ -9,8 +9,9 @@ The loop over the filters is compiled and runs without the GIL (fusion._bank). A
 `ekf` (the class itself, acc_update="vector" and mag_update="heading" on every filter: the
 defaults; any other numeric parameters, per filter or shared) keeps its filters' state in
 structure-of-arrays layout and steps them four at a time (fusion/_ekfbank.h): the scalar
-kernel's arithmetic on four filters per vector, equal to count separate estimators to 1e-12
-(not bit for bit: the compiler fuses multiply-adds differently). A sample that is not the
+kernel's arithmetic on four filters per vector, equal to count separate estimators to 1e-12,
+to 1e-9 after a time gap of 1 s or more (not bit for bit: the compiler fuses multiply-adds
+differently, and a gap's large variance amplifies that; docs/estimators.md, "Banks"). A sample that is not the
 usual one for a filter (not initialised, invalid, saturated, a time gap, a detector or the
 low-pass starting) goes through that filter's own estimator object. Every other bank (other
 estimators, other ekf configurations, iir-ekf) is an array of pointers to count kernels, each
