@@ -83,7 +83,7 @@ cdef class AEKF(EKF):
               "then the accelerometer's low-passed norm at rest (the paper's e_a1)", open_low=True),
         Param("acc_pred_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if |a - g u| > this, u "
               "the predicted vertical (e_a2)", open_low=True),
-        Param("acc_pred_timeout", 2.0, "s", 0.0, None, "a distance-test failure lasting longer than "
+        Param("acc_pred_timeout", 2.0, "s", 0.0, 1e4, "a distance-test failure lasting longer than "
               "this is the estimate's fault", open_low=True),
         Param("mag_norm_tol", 0.1, "1", 0.0, None, "magnetometer rejected if | |m| / B_ref - 1 | > "
               "this (e_m1)", open_low=True),
@@ -278,6 +278,18 @@ cdef class AEKF(EKF):
                 self.log_cap = cap
             self.log[self.log_n] = <unsigned char>self.ad.last_code
             self.log_n += 1
+
+    def _run(self, gyr, acc, mag, dt):
+        # a refused batch (on_invalid="raise" past FUSED_CHECK_MIN: the state is put back)
+        # takes back the codes it logged too
+        cdef Py_ssize_t n0 = self.log_n
+        cdef bint on = self.logging
+        try:
+            return Estimator._run(self, gyr, acc, mag, dt)
+        except BaseException:
+            self.log_n = n0
+            self.logging = on
+            raise
 
     # --- the switching, for figures ------------------------------------------------------
     def record_decisions(self, on=True):

@@ -5,7 +5,7 @@ cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
 from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
-from fusion.checks import number, choice, state_header
+from fusion.checks import number, choice, state_header, not_masked
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -37,12 +37,23 @@ ON_INVALID = ("raise", "skip")
 STATE_VERSION = 8
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
-COUNT = (0, None)       # check of a counter
+# check of a counter: below 2**62, so that stepping a loaded counter (one a sample) never
+# overflows its long long (2**62 samples: 146 years at 1 GHz)
+COUNT = (0, 2 ** 62)
 # checks of float fields (_checked_field): (lo, hi) for every element; "unit" a unit vector
 # (the quaternions); "cov" a covariance; None the default magnitude bound VALUE_MAX
 BIAS_MAX = 100.0        # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70)
 BIAS = (-BIAS_MAX, BIAS_MAX)
 TIME_MAX = 1e9          # s (32 years): the timers (rest, unmeasured run, ...)
+# A timer grows without bound (4 s of run() at dt=100 passes 1e9 s); est.state() exports it
+# clamped at TIME_MAX, so that a state produced always loads. That changes no output: each
+# timer is compared only with a time far below TIME_MAX (fusion/params.py and the PARAMS):
+# rest t_rest with rest_time <= 1e4 s; the low-pass starts (rest_lp_time, acc_lp_time) are
+# held at rest_tau / acc_lowpass <= 1e4 s; cf-ekf t_quiet with LEARN_HOLD = 0.5 s; aekf t_dir
+# with acc_pred_timeout <= 1e4 s; t_unmeasured enters motion_rate t, whose square is capped
+# at pi² from t = pi / motion_rate on: <= TIME_MAX for motion_rate >= 3.2e-9 rad/s (a smaller
+# one, (0, 3.2e-9), still grows the variance after 32 years unmeasured: the one exception).
+# The magnetic detector's timers (magd_*) are bounded by VALUE_MAX only: not clamped.
 TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt
 VALUE_MAX = 1e100       # low-passes, sums and histories: their squares stay far from overflow
@@ -68,6 +79,7 @@ def check_dt(value):
 
 def _as_samples(x, name, int n=-1):
     """An (N, 3) float64 C-contiguous copy-or-view of x, or a ValueError saying what is accepted."""
+    not_masked(name, x)
     arr = np.asarray(x)
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be a real numeric array (float or int), got dtype {arr.dtype}")
@@ -106,6 +118,21 @@ def _check_samples(G, A, M, Py_ssize_t n):
                              f"(on_invalid='skip' skips such samples)")
 
 
+def unit_q0(q0, name="q0"):
+    """q0 (4 real numbers [w, x, y, z], finite, not all zero) as a unit float64 array, or a
+    ValueError naming it: what est.reset(q0) and bank.reset(q0) accept."""
+    not_masked(name, q0)
+    a = np.asarray(q0)
+    if a.dtype.kind not in "fiu" or a.shape != (4,):
+        raise ValueError(f"{name} must be 4 real numbers [w, x, y, z], got {q0!r}")
+    a = a.astype(np.float64)
+    m = float(np.max(np.abs(a)))
+    if not np.isfinite(m) or m == 0.0:
+        raise ValueError(f"{name} must be finite and non-zero, got {q0!r}")
+    a = a / m        # scaled first: the squares of 1e-160 or 1e200 under- or overflow
+    return a / float(np.sqrt(np.sum(a * a)))
+
+
 cdef int _read_vec3(object v, str name, double* out) except -1:
     """One 3-vector from a float64 array (fast path), or anything array-like of 3 numbers."""
     cdef cnp.ndarray arr
@@ -122,6 +149,7 @@ cdef int _read_vec3(object v, str name, double* out) except -1:
             out[1] = (<double*>(p + st))[0]
             out[2] = (<double*>(p + 2 * st))[0]
             return 0
+    not_masked(name, v)
     a = np.asarray(v)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be 3 real numbers, got dtype {a.dtype}")
@@ -402,17 +430,9 @@ cdef class Estimator:
     def _reset(self, q0):
         cdef double qin[4]
         if q0 is not None:
-            a = np.asarray(q0)
-            if a.dtype.kind not in "fiu" or a.shape != (4,):
-                raise ValueError(f"q0 must be 4 real numbers [w, x, y, z], got {q0!r}")
-            a = a.astype(np.float64)
-            m = float(np.max(np.abs(a)))
-            if not np.isfinite(m) or m == 0.0:
-                raise ValueError(f"q0 must be finite and non-zero, got {q0!r}")
-            a = a / m        # scaled first: the squares of 1e-160 or 1e200 under- or overflow
-            n = float(np.sqrt(np.sum(a * a)))
+            a = unit_q0(q0)
             for i in range(4):
-                qin[i] = a[i] / n
+                qin[i] = a[i]
             if self.ned:
                 quat_mul(C_NED_CONJ, qin, self.q0)
             else:
@@ -479,6 +499,7 @@ cdef class Estimator:
             if np.ndim(dt) == 0:
                 dt_const = check_dt(dt)
             else:
+                not_masked("dt", dt)
                 D = np.asarray(dt)
                 if D.dtype.kind not in "fiu" or D.shape != (n,):
                     raise ValueError(f"dt must be None, a scalar or an array of shape ({n},), "
@@ -598,6 +619,8 @@ cdef class Estimator:
         fields = {}
         for name, view, check in _fields_of(self):
             a = np.asarray(view)
+            if check == TIMER:      # clamped: see TIMER
+                a = np.minimum(a, TIME_MAX)
             fields[name] = a.tolist() if a.shape[0] > 1 else a[0].item()
         return {"version": STATE_VERSION, "estimator": self.name, "fs": self.fs,
                 "frame": self.frame, "on_invalid": self.on_invalid, "params": self.params,

@@ -7,6 +7,7 @@ from libc.math cimport tan, sqrt, M_PI
 from libc.stdlib cimport calloc, free
 
 from fusion._core cimport Prefilter
+from fusion._qmath cimport vec3_finite
 from fusion._core import _as_samples, FLAG
 from fusion.checks import number, integer
 
@@ -24,10 +25,21 @@ cdef int _claim(Prefilter f) except -1:
 
 
 def _run(Prefilter f, x):
-    """Filter an (N, 3) array sample by sample (the prefilter's state carries over)."""
+    """Filter an (N, 3) array sample by sample (the prefilter's state carries over). A row
+    that is not finite, or whose squared norm overflows (an estimator's gyro rule: such rows
+    never reach its prefilters), is refused before any is filtered: one would make every
+    later output NaN, in this call and the next (the filter's state)."""
     X = np.array(_as_samples(x, "x"), dtype=np.float64, order="C", copy=True)
     cdef double[:, ::1] v = X
-    cdef Py_ssize_t i
+    cdef Py_ssize_t i, bad = -1
+    with nogil:
+        for i in range(v.shape[0]):
+            if not vec3_finite(&v[i, 0]):
+                bad = i
+                break
+    if bad >= 0:
+        raise ValueError(f"x must be finite, with a finite squared norm (|x[i]|² < 1.8e308); "
+                         f"x[{bad}] = {X[bad]!r}; nothing was filtered")
     _claim(f)
     try:
         with nogil:
@@ -99,7 +111,8 @@ cdef class Butterworth(Prefilter):
         _reset(self)
 
     def run(self, x):
-        """Filter an (N, 3) array; returns a new array."""
+        """Filter an (N, 3) array; returns a new array. A non-finite row is refused (ValueError
+        naming it) before any row is filtered."""
         if self.fs == 0.0:      # a subclass that skipped __init__: no coefficients
             raise RuntimeError("Butterworth object was not configured: call the class's __init__")
         return _run(self, x)
@@ -165,7 +178,8 @@ cdef class SlidingMean(Prefilter):
         _reset(self)
 
     def run(self, x):
-        """Filter an (N, 3) array; returns a new array."""
+        """Filter an (N, 3) array; returns a new array. A non-finite row is refused (ValueError
+        naming it) before any row is filtered."""
         return _run(self, x)
 
     def __repr__(self):

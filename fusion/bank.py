@@ -9,8 +9,9 @@ The loop over the filters is compiled and runs without the GIL (fusion._bank). A
 `ekf` (the class itself, acc_update="vector" and mag_update="heading" on every filter: the
 defaults; any other numeric parameters, per filter or shared) keeps its filters' state in
 structure-of-arrays layout and steps them four at a time (fusion/_ekfbank.h): the scalar
-kernel's arithmetic on four filters per vector, equal to count separate estimators to 1e-12
-(not bit for bit: the compiler fuses multiply-adds differently). A sample that is not the
+kernel's arithmetic on four filters per vector, equal to count separate estimators to 1e-12,
+to 1e-9 after a time gap of 1 s or more (not bit for bit: the compiler fuses multiply-adds
+differently, and a gap's large variance amplifies that; docs/estimators.md, "Banks"). A sample that is not the
 usual one for a filter (not initialised, invalid, saturated, a time gap, a detector or the
 low-pass starting) goes through that filter's own estimator object. Every other bank (other
 estimators, other ekf configurations, iir-ekf) is an array of pointers to count kernels, each
@@ -26,11 +27,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
-from fusion._core import Estimator, check_dt
-from fusion.checks import integer, state_header
+from fusion._core import Estimator, check_dt, unit_q0
+from fusion.checks import integer, not_masked, state_header
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
+# filters in one bank: building one takes 0.1-0.6 ms and a few kB (ekf to cf-ekf), so the
+# largest bank takes 10-60 s; a count beyond it is a mistake (10**12 would build for years)
+COUNT_MAX = 100_000
 
 
 def _per_filter(value):
@@ -46,7 +50,7 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     A parameter given as a sequence of length count gives each filter its own value; any
     other value is shared. frame and on_invalid are the bank's (fusion.make's meanings)."""
     import fusion
-    count = integer("count", count, 1)
+    count = integer("count", count, 1, COUNT_MAX)
     per = {k: v for k, v in params.items() if _per_filter(v)}
     for k, v in per.items():
         if len(v) != count:
@@ -115,6 +119,8 @@ class Bank(BankCore):
         dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
         (T, count, 4) quaternions, the same numbers as count separate est.run calls."""
         n = self._count
+        for name, x in (("gyr", gyr), ("acc", acc), ("mag", mag), ("dt", dt)):
+            not_masked(name, x)
         g = np.asarray(gyr)
         T = g.shape[0] if g.ndim == 3 else -1
         what = f"(T, {n}, 3)"
@@ -163,16 +169,10 @@ class Bank(BankCore):
                 q0s = [q0] * n
         self._enter()
         try:
-            # check every q0 before resetting any filter: one bad row changes nothing
+            # check every q0 before resetting any filter (est.reset's check): one bad row changes nothing
             for i, q in enumerate(q0s):
                 if q is not None:
-                    a = np.asarray(q)
-                    ok = a.dtype.kind in "fiu" and a.shape == (4,)
-                    nrm = float(np.sqrt(np.sum(np.asarray(a, dtype=float) ** 2))) if ok else 0.0
-                    if not (ok and np.isfinite(nrm) and nrm > 0.0):
-                        row = "" if len(q0s) == 1 or np.ndim(q0) == 1 else f"[{i}]"
-                        raise ValueError(f"q0{row} must be 4 finite real numbers [w, x, y, z], "
-                                         f"not all zero, got {q!r}")
+                    unit_q0(q, "q0" if len(q0s) == 1 or np.ndim(q0) == 1 else f"q0[{i}]")
             for e, q in zip(targets, q0s):
                 e.reset(q)
         finally:
@@ -245,6 +245,7 @@ class Bank(BankCore):
     @staticmethod
     def _check_header(state):
         state_header(state, BANK_STATE_KEYS, BANK_STATE_VERSION, "bank.state()")
+        integer("state['count']", state["count"], 1, COUNT_MAX)
         fl = state["filters"]
         if not isinstance(fl, list) or len(fl) != state["count"]:
             raise ValueError(f"state['filters'] must be a list of {state['count']!r} filter states")
@@ -281,6 +282,9 @@ class Bank(BankCore):
                 filters.append(Estimator.from_state(s))
             except ValueError as err:
                 raise ValueError(f"state['filters'][{i}]: {err}") from None
+            if filters[i].name != state["estimator"]:
+                raise ValueError(f"state['filters'][{i}] is of estimator {filters[i].name!r} but "
+                                 f"state['estimator'] is {state['estimator']!r}; they must agree")
         return cls._own(filters)
 
     def __reduce__(self):

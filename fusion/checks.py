@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["number", "integer", "choice", "flag", "interval", "state_header"]
+__all__ = ["number", "integer", "choice", "flag", "interval", "state_header", "not_masked"]
 
 
 def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
@@ -41,7 +41,8 @@ def number(name: str, value: Any, low: float | None = None, high: float | None =
         return None
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
         value = value.item()
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+    # (np.timedelta64 registers as an integer, but float() and int() refuse it)
+    if isinstance(value, (bool, np.bool_, np.timedelta64)) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number{' or None' if allow_none else ''}, got {value!r}")
     v = float(value)
     ok = (math.isfinite(v) or (allow_inf and v == math.inf)) and (
@@ -59,11 +60,20 @@ def integer(name: str, value: Any, low: int | None = None, high: int | None = No
     """int(value) if it is an integer (not a bool) in [low, high] (None: unbounded)."""
     if value is None and allow_none:
         return None
-    if (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)
+    if (isinstance(value, (bool, np.bool_, np.timedelta64)) or not isinstance(value, numbers.Integral)
             or (low is not None and value < low) or (high is not None and value > high)):
         rng = f">= {low}" if high is None else f"in [{low}, {high}]"
         raise ValueError(f"{name} must be an integer {rng}{unit}{' or None' if allow_none else ''}, got {value!r}")
     return int(value)
+
+
+def not_masked(name: str, value: Any) -> None:
+    """A ValueError if value is a numpy masked array: np.asarray would drop its mask and use
+    the masked values as data."""
+    if isinstance(value, np.ma.MaskedArray):
+        raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass a plain array "
+                         f"(np.ma.filled({name}, np.nan) makes the masked samples invalid ones, which "
+                         f"on_invalid then refuses or skips)")
 
 
 def choice(name: str, value: Any, choices: tuple) -> Any:
