@@ -22,6 +22,7 @@ cimport numpy as cnp
 
 from fusion._core cimport Estimator, output_q, quat_out
 from fusion._core import DT_MAX, DT_MIN, check_dt
+from fusion.checks import not_masked
 from fusion._qmath cimport vec3_valid, vec3_finite
 
 cnp.import_array()
@@ -177,6 +178,7 @@ def as_samples(x, str name, tuple shape, str what, Py_ssize_t count):
             and cnp.PyArray_IS_C_CONTIGUOUS(<cnp.ndarray>x) and cnp.PyArray_ISBEHAVED_RO(<cnp.ndarray>x)
             and x.shape == shape):
         return x                                       # the per-sample path: no copy, no more checks
+    not_masked(name, x)
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be a real numeric array (float or int), got dtype {a.dtype}")
@@ -237,6 +239,7 @@ def check_samples(G, A, M, Py_ssize_t count, bint timed):
 def time_steps(dt, tuple shape):
     """dt as a C-contiguous float64 array of `shape` with every step in [DT_MIN, DT_MAX], None
     if it is not a real array of that shape, or a ValueError naming the first bad step."""
+    not_masked("dt", dt)
     D = np.asarray(dt)
     if D.dtype.kind not in "fiu" or D.shape != shape:
         return None

@@ -51,8 +51,7 @@ TIME_MAX = 1e9          # s (32 years): the timers (rest, unmeasured run, ...)
 # rest t_rest with rest_time <= 1e4 s; the low-pass starts (rest_lp_time, acc_lp_time) are
 # held at rest_tau / acc_lowpass <= 1e4 s; cf-ekf t_quiet with LEARN_HOLD = 0.5 s; aekf t_dir
 # with acc_pred_timeout <= 1e4 s; t_unmeasured enters motion_rate t, whose square is capped
-# at pi² from t = pi / motion_rate on: <= TIME_MAX for motion_rate >= 3.2e-9 rad/s (a smaller
-# one, (0, 3.2e-9), still grows the variance after 32 years unmeasured: the one exception).
+# at pi² from t = pi / motion_rate on: <= TIME_MAX, motion_rate being 0 or >= 1e-6 rad/s.
 # The magnetic detector's timers (magd_*) are bounded by VALUE_MAX only: not clamped.
 TIMER = (0.0, TIME_MAX)
 RECOVERY = (-100.0, 3.0)    # recovery_gain's t_left: 3 s after a saturated sample, past 0 by < dt

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
 from fusion._core import Estimator, check_dt, unit_q0
-from fusion.checks import integer, not_masked, state_header
+from fusion.checks import integer, state_header
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
@@ -119,8 +119,6 @@ class Bank(BankCore):
         dt None (1/fs), a scalar, (T,) steps shared by the filters or (T, count). Returns
         (T, count, 4) quaternions, the same numbers as count separate est.run calls."""
         n = self._count
-        for name, x in (("gyr", gyr), ("acc", acc), ("mag", mag), ("dt", dt)):
-            not_masked(name, x)
         g = np.asarray(gyr)
         T = g.shape[0] if g.ndim == 3 else -1
         what = f"(T, {n}, 3)"

@@ -143,9 +143,9 @@ MAGDIST = (
 # saturation and gap recovery (docs/robustness.md, "Recovery")
 GYRO_RANGE = Param("gyro_range", None, "rad/s", 0.0, 1e6, "gyro samples at or beyond 98 % of this "
                    "(the part's full scale) count as saturated; None: unknown", open_low=True)
-MOTION_RATE = Param("motion_rate", 1.0, "rad/s", 0.0, 100.0, "rate std over time the gyro did not "
+MOTION_RATE = Param("motion_rate", 1.0, "rad/s", 1e-6, 100.0, "rate std over time the gyro did not "
                     "measure (dropouts, gaps, saturation): the attitude variance grows by "
-                    "(motion_rate t)², capped at π²; 0: off")
+                    "(motion_rate t)², capped at π²; 0: off", allow_zero=True)
 
 MAG_UPDATE = Param("mag_update", "heading", "", doc='"heading": the magnetometer corrects the '
                    'heading (and the bias along the vertical) only; "vector": the 3-D update as '

@@ -142,7 +142,7 @@ def test_compiled_step_errors_as_the_python_step():
             env.step(np.zeros(2, np.float32))
         env.reset(seed=0)
         for bad, match in ((np.array([np.nan, 0.0], np.float32), "finite"), (np.zeros(3), "shape"),
-                           ("ab", "finite numbers"), (np.array([0.0, np.inf]), "finite")):
+                           ("ab", "finite real numbers"), (np.array([0.0, np.inf]), "finite")):
             with pytest.raises(ValueError, match=match):
                 env.step(bad)
         env.close()

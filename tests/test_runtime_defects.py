@@ -35,6 +35,15 @@ def test_a_state_whose_timers_passed_time_max_loads_and_resumes_identically(name
         np.testing.assert_array_equal(c.run(*STILL, dt=100.0), want)
 
 
+def test_motion_rate_is_0_or_large_enough_for_its_timer_cap():
+    """The exported t_unmeasured (clamped at TIME_MAX) changes no output only while the
+    variance cap pi² is reached first: motion_rate 0 (off) or >= 1e-6 rad/s."""
+    assert fusion.make("ekf", 100.0, motion_rate=0.0).motion_rate == 0.0
+    assert fusion.make("ekf", 100.0, motion_rate=1e-6).motion_rate == 1e-6
+    with pytest.raises(ValueError, match="motion_rate"):
+        fusion.make("ekf", 100.0, motion_rate=1e-9)
+
+
 @pytest.mark.parametrize("make", [lambda: fusion.Butterworth(100.0, 10.0), lambda: fusion.SlidingMean(4)])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, 1e200])
 def test_a_prefilter_refuses_a_non_finite_row_and_keeps_its_state(make, bad):
@@ -106,6 +115,10 @@ def test_masked_arrays_are_refused():
     b = fusion.make_bank("ekf", 100.0, 1)
     with pytest.raises(ValueError, match="gyr is a masked array"):
         b.run(g[:, None], STILL[1][:, None])
+    with pytest.raises(ValueError, match="acc is a masked array"):
+        b.update(STILL[0][:1], a[:1])
+    with pytest.raises(ValueError, match="dt is a masked array"):
+        b.run(STILL[0][:, None], STILL[1][:, None], dt=np.ma.masked_array(np.full(5, 0.01)))
     assert not e.initialised and not b.initialised[0]
 
 
