@@ -183,6 +183,9 @@ def load_trial(path: str | os.PathLike) -> Trial:
         extra = {k: np.asarray(_get(d, k, path)) for k in d.files if k not in _KNOWN}
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
+    if not np.isfinite(t).all():        # a last stamp of inf passed the increase test below
+        raise ValueError(f"{path}: time stamps 't' must be finite seconds "
+                         f"(row {int(np.argmax(~np.isfinite(t)))} is {t[~np.isfinite(t)][0]})")
     dt = np.empty(n)
     if n:
         dt[0] = 1.0 / fs

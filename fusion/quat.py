@@ -50,11 +50,19 @@ def conj(q: ArrayLike) -> Array:
 
 
 def normalise(q: ArrayLike) -> Array:
-    """Unit-norm copy; zero rows become NaN rather than silently passing."""
+    """Unit-norm copy; zero rows (and rows with a non-finite component) become NaN rather than
+    silently passing."""
     q = as_quat(q)
-    n = np.linalg.norm(q, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, q / n, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):
+        n = np.linalg.norm(q, axis=-1, keepdims=True)
+        # a finite row whose squares overflow (1e200) or underflow (1e-200): its norm from the
+        # row scaled by its largest component, or it would read as 0 or inf
+        m = np.max(np.abs(q), axis=-1, keepdims=True)
+        odd = np.isfinite(m) & (m > 0) & ((n == 0) | ~np.isfinite(n))
+        if odd.any():
+            n = np.where(odd, m * np.linalg.norm(np.where(odd, q / np.where(odd, m, 1.0), 0.0), axis=-1,
+                                                 keepdims=True), n)
+        return np.where((n > 0) & np.isfinite(n), q / n, np.nan)
 
 
 def to_matrix(q: ArrayLike) -> Array:

@@ -63,6 +63,8 @@ def test_optional_mag_missing_is_fine(tmp_path):
     ("t", np.zeros((20, 1)), r"'t' must have shape \(N,\)"),
     ("fs", np.array([100.0, 100.0]), r"'fs' must be a scalar"),
     ("acc", np.full((20, 3), "x"), r"'acc' must be numeric"),
+    ("t", np.r_[np.arange(19) / 100.0, np.inf], r"'t' must be finite seconds \(row 19 is inf\)"),
+    ("t", np.r_[np.nan, np.arange(1, 20) / 100.0], r"'t' must be finite seconds \(row 0 is nan\)"),
 ])
 def test_bad_shape_or_type_names_file_and_key(tmp_path, key, bad, expect):
     a = _arrays()

@@ -247,3 +247,18 @@ def test_metrics_import_is_light():
             "bad = [m for m in ('matplotlib', 'torch', 'tqdm', 'scipy') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+
+
+def test_an_estimate_of_huge_or_tiny_scale_is_scored_as_its_rotation():
+    """A finite estimate whose squared components overflow (1e200) or underflow (1e-200) is
+    the same rotation as its unit copy: normalised through its largest component, scored as
+    such (its norm read as inf or 0 made it NaN, or a perfect 0 deg)."""
+    ref = np.tile([1.0, 0.0, 0.0, 0.0], (4, 1))
+    turn = np.array([np.cos(np.radians(15)), np.sin(np.radians(15)), 0.0, 0.0])    # 30 deg about x
+    for scale in (1e200, 1e-200):
+        est = np.tile(turn, (4, 1))
+        est[1] *= scale
+        np.testing.assert_allclose(quat.normalise(est), np.tile(turn, (4, 1)), rtol=0, atol=1e-15)
+        s = metrics.score(est, ref)
+        assert abs(s["inclination"] - 30.0) < 1e-9 and abs(s["total"] - 30.0) < 1e-9, s
+    assert np.isnan(quat.normalise([[0.0, 0.0, 0.0, 0.0], [np.inf, 0.0, 0.0, 0.0]])).all()
