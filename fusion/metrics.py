@@ -63,9 +63,10 @@ def _wrap_deg(a):
 
 def euler_errors(q_est: ArrayLike, q_true: ArrayLike) -> Array:
     """ZYX Euler-angle differences est - true in degrees, wrapped to [-180, 180), shape (M, 3)
-    with columns (yaw, pitch, roll); rows with a non-finite reference dropped."""
+    with columns (yaw, pitch, roll); rows with a non-finite (or zero) reference dropped, as
+    ``score`` ignores them."""
     a, b = _pair(q_est, q_true, ("q_est", "q_true"))
-    keep = np.isfinite(b).all(axis=1)
+    keep = np.isfinite(quat.normalise(b)).all(axis=1)
     d = np.degrees(quat.to_euler(a[keep]) - quat.to_euler(b[keep]))
     return _wrap_deg(d)
 

@@ -262,3 +262,12 @@ def test_an_estimate_of_huge_or_tiny_scale_is_scored_as_its_rotation():
         s = metrics.score(est, ref)
         assert abs(s["inclination"] - 30.0) < 1e-9 and abs(s["total"] - 30.0) < 1e-9, s
     assert np.isnan(quat.normalise([[0.0, 0.0, 0.0, 0.0], [np.inf, 0.0, 0.0, 0.0]])).all()
+
+
+def test_euler_table_drops_a_zero_reference_row_as_score_does():
+    est = np.tile([np.cos(0.05), 0.0, 0.0, np.sin(0.05)], (5, 1))      # 5.73 deg of yaw
+    ref = np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))
+    ref[2] = 0.0
+    t = metrics.euler_table(est, ref)
+    assert abs(t["yaw"]["RMSE"] - np.degrees(0.1)) < 1e-9 and np.isfinite(t["roll"]["mean"]), t
+    assert abs(metrics.score(est, ref)["heading"] - np.degrees(0.1)) < 1e-9
