@@ -17,5 +17,7 @@ class KalmanFilter(AidedFilter):
     bias_init_std: float
     motion_rate: float
     rest_noise: float
+    rest_bias_gate: float
+    rest_gate_time: float
     bias: Array
     covariance: Array

@@ -10,11 +10,14 @@ class RestDetector:
     acc_drift_tol: float
     noise: float
     tau: float
+    gate: float
+    gate_time: float
     at_rest: bool
     samples: int
 
 REST_PROPERTIES: tuple[property, ...]
 REST_TAU_PROPERTY: property
+REST_GATE_PROPERTIES: tuple[property, property]
 
 class _RestProperties:
     """The rest properties of cf-ekf, read from its EKF core's RestDetector (the filters that
@@ -27,5 +30,7 @@ class _RestProperties:
     rest_gyro_drift_tol: float
     rest_acc_drift_tol: float
     rest_noise: float
+    rest_bias_gate: float
+    rest_gate_time: float
     at_rest: bool
     rest_samples: int

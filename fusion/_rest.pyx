@@ -35,7 +35,8 @@ cdef class RestDetector:
 
     @property
     def at_rest(self):
-        """True while the detector holds (the last sample was a zero-rate update)."""
+        """True while the detector holds (the last sample was at rest: a zero-rate update, unless
+        a Kalman filter's rest_bias_gate held it)."""
         return self.time > 0.0 and self.t >= self.time
 
     @property
@@ -64,7 +65,8 @@ REST_PROPERTIES = (
     _of_rest("acc_drift_tol", "m/s^2: a still run ends when the accelerometer's low-pass moves "
              "this far from its value at the run's start; 0: never."),
     _of_rest("noise", "rad/s/sqrt(Hz): the zero-rate measurement's noise density."),
-    _of_rest("at_rest", "True while the rest detector holds (the last sample was a zero-rate update)."),
+    _of_rest("at_rest", "True while the rest detector holds (the last sample was at rest: a zero-rate "
+             "update, unless rest_bias_gate held it)."),
     _of_rest("samples", "Samples detected at rest since the last reset (the zero-rate updates, and the "
              "ones rest_bias_gate held)."))
 

@@ -116,7 +116,8 @@ REST = (
           "rest_gyro_drift_tol) from the bias estimate on some axis (2: slow turns about the "
           "vertical without a magnetometer); 0: off", allow_zero=True),
     Param("rest_gate_time", 2.0, "s", 1e-3, 1e4, "a still run this long updates the bias whatever "
-          "rest_bias_gate says (a turn-on bias beyond the gate is learned after it)"),
+          "rest_bias_gate says (a turn-on bias beyond the gate is learned after it; at or below "
+          "rest_time the gate never acts)"),
 )
 
 # the complementary filters' rest learning (no zero-rate update there, so no rest_noise): at

@@ -532,3 +532,33 @@ def test_ekf_bank_rest_bias_gate_per_lane():
     assert _states_close(bank.state()["filters"], [e.state() for e in ests])
     off = np.degrees(np.abs([e.bias[2] - bias[2] for e in ests]))
     assert off[1] < 0.04 and off[2] < 0.04 and off[0] > 0.1 and off[3] > 0.1, off
+
+
+def test_ekf_bank_rest_bias_gate_by_the_bias_variance():
+    """The gate's standard-deviation term, lane by lane: a still sensor with a 1.9 deg/s turn-on
+    bias about the vertical, where the gate is 2 bias_init_std (0.5 deg/s) + 0.2 deg/s = 1.2
+    deg/s at 2 and 2.2 at 4. At 1.5 s the vertical bias is held at 0 in the lanes gated at
+    0.5, 2 and 3 and learned in those at 4, off, and lifted after 1 s; then equal to separate
+    ekf to the end."""
+    n = int(4 * 100.0)
+    rng = np.random.default_rng(9)
+    bias = np.radians([0.2, -0.1, 1.9])
+    gyr = bias + rng.normal(0, 0.002, (n, 3))
+    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.02, (n, 3))
+    per = dict(rest_bias_gate=[2.0, 4.0, 0.0, 2.0, 3.0, 1.0, 0.5],
+               rest_gate_time=[2.0, 2.0, 2.0, 1e4, 2.0, 1.0, 2.0])
+    count = len(per["rest_bias_gate"])
+    bank = fusion.make_bank("ekf", 100.0, count, **per)
+    assert bank._soa == SOA
+    ests = [fusion.make("ekf", 100.0, **{k: v[i] for k, v in per.items()}) for i in range(count)]
+    G, A = np.repeat(gyr[:, None], count, 1), np.repeat(acc[:, None], count, 1)
+    for sl in (slice(0, 150), slice(150, n)):
+        Q = bank.run(G[sl], A[sl])
+        ref = np.stack([e.run(gyr[sl], acc[sl]) for e in ests], 1)
+        assert np.abs(Q - ref).max() <= TOL
+        assert _states_close(bank.state()["filters"], [e.state() for e in ests])
+        if sl.start == 0:
+            held = np.degrees(np.abs([e.bias[2] for e in ests])) < 0.1
+            assert list(held) == [True, False, False, True, True, False, True], np.degrees([e.bias for e in ests])
+    assert np.degrees(abs(ests[3].bias[2])) < 0.1            # never lifted
+    assert np.degrees(np.abs([ests[i].bias[2] - bias[2] for i in (0, 1, 2, 4, 5, 6)])).max() < 0.1
