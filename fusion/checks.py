@@ -39,6 +39,7 @@ def number(name: str, value: Any, low: float | None = None, high: float | None =
     counts as its number."""
     if value is None and allow_none:
         return None
+    not_masked(name, value)
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
         value = value.item()
     # (np.timedelta64 registers as an integer, but float() and int() refuse it)

@@ -119,6 +119,14 @@ def test_masked_arrays_are_refused():
         b.update(STILL[0][:1], a[:1])
     with pytest.raises(ValueError, match="dt is a masked array"):
         b.run(STILL[0][:, None], STILL[1][:, None], dt=np.ma.masked_array(np.full(5, 0.01)))
+    scalar = np.ma.masked_array(0.01, mask=True)          # a 0-d one too, where a number is taken
+    for call in (lambda: e.run(*STILL, dt=scalar), lambda: e.update(STILL[0][0], STILL[1][0], dt=scalar),
+                 lambda: b.run(STILL[0][:, None], STILL[1][:, None], dt=scalar),
+                 lambda: b.update(STILL[0][:1], STILL[1][:1], dt=scalar)):
+        with pytest.raises(ValueError, match="dt is a masked array"):
+            call()
+    with pytest.raises(ValueError, match="fs is a masked array"):
+        fusion.make("ekf", np.ma.masked_array(100.0))
     assert not e.initialised and not b.initialised[0]
 
 
