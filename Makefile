@@ -8,8 +8,11 @@ SOURCES := pyproject.toml setup.py $(wildcard fusion/*.pyx fusion/*.pxd fusion/*
 # the kernels of the local build are compiled for this machine's CPU (setup.py: FUSION_MARCH);
 # `FUSION_MARCH= make install` builds the portable copy a wheel gets
 FUSION_MARCH ?= native
-# the CPU build of torch, installed before the extras so that `rl`'s torch>=2.3 is met by it
+# the CPU build of torch, installed before the extras so that `rl`'s torch>=2.3 is met by it.
+# This machine's wheelhouse (PIP_FIND_LINKS) has that build; from PyPI alone pip would take the
+# multi-GB CUDA one: there, `make TORCH_INDEX=https://download.pytorch.org/whl/cpu`
 TORCH ?= torch==2.13.0
+TORCH_INDEX ?=
 
 .PHONY: demo test install bench docs wheel clean
 
@@ -19,7 +22,7 @@ install: $(STAMP)
 $(STAMP): $(SOURCES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet '$(TORCH)'
+	$(PY) -m pip install --quiet $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX)) '$(TORCH)'
 	FUSION_MARCH=$(FUSION_MARCH) $(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)
 
