@@ -175,3 +175,18 @@ def test_console_scripts_resolve_into_the_wheels_packages():
     assert not [t for t in scripts.values() if t.startswith("fusion.")], "commands belong to the experiments"
     assert not [p.name for p in (ROOT / "fusion").glob("*.py") if p.stem in ("compare", "papers", "papers_cli",
                                                                               "estimators_cli")]
+
+
+def _without(blocked, code):
+    """Run code in a fresh interpreter where the modules ``blocked`` cannot be imported (a None
+    in sys.modules: `import` raises ImportError, find_spec gives None), as if not installed."""
+    code = f"import sys; sys.modules.update(dict.fromkeys({list(blocked)!r})); " + code
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=120)
+
+
+def test_the_bank_benchmark_skips_vqf_when_absent():
+    """vqf is a peer of the benchmark, not a dependency: without it the bank section still runs."""
+    r = _without(["vqf"], "from benchmarks import throughput as t; from benchmarks.peers import Data; "
+                          "text, _ = t.bank_section(Data.mixed(800, fs=t.FS), 800, 1); print(text)")
+    assert r.returncode == 0, r.stderr
+    assert "skipping vqf" in r.stdout and "VQF" not in r.stdout.split("rounds:")[-1]
