@@ -19,6 +19,7 @@ from pathlib import Path
 
 import fusion
 from fusion import datasets, scenarios
+from fusion.checks import require
 from benchmarks import compare
 
 ERR_COLS = ["total", "heading", "inclination"]
@@ -157,6 +158,7 @@ def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
 
 def main(argv=None):
     args = parse_args(argv)
+    require("spherebot-estimators", "plot")
     t_start = time.perf_counter()
     names = [n for arg in (fusion.available() if args.estimators is None else args.estimators)
              for n in arg.split(",") if n]

@@ -12,6 +12,7 @@ import sys
 import time
 
 from benchmarks import compare, papers, papers_report
+from fusion.checks import require
 
 
 def parse_args(argv=None):
@@ -28,6 +29,7 @@ def parse_args(argv=None):
 
 def main(argv=None):
     args = parse_args(argv)
+    require("spherebot-papers", "plot")
     if args.seeds is not None and args.seeds < 1:
         sys.exit(f"error: --seeds must be >= 1, got {args.seeds}")
     t0 = time.perf_counter()

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.checks import integer
+from fusion.checks import integer, require
 
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
@@ -865,6 +865,11 @@ def _main(ap, a, argv):
     estimators = a.estimators or (QUICK["estimators"] if a.quick else ",".join(["truth"] + fusion.available()))
     controllers = a.controllers or (QUICK["controllers"] if a.quick else ",".join(CONTROLLERS))
     backend = "ray" if a.address else a.backend
+    require("spherebot-compare", "sim")
+    if any(c.startswith("ppo") for c in _list(controllers)):
+        require("spherebot-compare with a ppo controller", "rl")
+    if backend == "ray":
+        require("spherebot-compare --backend ray", "ray")
     try:
         if a.workers is not None and a.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {a.workers}")
@@ -876,12 +881,6 @@ def _main(ap, a, argv):
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    if backend == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError:
-            print("error: --backend ray needs Ray (pip install 'spherebot-fusion[ray]')", file=sys.stderr)
-            return 2
     print(f"{len(jobs)} cells x {episodes} episodes on backend {backend}")
     # one waypoints episode per estimator, PID, first scenario: the map of true paths
     path_jobs = [] if a.no_paths else [

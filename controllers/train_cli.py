@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 
 from controllers import rl
-from fusion.checks import choice
+from fusion.checks import choice, require
 
 
 def _value(text):
@@ -210,6 +210,9 @@ def main(argv=None):
     import fusion
     ap = parser()
     a = ap.parse_args(argv)
+    require("spherebot-train", "rl")
+    if a.backend == "ray":
+        require("spherebot-train --backend ray", "ray")
     try:
         tasks = list(dict.fromkeys(_task(e) for e in a.env))
         env_kwargs = _env_kwargs(a.env_kwargs)

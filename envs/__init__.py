@@ -14,7 +14,11 @@ not bit-identical to the environments that were called v0 before v1: docs/envs/r
 nor creates a physics client (the environment connects at its first ``reset``).
 Docs: docs/envs/.
 """
-import gymnasium as _gym
+try:
+    import gymnasium as _gym
+except ImportError as e:
+    from fusion.checks import missing_extra
+    raise ModuleNotFoundError(missing_extra("envs", "sim") or str(e), name=e.name) from e
 
 __all__ = ["SphereBotTrackEnv", "SphereBotWaypointsEnv", "SphereRobotBase", "SphereRobotEnv", "RobotParams",
            "ENV_IDS"]

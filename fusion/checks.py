@@ -1,14 +1,18 @@
 """The one validator of numbers, integers, choices and flags given by users: fusion's
 estimators (through `fusion.Param`), the IMU model, the environments and the controllers.
 Each check returns the value in its canonical type or raises a ValueError that names the
-argument, says what is accepted and shows what was given."""
+argument, says what is accepted and shows what was given. Also the check that a command's
+optional extra is installed (`require`)."""
+import importlib.util
 import math
 import numbers
+import sys
 from typing import Any
 
 import numpy as np
 
-__all__ = ["number", "integer", "choice", "flag", "interval", "state_header", "not_masked"]
+__all__ = ["number", "integer", "choice", "flag", "interval", "state_header", "not_masked",
+           "EXTRAS", "missing_extra", "require"]
 
 
 def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
@@ -107,3 +111,43 @@ def flag(name: str, value: Any) -> bool:
     if value is not True and value is not False and not isinstance(value, np.bool_):
         raise ValueError(f"{name} must be True or False, got {value!r}")
     return bool(value)
+
+
+# pyproject.toml's extras that the commands need: extra -> (the extra it includes, the modules it
+# adds, by import name); tests/test_packaging.py holds this to pyproject.toml
+EXTRAS: dict[str, tuple[str | None, tuple[str, ...]]] = {
+    "plot": (None, ("matplotlib", "tqdm")),
+    "sim": ("plot", ("gymnasium", "pybullet", "scipy")),
+    "rl": ("sim", ("stable_baselines3", "torch", "yaml", "rich")),
+    "ray": (None, ("ray",)),
+}
+
+
+def _importable(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None    # None too for a None in sys.modules
+    except ValueError:                                          # loaded, without a __spec__
+        return True
+
+
+def missing_extra(what: str, extra: str) -> str | None:
+    """None if every module of ``extra`` (and of the extras it includes) is importable, else
+    the message: ``what`` needs the extra, the missing modules, the pip command."""
+    gone, e = [], extra
+    while e is not None:                  # the extra, then the one it includes
+        e, modules = EXTRAS[e]
+        gone += [m for m in modules if not _importable(m)]
+    if not gone:
+        return None
+    return (f"{what} needs the {extra!r} extra ({', '.join(gone)} not installed): "
+            f"pip install 'spherebot-fusion[{extra}]'")
+
+
+def require(command: str, extra: str) -> None:
+    """For a command's main() after its arguments are parsed, before any work: unless ``extra``
+    is installed, print its message to stderr and exit with status 2, argparse's for a usage
+    error (rather than a traceback halfway through the run)."""
+    message = missing_extra(command, extra)
+    if message:
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)

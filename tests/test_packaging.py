@@ -175,3 +175,69 @@ def test_console_scripts_resolve_into_the_wheels_packages():
     assert not [t for t in scripts.values() if t.startswith("fusion.")], "commands belong to the experiments"
     assert not [p.name for p in (ROOT / "fusion").glob("*.py") if p.stem in ("compare", "papers", "papers_cli",
                                                                               "estimators_cli")]
+
+
+def test_the_extras_checked_are_pyprojects():
+    """fusion.checks.EXTRAS (what the commands check) names pyproject.toml's extras, the one
+    each includes and their distributions by import name."""
+    if tomllib is None:
+        pytest.skip("tomllib: Python 3.11+")
+    from fusion.checks import EXTRAS
+    opt = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    import_name = {"pyyaml": "yaml"}                   # the one distribution not imported by its own name
+    for extra, (include, modules) in EXTRAS.items():
+        dists = [re.split(r"[<>=!\[ ]", r, maxsplit=1)[0].lower() for r in opt[extra]]
+        own = {import_name.get(d, d.replace("-", "_")) for d in dists if d != "spherebot-fusion"}
+        assert set(modules) == own, extra
+        assert [r for r in opt[extra] if r.startswith("spherebot-fusion")] == (
+            [f"spherebot-fusion[{include}]"] if include else []), extra
+
+
+def _without(blocked, code):
+    """Run code in a fresh interpreter where the modules ``blocked`` cannot be imported (a None
+    in sys.modules: `import` raises ImportError, find_spec gives None), as if not installed."""
+    code = f"import sys; sys.modules.update(dict.fromkeys({list(blocked)!r})); " + code
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=120)
+
+
+@pytest.mark.parametrize("module, argv, blocked, command, extra", [
+    ("controllers.compare", ["--quick", "--out", "{out}"], ["gymnasium"], "spherebot-compare", "sim"),
+    # sim includes plot
+    ("controllers.compare", ["--quick", "--out", "{out}"], ["matplotlib"], "spherebot-compare", "sim"),
+    ("controllers.compare", ["--quick", "--out", "{out}"], ["torch"], "spherebot-compare with a ppo controller", "rl"),
+    ("controllers.compare", ["--quick", "--out", "{out}", "--controllers", "pid", "--backend", "ray"], ["ray"],
+     "spherebot-compare --backend ray", "ray"),
+    ("controllers.train_cli", ["--algo", "ppo", "--env", "track", "-f", "{out}"], ["torch"], "spherebot-train", "rl"),
+    ("benchmarks.estimators_cli", ["--quick", "--out", "{out}"], ["matplotlib"], "spherebot-estimators", "plot"),
+    ("benchmarks.papers_cli", ["--quick", "--out", "{out}"], ["tqdm"], "spherebot-papers", "plot"),
+])
+def test_a_command_without_its_extra_says_which_to_install(tmp_path, module, argv, blocked, command, extra):
+    """Before any work (nothing written): exit 2 and the extra to install, not a traceback."""
+    out = tmp_path / "out"
+    argv = [a.format(out=out) for a in argv]
+    r = _without(blocked, f"from {module} import main; sys.exit(main({argv!r}))")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip() == (f"error: {command} needs the {extra!r} extra ({blocked[0]} not installed): "
+                                f"pip install 'spherebot-fusion[{extra}]'")
+    assert not out.exists()
+
+
+def test_compare_needs_rl_only_for_a_ppo_controller():
+    r = _without(["torch", "stable_baselines3"],
+                 "from controllers.compare import main; sys.exit(main(['--controllers', 'pid', '--workers', '0']))")
+    assert r.returncode == 2 and r.stderr.strip() == "error: --workers must be >= 1, got 0", r.stderr
+
+
+def test_envs_without_gymnasium_names_the_extra():
+    r = _without(["gymnasium"], "import envs")
+    assert r.returncode == 1
+    assert ("ModuleNotFoundError: envs needs the 'sim' extra (gymnasium not installed): "
+            "pip install 'spherebot-fusion[sim]'") in r.stderr
+
+
+def test_the_bank_benchmark_skips_vqf_when_absent():
+    """vqf is a peer of the benchmark, not a dependency: without it the bank section still runs."""
+    r = _without(["vqf"], "from benchmarks import throughput as t; from benchmarks.peers import Data; "
+                          "text, _ = t.bank_section(Data.mixed(800, fs=t.FS), 800, 1); print(text)")
+    assert r.returncode == 0, r.stderr
+    assert "skipping vqf" in r.stdout and "VQF" not in r.stdout.split("rounds:")[-1]
