@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from fusion._imu import StepKernel as _StepKernel
-from fusion.checks import integer, number
+from fusion.checks import flag, integer, number
 from fusion.constants import STANDARD_GRAVITY
 
 __all__ = [
@@ -479,7 +479,7 @@ def preset(name: str, calibrated: bool = False) -> IMUSpec:
         spec = PRESETS[name]
     except (KeyError, TypeError):
         raise ValueError(f"unknown IMU preset {name!r}; available: {', '.join(available())}") from None
-    return spec.calibrated() if calibrated else spec
+    return spec.calibrated() if flag("calibrated", calibrated) else spec
 
 
 # ---------------------------------------------------------------------------------------

@@ -415,6 +415,7 @@ _RNG = np.random.default_rng(0)
 
 @pytest.mark.parametrize("build, match", [
     (lambda: imu.preset("bmi088"), "unknown IMU preset 'bmi088'; available: ideal, mpu6050"),
+    (lambda: imu.preset("mpu9250", calibrated="yes"), "calibrated must be True or False, got 'yes'"),
     (lambda: imu.IMU("bmi088", _RNG), "unknown IMU preset"),
     (lambda: imu.IMU(3, _RNG), "spec_or_preset_name must be an IMUSpec or one of"),
     (lambda: imu.IMU("ideal", 0), "rng must be a numpy.random.Generator"),
