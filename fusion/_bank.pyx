@@ -21,7 +21,7 @@ import numpy as np
 cimport numpy as cnp
 
 from fusion._core cimport Estimator, output_q, quat_out
-from fusion._core import DT_MAX, DT_MIN, check_dt
+from fusion._core import DT_MAX, DT_MIN, FINITE_RULE, VALID_RULE, check_dt
 from fusion.checks import not_masked
 from fusion._qmath cimport vec3_valid, vec3_finite
 
@@ -167,7 +167,7 @@ def soa_supported(list ests):
 # samples per filter gathered per call of its batch loop in BankCore._run
 cdef Py_ssize_t RUN_BLOCK = 128
 
-_RULE = {"gyr": "finite", "acc": "finite and non-zero", "mag": "finite and non-zero"}
+_RULE = {"gyr": FINITE_RULE, "acc": VALID_RULE, "mag": VALID_RULE}
 
 
 def as_samples(x, str name, tuple shape, str what, Py_ssize_t count):

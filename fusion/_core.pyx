@@ -64,6 +64,10 @@ COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s
 # Time steps (given, or 1 / fs) the kernels accept: a longer gap is a restart (reset), a
 # shorter one is no IMU; beyond these, variances such as noise^2 / dt over- or underflow.
 DT_MIN = 1e-6
+# a sample's rules, as fusion/_qmath.pxd's vec3_finite and vec3_valid test them: the squared
+# norm must be finite too, so a finite 1e300 is refused
+FINITE_RULE = "finite, with a finite squared norm (each component below about 1e154)"
+VALID_RULE = "finite and non-zero, with a finite squared norm (each component below about 1e154)"
 DT_MAX = 100.0
 
 
@@ -110,8 +114,8 @@ def _check_samples(G, A, M, Py_ssize_t n):
                 bad_a = i
             if has_mag and bad_m < 0 and not vec3_valid(&m[i, 0]):
                 bad_m = i
-    for arr, nm, b, rule in ((G, "gyr", bad_g, "finite"), (A, "acc", bad_a, "finite and non-zero"),
-                             (M, "mag", bad_m, "finite and non-zero")):
+    for arr, nm, b, rule in ((G, "gyr", bad_g, FINITE_RULE), (A, "acc", bad_a, VALID_RULE),
+                             (M, "mag", bad_m, VALID_RULE)):
         if b >= 0:
             raise ValueError(f"{nm} must be {rule}; {nm}[{b}] = {arr[b]!r} "
                              f"(on_invalid='skip' skips such samples)")
@@ -466,11 +470,11 @@ cdef class Estimator:
         h = self.dt_nominal if dt is None else check_dt(dt)
         if not self.skip_invalid:
             if not vec3_finite(g):
-                raise ValueError(f"gyr must be finite, got {gyr!r} (on_invalid='skip' skips such samples)")
+                raise ValueError(f"gyr must be {FINITE_RULE}, got {gyr!r} (on_invalid='skip' skips such samples)")
             if not vec3_valid(a):
-                raise ValueError(f"acc must be finite and non-zero, got {acc!r} (on_invalid='skip' skips such samples)")
+                raise ValueError(f"acc must be {VALID_RULE}, got {acc!r} (on_invalid='skip' skips such samples)")
             if mag is not None and not vec3_valid(m):
-                raise ValueError(f"mag must be finite and non-zero, got {mag!r} (on_invalid='skip' skips such samples)")
+                raise ValueError(f"mag must be {VALID_RULE}, got {mag!r} (on_invalid='skip' skips such samples)")
         out = cnp.PyArray_SimpleNew(1, &four, cnp.NPY_DOUBLE)
         # in use elsewhere? Tested here, after the last Python call: from here on the step
         # holds the GIL, so no other call can start before it ends (no flag to set)

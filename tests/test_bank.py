@@ -209,7 +209,7 @@ def test_invalid_samples_raise_before_any_work(data):
     bank.run(G[:10], A[:10], M[:10])
     before = bank.state()
     A[0, 2] = 0.0
-    with pytest.raises(ValueError, match=r"acc must be finite and non-zero; acc\[2\] .*filter 2"):
+    with pytest.raises(ValueError, match=r"acc must be finite and non-zero, .*; acc\[2\] .*filter 2"):
         bank.update(G[0], A[0], M[0])
     G[7, 3] = np.nan
     M[5, 1] = np.inf

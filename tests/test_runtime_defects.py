@@ -168,3 +168,15 @@ def test_bank_equals_separate_ekfs_within_the_documented_bounds():
         for i in range(n):
             r = fusion.make("ekf", 100.0).run(G[:, i], A[:, i], M[:, i], dt=D[:, i])
             assert np.abs(Q[:, i] - r).max() <= bound
+
+
+def test_a_finite_sample_whose_square_overflows_is_refused_saying_so():
+    """1e300 is finite, but its square is not: the rule the error states is the one tested."""
+    e = fusion.make("ekf", 100.0)
+    with pytest.raises(ValueError, match=r"gyr must be finite, with a finite squared norm \(each component below"):
+        e.update(np.full(3, 1e300), STILL[1][0])
+    with pytest.raises(ValueError, match=r"acc must be finite and non-zero, with a finite squared norm"):
+        e.run(STILL[0], np.full((5, 3), 1e300))
+    b = fusion.make_bank("ekf", 100.0, 1)
+    with pytest.raises(ValueError, match=r"gyr must be finite, with a finite squared norm"):
+        b.update(np.full((1, 3), 1e300), STILL[1][:1])
