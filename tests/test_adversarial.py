@@ -262,7 +262,8 @@ def test_big_endian_samples_in_update():
         with pytest.raises(ValueError,
                            match=r"mag must be finite and non-zero, .*, got array\\(\\[ *inf, +20\\., +-40\\.\\]"):
             est.update(g, a, np.array([np.inf, 20.0, -40.0], dtype=">f8"))
-        with pytest.raises(ValueError, match=r"acc must be finite and non-zero, .*, got array\\(\\[0\\., 0\\., 0\\.\\]"):
+        with pytest.raises(ValueError,
+                           match=r"acc must be finite and non-zero, .*, got array\\(\\[0\\., 0\\., 0\\.\\]"):
             est.update(g, np.zeros(3, dtype=">f8"), m)
     """)
 
