@@ -41,6 +41,7 @@ import numpy as np
 
 from fusion.checks import integer, require
 
+from controllers.policy_io import save_figure
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
@@ -100,11 +101,20 @@ def _file_hash(paths):
 
 
 def _kernel_files():
-    """The compiled kernels (every ``_*.pyx`` of the packages, as setup.py builds them) as
-    imported by this process: their files."""
-    import importlib
-    names = sorted(f"{pkg}.{f.stem}" for pkg in PACKAGES for f in (PACKAGE_ROOT / pkg).glob("_*.pyx"))
-    return [Path(importlib.import_module(n).__file__) for n in names]
+    """The compiled kernels of the packages, the files this process imports them from (found
+    as extension modules, not by their .pyx: a wheel ships none)."""
+    import importlib.machinery
+    import importlib.util
+    import pkgutil
+    out = []
+    for pkg in PACKAGES:
+        for m in sorted(pkgutil.iter_modules([str(PACKAGE_ROOT / pkg)]), key=lambda m: m.name):
+            name = f"{pkg}.{m.name}"
+            spec = importlib.util.find_spec(name) if m.name.startswith("_") else None
+            if spec is not None and str(spec.origin).endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)):
+                loaded = sys.modules.get(name)
+                out.append(Path(loaded.__file__ if loaded is not None else spec.origin))
+    return out
 
 
 def code_version():
@@ -278,12 +288,6 @@ def _write_atomic(path, text):
     from controllers.policy_io import atomic_write
     data = text.encode()
     atomic_write(path, lambda f: f.write(data))
-
-
-def _save_figure(fig, path):
-    """``fig`` as a PNG at ``path``, whole or not at all (``policy_io.atomic_write``)."""
-    from controllers.policy_io import atomic_write
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
 
 
 def _load_cached(path, key):
@@ -714,7 +718,7 @@ def _plot_headline(summary, path):
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure(fig, path)
     return None
 
 
@@ -741,7 +745,7 @@ def _plot_paths(path_rows, path):
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    _save_figure(fig, path)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------

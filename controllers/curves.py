@@ -98,6 +98,6 @@ def plot_training_curves(runs: list[dict[str, Any]], path: str | Path,
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    from controllers.policy_io import atomic_write
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))     # whole or not at all
+    from controllers.policy_io import save_figure
+    save_figure(fig, path)
     return drawn

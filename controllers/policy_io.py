@@ -58,6 +58,13 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:
         os.close(fd)
 
 
+def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> None:
+    """A matplotlib figure to ``path`` whole or not at all (``atomic_write``), in the format
+    its suffix names (PNG without one)."""
+    fmt = Path(path).suffix[1:].lower() or "png"
+    atomic_write(path, lambda f: fig.savefig(f, format=fmt, dpi=dpi))
+
+
 def save_model(model: Any, path: str | os.PathLike) -> None:
     """``model.save`` atomically to ``path`` (a ``.zip``)."""
     atomic_write(path, model.save)

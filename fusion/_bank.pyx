@@ -22,7 +22,7 @@ cimport numpy as cnp
 
 from fusion._core cimport Estimator, output_q, quat_out
 from fusion._core import DT_MAX, DT_MIN, FINITE_RULE, VALID_RULE, check_dt
-from fusion.checks import not_masked
+from fusion.checks import not_masked, SAMPLES_HINT
 from fusion._qmath cimport vec3_valid, vec3_finite
 
 cnp.import_array()
@@ -178,7 +178,7 @@ def as_samples(x, str name, tuple shape, str what, Py_ssize_t count):
             and cnp.PyArray_IS_C_CONTIGUOUS(<cnp.ndarray>x) and cnp.PyArray_ISBEHAVED_RO(<cnp.ndarray>x)
             and x.shape == shape):
         return x                                       # the per-sample path: no copy, no more checks
-    not_masked(name, x)
+    not_masked(name, x, SAMPLES_HINT)
     a = np.asarray(x)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be a real numeric array (float or int), got dtype {a.dtype}")

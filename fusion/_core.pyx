@@ -5,7 +5,7 @@ cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
 from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
-from fusion.checks import number, choice, state_header, not_masked
+from fusion.checks import number, choice, state_header, not_masked, SAMPLES_HINT
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
                             quat_normalise)
@@ -61,13 +61,14 @@ ACC_LP_CHECKS = {"lp_time": TIMER}     # struct_fields' checks of an AccLowpass 
 COV_MAX = 1e6           # largest variance of a loaded covariance (rad², (rad/s)²; a gap adds < pi²)
 
 
-# Time steps (given, or 1 / fs) the kernels accept: a longer gap is a restart (reset), a
-# shorter one is no IMU; beyond these, variances such as noise^2 / dt over- or underflow.
-DT_MIN = 1e-6
 # a sample's rules, as fusion/_qmath.pxd's vec3_finite and vec3_valid test them: the squared
 # norm must be finite too, so a finite 1e300 is refused
 FINITE_RULE = "finite, with a finite squared norm (each component below about 1e154)"
 VALID_RULE = "finite and non-zero, with a finite squared norm (each component below about 1e154)"
+
+# Time steps (given, or 1 / fs) the kernels accept: a longer gap is a restart (reset), a
+# shorter one is no IMU; beyond these, variances such as noise^2 / dt over- or underflow.
+DT_MIN = 1e-6
 DT_MAX = 100.0
 
 
@@ -80,9 +81,10 @@ def check_dt(value):
     return number("dt", value, DT_MIN, DT_MAX)
 
 
-def _as_samples(x, name, int n=-1):
-    """An (N, 3) float64 C-contiguous copy-or-view of x, or a ValueError saying what is accepted."""
-    not_masked(name, x)
+def _as_samples(x, name, int n=-1, str hint=SAMPLES_HINT):
+    """An (N, 3) float64 C-contiguous copy-or-view of x, or a ValueError saying what is accepted
+    (hint: not_masked's, for an estimator's samples by default)."""
+    not_masked(name, x, hint)
     arr = np.asarray(x)
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be a real numeric array (float or int), got dtype {arr.dtype}")
@@ -152,7 +154,7 @@ cdef int _read_vec3(object v, str name, double* out) except -1:
             out[1] = (<double*>(p + st))[0]
             out[2] = (<double*>(p + 2 * st))[0]
             return 0
-    not_masked(name, v)
+    not_masked(name, v, SAMPLES_HINT)
     a = np.asarray(v)
     if a.dtype.kind not in "fiu":
         raise ValueError(f"{name} must be 3 real numbers, got dtype {a.dtype}")

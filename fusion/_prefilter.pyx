@@ -8,7 +8,7 @@ from libc.stdlib cimport calloc, free
 
 from fusion._core cimport Prefilter
 from fusion._qmath cimport vec3_finite
-from fusion._core import _as_samples, FLAG
+from fusion._core import _as_samples, FINITE_RULE, FLAG
 from fusion.checks import number, integer
 
 
@@ -29,7 +29,7 @@ def _run(Prefilter f, x):
     that is not finite, or whose squared norm overflows (an estimator's gyro rule: such rows
     never reach its prefilters), is refused before any is filtered: one would make every
     later output NaN, in this call and the next (the filter's state)."""
-    X = np.array(_as_samples(x, "x"), dtype=np.float64, order="C", copy=True)
+    X = np.array(_as_samples(x, "x", hint=""), dtype=np.float64, order="C", copy=True)     # no on_invalid here
     cdef double[:, ::1] v = X
     cdef Py_ssize_t i, bad = -1
     with nogil:
@@ -38,8 +38,7 @@ def _run(Prefilter f, x):
                 bad = i
                 break
     if bad >= 0:
-        raise ValueError(f"x must be finite, with a finite squared norm (|x[i]|² < 1.8e308); "
-                         f"x[{bad}] = {X[bad]!r}; nothing was filtered")
+        raise ValueError(f"x must be {FINITE_RULE}; x[{bad}] = {X[bad]!r}; nothing was filtered")
     _claim(f)
     try:
         with nogil:

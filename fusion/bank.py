@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from fusion._bank import BankCore, as_samples, check_samples, time_steps
 from fusion._core import Estimator, check_dt, unit_q0
-from fusion.checks import integer, state_header
+from fusion.checks import integer, not_masked, state_header
 
 BANK_STATE_VERSION = 1
 BANK_STATE_KEYS = ("version", "bank", "estimator", "count", "filters")
@@ -153,6 +153,7 @@ class Bank(BankCore):
         """Reset every filter (index None) or filter `index` only, as est.reset(q0): q0 None,
         one [w, x, y, z] for all, or with index None a (count, 4) array, one per filter."""
         n = self._count
+        not_masked("q0", q0)        # np.asarray below would drop a (count, 4) array's mask
         if index is not None:
             integer("index", index, -n, n - 1)
             targets, q0s = [self._filters[index]], [q0]

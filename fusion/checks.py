@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["number", "integer", "choice", "flag", "interval", "state_header", "not_masked",
-           "EXTRAS", "missing_extra", "require"]
+           "SAMPLES_HINT", "EXTRAS", "missing_extra", "require"]
 
 
 def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
@@ -43,7 +43,8 @@ def number(name: str, value: Any, low: float | None = None, high: float | None =
     counts as its number."""
     if value is None and allow_none:
         return None
-    not_masked(name, value)
+    if isinstance(value, np.ndarray):       # a masked array is one: plain floats pay nothing
+        not_masked(name, value)
     if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
         value = value.item()
     # (np.timedelta64 registers as an integer, but float() and int() refuse it)
@@ -72,13 +73,17 @@ def integer(name: str, value: Any, low: int | None = None, high: int | None = No
     return int(value)
 
 
-def not_masked(name: str, value: Any) -> None:
+# not_masked's hint where the value is sensor samples, which on_invalid handles
+SAMPLES_HINT = ("np.ma.filled({name}, np.nan) makes the masked samples invalid ones, which on_invalid then "
+                "refuses or skips")
+
+
+def not_masked(name: str, value: Any, hint: str = "") -> None:
     """A ValueError if value is a numpy masked array: np.asarray would drop its mask and use
-    the masked values as data."""
+    the masked values as data. hint: what to do instead, formatted with name (SAMPLES_HINT)."""
     if isinstance(value, np.ma.MaskedArray):
-        raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass a plain array "
-                         f"(np.ma.filled({name}, np.nan) makes the masked samples invalid ones, which "
-                         f"on_invalid then refuses or skips)")
+        raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass a plain array"
+                         + (f" ({hint.format(name=name)})" if hint else ""))
 
 
 def choice(name: str, value: Any, choices: tuple) -> Any:

@@ -88,15 +88,16 @@ class Trial:
                 f"mag={'yes' if self.has_mag else 'no'}, quality={self.quality!r})")
 
 
-def _get(d, key, path):
+def _get(d, key, path, raw_ok=False):
     """``d[key]``; ValueError naming the file and key for what numpy will not load (a pickled
-    object array under allow_pickle=False) or loads as raw bytes (a member stored without
-    ``.npy``, which ``NpzFile`` hands back unparsed)."""
+    object array under allow_pickle=False) or, unless raw_ok (the extras, kept as they are),
+    loads as raw bytes (a member stored without ``.npy``, which ``NpzFile`` hands back
+    unparsed)."""
     try:
         arr = d[key]
     except ValueError as e:
         raise ValueError(f"{path}: key {key!r} cannot be read ({e})") from None
-    if not isinstance(arr, np.ndarray):
+    if not raw_ok and not isinstance(arr, np.ndarray):
         raise ValueError(f"{path}: key {key!r} cannot be read (not a .npy array but {type(arr).__name__})")
     return arr
 
@@ -180,7 +181,7 @@ def load_trial(path: str | os.PathLike) -> Trial:
         fs = float(fs.reshape(()))
         quality = _text(d, "quality", path) if "quality" in d.files else "ok"
         notes = _text(d, "notes", path) if "notes" in d.files else ""
-        extra = {k: np.asarray(_get(d, k, path)) for k in d.files if k not in _KNOWN}
+        extra = {k: np.asarray(_get(d, k, path, raw_ok=True)) for k in d.files if k not in _KNOWN}
     if not (np.isfinite(fs) and fs > 0):
         raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
     if not np.isfinite(t).all():        # a last stamp of inf passed the increase test below

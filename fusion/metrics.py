@@ -47,13 +47,19 @@ def _pair(q_est, q_ref, names=("q_est", "q_ref")):
         else:
             raise ValueError(f"{names[0]} and {names[1]} must have the same number of rows, "
                              f"got {a.shape[0]} and {b.shape[0]}")
-    bad = np.isfinite(b).all(axis=1) & ~np.isfinite(quat.normalise(a)).all(axis=1)
+    bad = _has_reference(b) & ~_has_reference(a)
     if bad.any():
-        raise ValueError(f"{names[0]} must be a finite, nonzero quaternion on every row with a finite "
-                         f"{names[1]}: {int(bad.sum())} of {a.shape[0]} rows are not (first: row "
-                         f"{int(np.argmax(bad))}, {a[np.argmax(bad)]}); only rows with a non-finite "
-                         f"{names[1]} are dropped")
+        raise ValueError(f"{names[0]} must be a finite, nonzero quaternion on every row with a "
+                         f"reference: {int(bad.sum())} of {a.shape[0]} rows are not (first: row "
+                         f"{int(np.argmax(bad))}, {a[np.argmax(bad)]}); only rows without a "
+                         f"reference (a non-finite or zero {names[1]}) are dropped")
     return a, b
+
+
+def _has_reference(q):
+    """The rows of q that are a rotation (finite, not zero): where the reference is one, a row
+    is scored; where it is not, it is dropped."""
+    return np.isfinite(quat.normalise(q)).all(axis=1)
 
 
 def _wrap_deg(a):
@@ -66,7 +72,7 @@ def euler_errors(q_est: ArrayLike, q_true: ArrayLike) -> Array:
     with columns (yaw, pitch, roll); rows with a non-finite (or zero) reference dropped, as
     ``score`` ignores them."""
     a, b = _pair(q_est, q_true, ("q_est", "q_true"))
-    keep = np.isfinite(quat.normalise(b)).all(axis=1)
+    keep = _has_reference(b)
     d = np.degrees(quat.to_euler(a[keep]) - quat.to_euler(b[keep]))
     return _wrap_deg(d)
 

@@ -55,14 +55,15 @@ def normalise(q: ArrayLike) -> Array:
     q = as_quat(q)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):
         n = np.linalg.norm(q, axis=-1, keepdims=True)
-        # a finite row whose squares overflow (1e200) or underflow (1e-200): its norm from the
-        # row scaled by its largest component, or it would read as 0 or inf
-        m = np.max(np.abs(q), axis=-1, keepdims=True)
-        odd = np.isfinite(m) & (m > 0) & ((n == 0) | ~np.isfinite(n))
-        if odd.any():
-            n = np.where(odd, m * np.linalg.norm(np.where(odd, q / np.where(odd, m, 1.0), 0.0), axis=-1,
-                                                 keepdims=True), n)
-        return np.where((n > 0) & np.isfinite(n), q / n, np.nan)
+        ok = (n > 0) & np.isfinite(n)
+        out = np.where(ok, q / n, np.nan)
+        if not ok.all():
+            # a finite, non-zero row whose squares overflow (1e200) or underflow (1e-200) reads
+            # as norm inf or 0: scaled by its largest component first
+            odd = ~ok & np.isfinite(q).all(axis=-1, keepdims=True) & (q != 0).any(axis=-1, keepdims=True)
+            s = q / np.where(odd, np.max(np.abs(q), axis=-1, keepdims=True), 1.0)
+            out = np.where(odd, s / np.linalg.norm(s, axis=-1, keepdims=True), out)
+        return out
 
 
 def to_matrix(q: ArrayLike) -> Array:

@@ -404,6 +404,11 @@ def test_code_version_covers_the_build_and_the_libraries(tmp_path, monkeypatch):
     import subprocess
     import sys
     from importlib import metadata
+    import importlib.machinery
+    # every extension module of the packages, found without their .pyx (a wheel has none)
+    built = {f.name for pkg in compare.PACKAGES for f in (compare.PACKAGE_ROOT / pkg).iterdir()
+             if f.name.endswith(importlib.machinery.EXTENSION_SUFFIXES[0])}
+    assert len(built) > 10 and {f.name for f in compare._kernel_files()} == built
     v0 = compare.code_version()
     assert compare.code_version() == v0
     run = subprocess.run([sys.executable, "-c", "from controllers import compare; print(compare.code_version())"],

@@ -201,6 +201,16 @@ def test_member_without_npy_is_a_value_error(tmp_path, key):
     assert str(p) in str(exc.value)
 
 
+def test_an_extra_member_without_npy_is_kept_as_it_is(tmp_path):
+    """Members the loader does not know are kept in Trial.extra whatever they hold (a notes
+    file beside the arrays); only the known keys must be .npy arrays."""
+    p = _write(tmp_path / "s" / "extra.npz", **_arrays())
+    with zipfile.ZipFile(p, "a") as z:
+        z.writestr("notes.txt", b"recorded by hand")
+    tr = datasets.load_trial(p)
+    assert tr.extra["notes.txt"].item() == b"recorded by hand"
+
+
 def test_load_folder_collects_corrupt_files(tmp_path):
     _write(tmp_path / "s" / "good.npz", **_arrays())
     _raw_member(tmp_path / "s" / "raw.npz", "quality")

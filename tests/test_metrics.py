@@ -271,3 +271,13 @@ def test_euler_table_drops_a_zero_reference_row_as_score_does():
     t = metrics.euler_table(est, ref)
     assert abs(t["yaw"]["RMSE"] - np.degrees(0.1)) < 1e-9 and np.isfinite(t["roll"]["mean"]), t
     assert abs(metrics.score(est, ref)["heading"] - np.degrees(0.1)) < 1e-9
+
+
+def test_a_row_without_a_reference_is_dropped_whatever_the_estimate():
+    """A zero reference row is no reference (as a non-finite one): the estimate there is not
+    judged, even NaN; on a row with a reference a NaN estimate is an error."""
+    est = np.array([[1.0, 0.0, 0.0, 0.0], [np.nan] * 4])
+    e = metrics.attitude_errors(est, [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    assert e["total"][0] == 0.0 and np.isnan(e["total"][1])
+    with pytest.raises(ValueError, match="rows without a reference"):
+        metrics.attitude_errors(est, [[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]])

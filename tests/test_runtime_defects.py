@@ -125,8 +125,14 @@ def test_masked_arrays_are_refused():
                  lambda: b.update(STILL[0][:1], STILL[1][:1], dt=scalar)):
         with pytest.raises(ValueError, match="dt is a masked array"):
             call()
-    with pytest.raises(ValueError, match="fs is a masked array"):
-        fusion.make("ekf", np.ma.masked_array(100.0))
+    with pytest.raises(ValueError, match=r"fs is a masked array, whose mask would be ignored: pass a plain array$"):
+        fusion.make("ekf", np.ma.masked_array(100.0))      # the on_invalid hint only for samples
+    with pytest.raises(ValueError, match=r"x is a masked array, .*plain array$"):
+        fusion.Butterworth(100.0, 10.0).run(g)
+    q0 = np.ma.masked_array(np.tile([1.0, 0.0, 0.0, 0.0], (1, 1)), mask=[[False] * 4])
+    for reset in (lambda: e.reset(q0[0]), lambda: b.reset(q0=q0), lambda: b.reset(0, q0[0])):
+        with pytest.raises(ValueError, match="q0 is a masked array"):
+            reset()
     assert not e.initialised and not b.initialised[0]
 
 

@@ -33,6 +33,8 @@ def test_plot_writes_one_panel_per_task_and_estimator(tmp_path):
     drawn = curves.plot_training_curves(runs, tmp_path / "c.png")
     assert sorted(drawn) == [("track", "truth"), ("waypoints", "ekf")]
     assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    curves.plot_training_curves(runs, tmp_path / "c.pdf")          # the format its suffix names
+    assert (tmp_path / "c.pdf").read_bytes()[:5] == b"%PDF-"
     with pytest.raises(ValueError, match="no runs"):
         curves.plot_training_curves([], tmp_path / "d.png")
 
