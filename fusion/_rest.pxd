@@ -92,8 +92,9 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     if not r.started:
         rest_start(r, gyr, acc)
         return False
-    # REST_TAU low-passes, the running mean of the samples for their first REST_TAU s: a start at one sample would hold its noise for a second, and the drift test below
-    # would take the low-pass settling from it for motion
+    # REST_TAU low-passes, the running mean of the samples for their first REST_TAU s: a start
+    # at one sample would hold its noise for a second, and the drift test below would take the
+    # low-pass settling from it for motion
     r.lp_time += dt
     if r.lp_time > REST_TAU:
         r.lp_time = REST_TAU

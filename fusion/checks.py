@@ -45,8 +45,8 @@ def number(name: str, value: Any, low: float | None = None, high: float | None =
         return None
     if isinstance(value, np.ndarray):       # a masked array is one: plain floats pay nothing
         not_masked(name, value)
-    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
-        value = value.item()
+        if value.ndim == 0 and value.dtype.kind in "fiu":
+            value = value.item()
     # (np.timedelta64 registers as an integer, but float() and int() refuse it)
     if isinstance(value, (bool, np.bool_, np.timedelta64)) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number{' or None' if allow_none else ''}, got {value!r}")

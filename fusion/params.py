@@ -90,8 +90,9 @@ def table(*params: Param) -> dict[str, Param]:
 
 # --- the declarations several estimators share ------------------------------------------
 
-# rest detection (docs/estimators.md, "Rest"): 2 deg/s and 0.5 m/s^2 are VQF's thresholds
-REST = (
+# rest detection (docs/estimators.md, "Rest"): 2 deg/s and 0.5 m/s^2 are VQF's thresholds; the
+# detector every filter that learns its bias at rest has
+_REST_DETECTION = (
     Param("rest_time", 0.4, "s", 1e-3, 1e4, "rest detection: after this long at rest the gyro "
           "measures its bias (a zero-rate update); 0: off", allow_zero=True),
     Param("rest_gyro_tol", 0.034906585039886591, "rad/s", 1e-6, 10.0, "at rest: the gyro within "
@@ -106,6 +107,11 @@ REST = (
     Param("rest_acc_drift_tol", 0.1, "m/s²", 1e-6, 100.0, "a still run ends when the "
           "accelerometer's 0.5 s low-pass moves this far from its value at the run's start "
           "(about 0.6 deg of tilt); 0: off", allow_zero=True),
+)
+
+# the Kalman filters' rest: the detector and the zero-rate update
+REST = (
+    *_REST_DETECTION,
     Param("rest_noise", 1e-3, "rad/s/√Hz", 1e-7, 1.0, "the gyro's white-noise density as the "
           "zero-rate measurement's noise"),
     # a slow turn about the vertical passes every test above for a second or so; the filter's own
@@ -120,9 +126,9 @@ REST = (
           "rest_time the gate never acts)"),
 )
 
-# the complementary filters' rest learning (no zero-rate update there, so no rest_noise): at
-# rest their gyro bias is pulled toward the measured rate
-REST_PULL = (*[d for d in REST if d.name not in ("rest_noise", "rest_bias_gate", "rest_gate_time")],
+# the complementary filters' rest learning (no zero-rate update there, so neither its noise nor
+# its gate): at rest their gyro bias is pulled toward the measured rate
+REST_PULL = (*_REST_DETECTION,
              Param("rest_tau", 1.0, "s", 1e-3, 1e4, "at rest: the time constant with which the gyro "
                    "bias is pulled toward the measured rate"))
 
