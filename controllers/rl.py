@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from controllers.base import Controller, obs_batch
-from fusion.checks import choice, flag, integer
+from fusion.checks import choice, flag, integer, require_import
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
                                    save_model, save_normalization, vec_normalize)
 
@@ -837,6 +837,7 @@ def train(algo: str, task: str, estimator: str, timesteps: int | None = None, se
     unless training beats it. ``hyperparams_override``: a dict replacing entries of the YAML
     file's (only names it has), e.g. ``{"learning_rate": 1e-4}`` for a fine-tune.
     """
+    require_import("controllers.rl.train", "rl")
     import torch
     torch.set_num_threads(1)
     p = _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_episodes, eval_freq,
@@ -960,6 +961,7 @@ def load_policy(path: str | os.PathLike, env: Any = None, trusted: bool = False)
     are refused, the weights read as tensors only, the statistics as plain arrays. A policy
     from outside the package still warns (``UntrustedPolicyWarning``) that a model file is a
     program's input to trust: pass ``trusted=True`` for files you made yourself."""
+    require_import("controllers.rl.load_policy", "rl")
     import torch
     torch.set_num_threads(1)
     stem, zip_path, json_path, vn_path = _resolve(path)

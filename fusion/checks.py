@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["number", "integer", "choice", "flag", "interval", "state_header", "not_masked",
-           "SAMPLES_HINT", "EXTRAS", "missing_extra", "require"]
+           "SAMPLES_HINT", "EXTRAS", "missing_extra", "require", "require_import"]
 
 
 def interval(low: float | None, high: float | None, open_low: bool = False, open_high: bool = False) -> str:
@@ -156,3 +156,12 @@ def require(command: str, extra: str) -> None:
     if message:
         print(f"error: {message}", file=sys.stderr)
         raise SystemExit(2)
+
+
+def require_import(what: str, extra: str) -> None:
+    """For a library function that needs ``extra``, before any work: unless it is installed,
+    raise ModuleNotFoundError with its message (rather than "No module named 'torch'" from
+    somewhere inside)."""
+    message = missing_extra(what, extra)
+    if message:
+        raise ModuleNotFoundError(message)

@@ -235,6 +235,15 @@ def test_envs_without_gymnasium_names_the_extra():
             "pip install 'spherebot-fusion[sim]'") in r.stderr
 
 
+@pytest.mark.parametrize("call", ["load_policy('ppo-waypoints-ekf')", "train('ppo', 'waypoints', 'ekf', timesteps=8)"])
+def test_the_rl_functions_without_torch_name_the_extra(call):
+    """`import controllers.rl` stays light; its functions that need torch say which extra to install."""
+    r = _without(["torch"], f"import controllers.rl as rl; rl.{call}")
+    assert r.returncode == 1
+    assert (f"ModuleNotFoundError: controllers.rl.{call.split('(')[0]} needs the 'rl' extra (torch not installed): "
+            "pip install 'spherebot-fusion[rl]'") in r.stderr, r.stderr
+
+
 def test_the_bank_benchmark_skips_vqf_when_absent():
     """vqf is a peer of the benchmark, not a dependency: without it the bank section still runs."""
     r = _without(["vqf"], "from benchmarks import throughput as t; from benchmarks.peers import Data; "
