@@ -27,6 +27,7 @@ import numpy as np
 import fusion
 from fusion import datasets
 from benchmarks import compare, peers
+from controllers.evaluation import bootstrap_ci
 
 
 ERRORS = ("total", "heading", "inclination")
@@ -123,6 +124,24 @@ def ratio(rows, cell, k="total"):
     return mean(rows, k) / mean(cell.vqf, k)
 
 
+def ratio_ci(rows, cell, k="total"):
+    """95 % interval of ratio(rows, cell, k) by a paired bootstrap of the cell's trials: each
+    resample draws the same trials for ours and VQF, so the interval is of the ratio alone, not
+    of how hard the trials drawn were. Whether a cell is above VQF beyond the trials' spread."""
+    x = np.array([r[k] for r in rows])
+    y = np.array([r[k] for r in cell.vqf])
+
+    def stat(idx, axis):
+        idx = idx.astype(int)
+        return x[idx].mean(axis=axis) / y[idx].mean(axis=axis)
+    return bootstrap_ci(np.arange(len(x)), stat)
+
+
+def fmt_ratio(rows, cell, k="total"):
+    lo, hi = ratio_ci(rows, cell, k)
+    return f"{ratio(rows, cell, k):.3f} [{lo:.3f}, {hi:.3f}]"
+
+
 def parse_grid(items):
     grid = {}
     for it in items or ():
@@ -144,14 +163,15 @@ def fmt_params(p):
 
 
 def table(name, results, cells, with_cat=False):
-    """Per cell: ours total/heading/inclination, VQF's, ratio."""
-    lines = [f"| cell | n | {name} total / heading / incl | VQF total / heading / incl | total ratio | incl ratio |",
+    """Per cell: ours total/heading/inclination, VQF's, ratios with their 95 % intervals (ratio_ci)."""
+    lines = [f"| cell | n | {name} total / heading / incl | VQF total / heading / incl | total ratio [95 % CI] "
+             f"| incl ratio [95 % CI] |",
              "|---|---|---|---|---|---|"]
     for c in cells:
         rs = results[c.key]
         lines.append(f"| {c.key} | {len(rs)} | " + " / ".join(f"{mean(rs, k):.2f}" for k in ERRORS)
                      + " | " + " / ".join(f"{mean(c.vqf, k):.2f}" for k in ERRORS)
-                     + f" | {ratio(rs, c):.2f} | {ratio(rs, c, 'inclination'):.2f} |")
+                     + f" | {fmt_ratio(rs, c)} | {fmt_ratio(rs, c, 'inclination')} |")
         if with_cat:
             cats = sorted(set(c.categories))
             if len(cats) < len(c.categories):

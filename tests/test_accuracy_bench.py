@@ -60,3 +60,17 @@ def test_loso_worst_trial_is_the_largest_ratio_to_vqf():
     worst = loso.worst_trials({a.key: ra, b.key: rb}, [a, b])
     assert worst["total"] == (2.0, "tstick 6-axis", "t1")          # diodem 9-axis's 90x is not judged
     assert worst["inclination"] == (5.0, "tstick 6-axis", "t2")
+
+
+def test_loso_ratio_interval_is_paired():
+    """The ratio's interval resamples the same trials for ours and VQF: trials of very
+    different difficulty, ours 1.1x VQF on each, give 1.1 with no spread (an unpaired
+    interval would span the difficulty); a mixed cell's interval holds its ratio."""
+    from benchmarks import loso
+    c = loso.Cell("s", "6-axis", ["a", "b", "c", "d"], [None] * 4)
+    c.vqf = [dict(total=v) for v in (0.5, 1.0, 4.0, 9.0)]
+    lo, hi = loso.ratio_ci([dict(total=1.1 * r["total"]) for r in c.vqf], c)
+    assert lo == pytest.approx(1.1) and hi == pytest.approx(1.1)
+    ours = [dict(total=v) for v in (0.4, 1.3, 3.9, 9.5)]
+    lo, hi = loso.ratio_ci(ours, c)
+    assert lo < loso.ratio(ours, c) < hi
