@@ -33,8 +33,9 @@ ON_INVALID = ("raise", "skip")
 # magnetic disturbance detector's settling (magd_t_settle); 7: the detector's test of a field
 # that turns with the sensor (magd_dir, magd_t_fixed); 8: the rest detector's drift test and
 # running-mean start, its still tests' 10 ms low-pass (rest_gyr0, rest_acc0, rest_lp_time, rest_fgyr,
-# rest_facc; rest_gyro_drift_tol, rest_acc_drift_tol)
-STATE_VERSION = 8
+# rest_facc; rest_gyro_drift_tol, rest_acc_drift_tol); 9: the still run's gyro sum before rest,
+# which the first zero-rate update takes (rest_gsum, rest_gsum_t)
+STATE_VERSION = 9
 STATE_KEYS = ("version", "estimator", "fs", "frame", "on_invalid", "params", "fields")
 FLAG = (0, 1)           # check of a bint field
 # check of a counter: below 2**62, so that stepping a loaded counter (one a sample) never

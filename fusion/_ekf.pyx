@@ -6,7 +6,7 @@ import numpy as np
 from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
-from fusion._rest cimport rest_gate_open
+from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
@@ -271,25 +271,29 @@ cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const dou
 
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
                    const double* acc, double dt) noexcept nogil:
-    """Rest detection (fusion/_rest.pxd) and, at rest, the zero-rate update: the gyro sample
-    measures the bias, z = gyr, h = b, H = [0 I3], its gain on the bias only
+    """Rest detection (fusion/_rest.pxd) and, at rest, the zero-rate update: the gyro measures
+    the bias, z = rest_rate (the sample, or the still run's mean on its first sample at rest),
+    h = b, H = [0 I3], the noise density over the time z averages, its gain on the bias only
     (docs/estimators.md, "Rest")."""
     cdef double U[21]    # P Hᵀ = P[:, 4:7]
     cdef double S[9]
     cdef double y[3]
+    cdef double z[3]
+    cdef double T
     cdef double* b = st.b
     cdef double* P = st.P
     cdef int i, j
     if not rest_now(e, gyr, acc, dt) or not rest_gate_open(e.rest, b, P[32], P[40], P[48]):
         return
+    T = rest_rate(e.rest, gyr, dt, z)
     for i in range(7):
         for j in range(3):
             U[i * 3 + j] = P[i * 7 + 4 + j]
     for i in range(3):
         for j in range(3):
             S[i * 3 + j] = P[(4 + i) * 7 + 4 + j]
-        S[i * 4] += e.rest.noise * e.rest.noise / dt
-        y[i] = gyr[i] - b[i]
+        S[i * 4] += e.rest.noise * e.rest.noise / T
+        y[i] = z[i] - b[i]
     kalman_apply(q, b, P, U, S, y, GAIN_BIAS)
 
 

@@ -10,6 +10,7 @@ from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_
                             jac_rot_to_body, up_in_body, jac_up_in_body, unit3, recovery_gain,
                             saturated)
 from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
+from fusion._rest cimport rest_rate
 from fusion._acclp cimport acc_lowpass_lost
 from fusion._rest import REST_TAU_PROPERTY
 
@@ -81,7 +82,8 @@ cdef class Madgwick(AidedFilter):
         cdef double gm[4]
         cdef double u[4]
         cdef double af[3]
-        cdef double n2, k
+        cdef double n2, k, T
+        cdef double z[3]
         cdef int i
         cdef bint sat = gyr != NULL and saturated(gyr, self.gyro_range_)
         # a step the gyro did not measure (saturated, dropped, or a gap) leaves an attitude
@@ -92,9 +94,10 @@ cdef class Madgwick(AidedFilter):
         if not mag_accepted(self, q, mag, gyr, dt):
             mag = NULL
         if self.rest.time > 0.0 and rest_now(self, gyr, acc, dt):
-            k = dt / (self.rest.tau + dt)
+            T = rest_rate(self.rest, gyr, dt, z)      # the rate measured, over the time T
+            k = T / (self.rest.tau + T)
             for i in range(3):
-                self.s.bw[i] += k * (gyr[i] - self.s.bw[i])
+                self.s.bw[i] += k * (z[i] - self.s.bw[i])
         acc = acc_input(self, gyr, sat, self.s.bw, acc, dt, af)
         if gyr != NULL:
             quat_propagate(q, gyr[0] - self.s.bw[0], gyr[1] - self.s.bw[1], gyr[2] - self.s.bw[2], dt)

@@ -11,6 +11,7 @@ from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._core import struct_fields, BIAS_MAX, RECOVERY
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST_PULL
 from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
+from fusion._rest cimport rest_rate
 from fusion._rest import REST_TAU_PROPERTY
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
                             up_in_body, cross3, half_angle_terms, quat_norm_factor, recovery_gain,
@@ -223,15 +224,17 @@ cdef const double* mahony_acc_lowpass(Mahony e, const double* eint, const double
 cdef void mahony_rest(Mahony e, double* eint, const double* gyr, const double* acc,
                       double dt) noexcept nogil:
     """Rest detection (fusion/_rest.pxd) on the raw samples and, at rest, the bias -ki eint
-    pulled toward the measured rate with the time constant rest_tau (first order; out of
-    line: the batch loop keeps its inlined step)."""
-    cdef double k
+    pulled toward the measured rate (rest_rate, over the time T it averages) with the time
+    constant rest_tau (first order; out of line: the batch loop keeps its inlined step)."""
+    cdef double k, T
+    cdef double z[3]
     cdef int i
     if not rest_now(e, gyr, acc, dt) or e.ki <= 0.0:
         return
-    k = dt / (e.rest.tau + dt)
+    T = rest_rate(e.rest, gyr, dt, z)
+    k = T / (e.rest.tau + T)
     for i in range(3):
-        eint[i] += k * (-gyr[i] / e.ki - eint[i])
+        eint[i] += k * (-z[i] / e.ki - eint[i])
 
 
 cdef inline void mahony_batch_step(Estimator e, double* q, void* s, const double* gyr,

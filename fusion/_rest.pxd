@@ -24,6 +24,9 @@ cdef class RestDetector:
     cdef double t                   # s at rest so far
     cdef double lp_time             # s since the low-passes' first sample, held at REST_TAU (the running-mean start)
     cdef bint started               # the low-passes have their first sample
+    cdef double gsum[3]             # the gyro samples times dt, summed over the still run before rest
+    cdef double gsum_t              # s: the time they span (at most time)
+    cdef bint first                 # this sample is the still run's first at rest (rest_rate)
     cdef long long n                # samples at rest since the reset (zero-rate updates and gated ones)
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
@@ -44,6 +47,9 @@ cdef inline void rest_clear(RestDetector r) noexcept nogil:
         r.acc0[i] = 0.0
         r.fgyr[i] = 0.0
         r.facc[i] = 0.0
+        r.gsum[i] = 0.0
+    r.gsum_t = 0.0
+    r.first = False
     r.t = 0.0
     r.lp_time = 0.0
     r.started = False
@@ -75,6 +81,23 @@ cdef inline bint rest_in_place(RestDetector r) noexcept nogil:
         drift_a += d * d
     return ((r.gyro_drift_tol <= 0.0 or drift_g <= r.gyro_drift_tol * r.gyro_drift_tol)
             and (r.acc_drift_tol <= 0.0 or drift_a <= r.acc_drift_tol * r.acc_drift_tol))
+
+
+cdef inline void rest_count(RestDetector r, bint still, const double* gyr, double dt) noexcept nogil:
+    """The still run's clock r.t, and its samples until it is at rest summed for rest_rate
+    (r.first: this sample is its first at rest): still, as only the run's length shows."""
+    cdef bint before = still and r.t < r.time
+    cdef int i
+    if still and r.t == 0.0:
+        for i in range(3):
+            r.gsum[i] = 0.0
+        r.gsum_t = 0.0
+    if before:
+        for i in range(3):
+            r.gsum[i] += gyr[i] * dt
+        r.gsum_t += dt
+    r.t = r.t + dt if still else 0.0
+    r.first = before and r.t >= r.time
 
 
 cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* acc,
@@ -128,11 +151,26 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
             r.acc0[i] = r.acc[i]
     elif still:
         still = rest_in_place(r)
-    r.t = r.t + dt if still else 0.0
+    rest_count(r, still, gyr, dt)
     if r.t < r.time:
         return False
     r.n += 1
     return True
+
+
+cdef inline double rest_rate(RestDetector r, const double* gyr, double dt, double* z) noexcept nogil:
+    """The rate the zero-rate update (or the bias pull) takes at rest (rest_detect True), into z;
+    returns the time it averages. On a still run's first sample at rest, the mean of the run's
+    samples so far (r.time s of them): they were still, as only now the run's length shows, and
+    a filter that took this sample alone would lose them; after it, the sample itself (dt)."""
+    cdef int i
+    if r.first:
+        for i in range(3):
+            z[i] = r.gsum[i] / r.gsum_t
+        return r.gsum_t
+    for i in range(3):
+        z[i] = gyr[i]
+    return dt
 
 
 cdef inline bint rest_gate_open(RestDetector r, const double* b, double v0, double v1,

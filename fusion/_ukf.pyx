@@ -7,7 +7,7 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
-from fusion._rest cimport rest_gate_open
+from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator
@@ -269,8 +269,9 @@ cdef class UKF(KalmanFilter):
                 P[j * 6 + i] = s
 
     cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil:
-        """At rest the gyro sample measures the bias (docs/estimators.md, "Rest"): z = gyr,
-        h = b, H = [0 I3] on the error (linear: no sigma points), the gain on the bias only,
+        """At rest the gyro measures the bias (docs/estimators.md, "Rest"): z = rest_rate (the
+        sample, or the still run's mean on its first sample at rest; r: the noise density over
+        the time it averages), h = b, H = [0 I3] on the error (linear: no sigma points), the gain on the bias only,
         K = [0; Pbb S⁻¹], S = Pbb + r I; P by the Joseph form: Ppp unchanged,
         Ppb (I - Kb)ᵀ, (I - Kb) Pbb (I - Kb)ᵀ + r Kb Kbᵀ."""
         cdef double S[9]
@@ -279,15 +280,16 @@ cdef class UKF(KalmanFilter):
         cdef double A[9]      # I - Kb
         cdef double T[18]     # rows of [Ppb; Pbb] times (I - Kb)ᵀ, 6x3
         cdef double y[3]
+        cdef double z[3]
         cdef double* P = self.s.P
-        cdef double r = self.rest.noise * self.rest.noise / dt
+        cdef double r = self.rest.noise * self.rest.noise / rest_rate(self.rest, gyr, dt, z)
         cdef double s
         cdef int i, j, k
         for i in range(3):
             for j in range(3):
                 S[i * 3 + j] = P[(3 + i) * 6 + 3 + j]
             S[i * 4] += r
-            y[i] = gyr[i] - self.s.b[i]
+            y[i] = z[i] - self.s.b[i]
         sym3_inverse(S, Si)
         for i in range(3):
             for j in range(3):

@@ -481,7 +481,8 @@ class RefMahony(RestAndMagCounts, RefEstimator):
             mag = None
         acc_lowpass_lost(self, gyr, sat, dt)
         if self.rest(gyr, acc, dt) and self.ki > 0:     # at rest: -ki eps toward the rate
-            self.eps = self.eps + dt / (self.rest_tau + dt) * (-gyr / self.ki - self.eps)
+            z, T = self.rest.rate(gyr, dt)
+            self.eps = self.eps + T / (self.rest_tau + T) * (-z / self.ki - self.eps)
         if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
             acc = acc_lowpass_step(self, gyr, -self.ki * self.eps, acc, dt)
         if gyr is not None:                                              # 1.
@@ -577,14 +578,28 @@ class RefRest:
         # a still run ends when a low-pass drifts from where it began (a turning point)
         if still and self.t == 0.0:
             self.lp0 = (lg.copy(), la.copy())
+            self.run = []               # the run's (gyr, dt) until it is at rest
         elif still:
             still = all(tol <= 0 or np.linalg.norm(lp - lp0) <= tol
                         for lp, lp0, tol in zip(self.lp, self.lp0, self.drift_tol))
+        before = still and self.t < self.time
+        if before:
+            self.run.append((gyr, dt))
         self.t = self.t + dt if still else 0.0
+        self.first = before and self.t >= self.time
         if self.t >= self.time:
             self.n += 1
             return True
         return False
+
+    def rate(self, gyr, dt):
+        """At rest: (the rate the zero-rate update takes, the time it averages): on a still
+        run's first sample at rest, the mean of the run's samples (dt-weighted), else the sample."""
+        if self.first:
+            g = np.array([x for x, _ in self.run])
+            w = np.array([d for _, d in self.run])
+            return (w[:, None] * g).sum(axis=0) / w.sum(), float(w.sum())
+        return gyr, dt
 
     def gate_open(self, b, var, gate, gate_time):
         """A Kalman filter's zero-rate update at rest goes ahead unless the still run is shorter
@@ -660,7 +675,8 @@ class RefEKF(RestAndMagCounts, RefEstimator):
                                                            self.rest_bias_gate, self.rest_gate_time):
             H = np.zeros((3, 7))
             H[:, 4:] = I3
-            self._update(gyr - self.b, H, self.rest_noise ** 2 / dt * I3, "bias")
+            z, T = self.rest.rate(gyr, dt)
+            self._update(z - self.b, H, self.rest_noise ** 2 / T * I3, "bias")
 
     def _correct(self, z, hfun, Rm, gain="full"):
         h, J = complex_step_jacobian(hfun, self.q)

@@ -80,7 +80,8 @@ class RefMadgwick(RefEstimator):
             mag = None
         acc_lowpass_lost(self, gyr, sat, dt)
         if self.rest(gyr, acc, dt):                     # at rest: the bias toward the rate
-            self.bw = self.bw + dt / (self.rest_tau + dt) * (gyr - self.bw)
+            z, T = self.rest.rate(gyr, dt)
+            self.bw = self.bw + T / (self.rest_tau + T) * (z - self.bw)
         if acc is not None and self.acc_lowpass > 0:                     # acc_lowpass
             acc = acc_lowpass_step(self, gyr, self.bw, acc, dt)
         if gyr is not None:                                              # 1.
@@ -277,10 +278,11 @@ class RefUKF(RestAndMagCounts, RefEstimator):
                                                            self.rest_gate_time):
             H = np.zeros((3, 6))
             H[:, 3:] = I3
-            Rm = self.rest_noise ** 2 / dt * I3
+            z, T = self.rest.rate(gyr, dt)
+            Rm = self.rest_noise ** 2 / T * I3
             K = np.zeros((6, 3))
             K[3:] = self.P[3:, 3:] @ np.linalg.inv(self.P[3:, 3:] + Rm)
-            self.b = self.b + K[3:] @ (gyr - self.b)
+            self.b = self.b + K[3:] @ (z - self.b)
             IKH = np.eye(6) - K @ H
             self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
         acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)

@@ -424,6 +424,29 @@ def test_rest_starts_with_the_running_mean():
     assert est.rest_samples == n - 1 - round(est.rest_time * FS) + 1
 
 
+@pytest.mark.parametrize("name", ["ekf", "ukf", "cf-ekf"])
+def test_the_first_zero_rate_update_takes_the_still_run(name):
+    """A still run is known to be rest only rest_time after it began; its first zero-rate
+    update measures the bias with the mean of the run's samples so far (the noise density over
+    that time), not with the one sample that ends the wait. Still from the first sample (the
+    run from sample 1, at rest from sample k = rest_time fs), a bias prior far wider than the
+    measurement's noise: the bias right after sample k is the mean of samples 1..k, where the
+    sample k alone is over 0.1 deg/s off it (a spike there, under every rest tolerance)."""
+    rng = np.random.default_rng(11)
+    n = int(2 * FS)
+    gyr = np.radians([0.3, -0.2, 0.1]) + rng.normal(0, 0.002, (n, 3))
+    acc = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.02, (n, 3))
+    est = fusion.make(name, FS, bias_init_std=0.5, rest_noise=1e-6)
+    k = round(est.rest_time * FS)
+    gyr[k] += np.radians([0.15, -0.15, 0.15])
+    for i in range(k + 1):
+        est.update(gyr[i], acc[i], dt=1 / FS)
+        assert est.rest_samples == (i == k)
+    run = gyr[1:k + 1].mean(axis=0)
+    assert np.abs(gyr[k] - run).max() > np.radians(0.1)
+    assert np.abs(est.bias - run).max() < np.radians(0.002), np.degrees([est.bias, run])
+
+
 @pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "mahony"])
 def test_rest_learns_the_whole_gyro_bias(name):
     """A still sensor with a constant gyro bias, 6-axis: the accelerometer sees only the

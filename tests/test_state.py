@@ -80,7 +80,7 @@ def test_copies_are_independent():
 
 def test_state_is_plain_data():
     s = fusion.make("cf-ekf", 100.0).state()
-    assert s["version"] == fusion._core.STATE_VERSION == 8 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 1
+    assert s["version"] == fusion._core.STATE_VERSION == 9 and s["estimator"] == "cf-ekf" and s["params"]["window"] == 1
 
     def plain(x):
         if isinstance(x, dict):
@@ -197,11 +197,12 @@ def test_a_state_of_the_previous_version_is_refused_by_its_version(name):
     message says which version this build reads. Version 5 states hold the accelerometer
     low-pass in the frame acc_qg, which version 6 dropped (the low-pass in the body frame);
     version 6 states lack the disturbance detector's field-direction test (version 7), version
-    7 states the rest detector's drift test and running-mean start (version 8)."""
-    for version in (3, 5, 6, 7):
+    7 states the rest detector's drift test and running-mean start (version 8), version 8
+    states the still run's sum that the first zero-rate update takes (version 9)."""
+    for version in (3, 5, 6, 7, 8):
         s = _state(name)
         s["version"] = version
         for load in (fusion.make(name, 100.0).load_state, fusion.Estimator.from_state):
             with pytest.raises(ValueError, match=rf"state version {version} was saved by an older build: "
-                                                 r"this build reads version 8 only .*est\.state\(\)"):
+                                                 r"this build reads version 9 only .*est\.state\(\)"):
                 load(s)
