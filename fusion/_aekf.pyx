@@ -78,6 +78,8 @@ cdef class AEKF(EKF):
         *EKF.PARAMS.values(),
         EKF.PARAMS["acc_update"].but(default="tilt"),
         EKF.PARAMS["bias_init_std"].but(default=0.02),
+        # the gate makes its slowest turn about the vertical worse (docs/accuracy.md, fifteenth pass)
+        EKF.PARAMS["rest_bias_gate"].but(default=0.0),
         Param("acc_norm_tol", 2.0, "m/s²", 0.0, None, "accelerometer rejected if | |a| - g | > this, a "
               "the sample the update takes (low-passed by acc_lowpass); g is 9.81 until the first rest, "
               "then the accelerometer's low-passed norm at rest (the paper's e_a1)", open_low=True),

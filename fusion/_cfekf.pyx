@@ -142,7 +142,9 @@ cdef class CFEKF(Estimator):
         GYRO_RANGE, MOTION_RATE,
         Param("bias_feedback", True, "", doc="the complementary filter integrates the averaged gyro "
               "minus the EKF's bias, which the EKF learns from the filter only while it is quiet"),
-        MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST, *MAGDIST)
+        MAG_UPDATE, ACC_LOWPASS.but(default=0.5), *REST,
+        # the gate does not help its slowest turn about the vertical (docs/accuracy.md, fifteenth pass)
+        _EKF.PARAMS["rest_bias_gate"].but(default=0.0), *MAGDIST)
     # the rest parameters and counts, read from the core's detector (fusion._rest)
     (rest_time, rest_gyro_tol, rest_acc_tol, rest_gyro_drift_tol, rest_acc_drift_tol, rest_noise, at_rest,
      rest_samples) = REST_PROPERTIES

@@ -616,7 +616,7 @@ class RefEKF(RestAndMagCounts, RefEstimator):
               "mag_update": "heading", "acc_lowpass": 1.0, "rest_time": 0.4,
               "rest_gyro_tol": math.radians(2.0), "rest_acc_tol": 0.5,
               "rest_gyro_drift_tol": math.radians(0.2),
-              "rest_acc_drift_tol": 0.1, "rest_noise": 1e-3, "rest_bias_gate": 0.0, "rest_gate_time": 2.0,
+              "rest_acc_drift_tol": 0.1, "rest_noise": 1e-3, "rest_bias_gate": 2.0, "rest_gate_time": 2.0,
               "acc_update": "vector", **MAGDIST_PARAMS}
 
     def _reset_state(self):

@@ -319,7 +319,8 @@ class RefCFEKF(RefEKF):
     PARAMS = {"gyro_noise": 0.01, "bias_noise": 1e-4, "q_init_std": 0.05, "bias_init_std": 0.02,
               "window": 1, "kp": 1.0, "ki": None, "mag_weight": 0.3, "cf_noise": 0.005, "gyro_range": None,
               "motion_rate": 1.0, "bias_feedback": True, "mag_update": "heading", "acc_lowpass": 0.5,
-              **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_") or k.startswith("magdist_")}}
+              **{k: v for k, v in RefEKF.PARAMS.items() if k.startswith("rest_") or k.startswith("magdist_")},
+              "rest_bias_gate": 0.0}
     LEARN_ACC_TOL, LEARN_ANGLE, LEARN_HOLD = 0.5, math.radians(2.0), 0.5     # bias_feedback
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
