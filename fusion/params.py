@@ -116,8 +116,9 @@ REST = (
           "zero-rate measurement's noise"),
     # a slow turn about the vertical passes every test above for a second or so; the filter's own
     # bias uncertainty tells it from rest. On at 2 since the first update takes the still run
-    # (fusion._rest.rest_rate), which made that turn worse and the gate's costs vanish
-    # (docs/accuracy.md, fourteenth and fifteenth passes); off in aekf and cf-ekf, which it hurts
+    # (fusion._rest.rest_rate), which made that turn worse without it; it delays a turn-on bias
+    # beyond it and costs a little under linear acceleration (docs/accuracy.md, fourteenth and
+    # fifteenth passes); off in aekf and cf-ekf, which it does not help
     Param("rest_bias_gate", 2.0, "1", 0.5, 100.0, "the zero-rate update waits while the gyro's "
           "0.5 s low-pass is more than this many bias standard deviations (plus "
           "rest_gyro_drift_tol) from the bias estimate on some axis (2: slow turns about the "
