@@ -34,7 +34,7 @@ cdef extern from "_ekfbank.h" nogil:
         EB_Q, EB_B, EB_P, EB_TUN, EB_RG, EB_RA, EB_RT, EB_RN, EB_RS, EB_MCUR, EB_MREF, EB_MCAND,
         EB_MTU, EB_MTC, EB_MTR, EB_MDIST, EB_MREJ, EB_MSET, EB_MDIRC, EB_MDIRS, EB_MTF, EB_LP, EB_LPS, EB_LPT,
         EB_INIT, EB_GN, EB_BN, EB_AN, EB_MN, EB_GR, EB_RTIME, EB_RGTOL, EB_RATOL, EB_RNOISE,
-        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_RFG, EB_RFA, EB_RGATE, EB_RGATET, EB_RGS, EB_RGST, EB_NFIELDS
+        EB_MTIME, EB_MNTOL, EB_MDTOL, EB_MNEW, EB_TAU, EB_FAST, EB_RG0, EB_RA0, EB_RLPT, EB_RGDTOL, EB_RADTOL, EB_RFG, EB_RFA, EB_RGATE, EB_RGATET, EB_RGS, EB_RGST, EB_RTAKEN, EB_NFIELDS
     int ekb_ix(int i, int j)
     size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g, const double* a,
                      const double* m, const double* h, double dt, double dtn)
@@ -76,6 +76,7 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
     _lane(d, cap, EB_RT, l)[0] = e.rest.t
     _lane(d, cap, EB_RLPT, l)[0] = e.rest.lp_time
     _lane(d, cap, EB_RGST, l)[0] = e.rest.gsum_t
+    _lane(d, cap, EB_RTAKEN, l)[0] = 1.0 if e.rest.taken else 0.0
     _lane(d, cap, EB_RN, l)[0] = <double>e.rest.n
     _lane(d, cap, EB_RS, l)[0] = 1.0 if e.rest.started else 0.0
     for i in range(2):
@@ -141,6 +142,7 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
     e.rest.t = _lane(d, cap, EB_RT, l)[0]
     e.rest.lp_time = _lane(d, cap, EB_RLPT, l)[0]
     e.rest.gsum_t = _lane(d, cap, EB_RGST, l)[0]
+    e.rest.taken = _lane(d, cap, EB_RTAKEN, l)[0] != 0.0
     e.rest.n = <long long>_lane(d, cap, EB_RN, l)[0]
     for i in range(2):
         e.magd.s.cur[i] = _lane(d, cap, EB_MCUR + i, l)[0]

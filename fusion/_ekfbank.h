@@ -52,7 +52,8 @@ enum {
     EB_RFG = 104, EB_RFA = 107,                 /* the still tests' samples: fgyr[3], facc[3] */
     EB_RGATE = 110, EB_RGATET = 111,            /* the zero-rate update's gate (rest_gate_open) */
     EB_RGS = 112, EB_RGST = 115,                /* the still run's gyro sum gsum[3], its time gsum_t */
-    EB_NFIELDS = 116
+    EB_RTAKEN = 116,                            /* an update has taken the sum (rest_rate) */
+    EB_NFIELDS = 117
 };
 
 /* P[i, j]'s index in the upper half (i, j < 7) */
@@ -618,7 +619,7 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         ekb_v lpt = EKB_LD(EB_RLPT) + dt, k, dg = ekb_bc(0.0), da = ekb_bc(0.0), gtol = EKB_LD(EB_RGTOL);
         ekb_v atol = EKB_LD(EB_RATOL), gdtol = EKB_LD(EB_RGDTOL), adtol = EKB_LD(EB_RADTOL);
         ekb_v rg[3], ra[3], t, dd, drift_g, drift_a, fg, fa, gs[3], gst;
-        ekb_m still = on, rest, start, raw, before, first;
+        ekb_m still = on, rest, start, raw, summing, pending, taken;
         ekb_v kf = dt / FUSION_REST_STILL_TAU;
         lpt = ekb_sel(lpt > FUSION_REST_TAU, ekb_bc(FUSION_REST_TAU), lpt);
         k = dt / (lpt + dt);
@@ -660,21 +661,22 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         }
         still = still & (start | (((gdtol <= 0.0) | (drift_g <= gdtol * gdtol))
                                   & ((adtol <= 0.0) | (drift_a <= adtol * adtol))));
-        /* the run's samples until it is at rest are summed (rest_rate): a start clears the sum */
-        before = on & still & (EKB_LD(EB_RT) < EKB_LD(EB_RTIME));
+        /* rest_count: the run's samples summed until an update takes them; a start clears them */
+        taken = (EKB_LD(EB_RTAKEN) != 0.0) & ~(on & start);
+        summing = on & still & ~taken;
         for (i = 0; i < 3; i++) {
             gs[i] = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGS + i));
-            gs[i] = ekb_sel(before, gs[i] + g[i] * dt, gs[i]);
+            gs[i] = ekb_sel(summing, gs[i] + g[i] * dt, gs[i]);
             EKB_ST(EB_RGS + i, gs[i]);
         }
         gst = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGST));
-        gst = ekb_sel(before, gst + dt, gst);
+        gst = ekb_sel(summing, gst + dt, gst);
         EKB_ST(EB_RGST, gst);
         t = ekb_sel(still, EKB_LD(EB_RT) + dt, ekb_bc(0.0));
         t = ekb_sel(on, t, EKB_LD(EB_RT));
         EKB_ST(EB_RT, t);
         rest = on & (t >= EKB_LD(EB_RTIME));
-        first = before & rest;
+        pending = summing & rest;
         if (ekb_any(rest)) {
             ekb_v gk = EKB_LD(EB_RGATE), lim;
             /* rest_gate_open: a short still run whose low-pass is far from the bias waits */
@@ -689,16 +691,18 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         }
         if (ekb_any(rest)) {
             ekb_v p2[49], q2[4], b2[3], z[3], rn = EKB_LD(EB_RNOISE);
-            /* rest_rate: the run's mean on its first sample at rest, over its time; else the sample */
-            ekb_v T = ekb_sel(first, gst, dt);
+            /* rest_rate: the run's mean over its time where its sum is pending; else the sample */
+            ekb_v T = ekb_sel(pending, gst, dt);
             for (i = 0; i < 3; i++)
-                z[i] = ekb_sel(first, gs[i] / T, g[i]);
+                z[i] = ekb_sel(pending, gs[i] / T, g[i]);
             memcpy(p2, p, sizeof p2);
             memcpy(q2, q, sizeof q2);
             memcpy(b2, b, sizeof b2);
             ekb_rest_update(p2, q2, b2, z, rn * rn / T);
             ekb_keep(rest, p, q, b, p2, q2, b2);
+            taken = taken | (pending & rest);
         }
+        EKB_ST(EB_RTAKEN, ekb_sel(taken, ekb_bc(1.0), ekb_bc(0.0)));
     }
     /* acc_lowpassed (started, not lost) where tau > 0, in the body frame as acc_gyro_lowpass:
      * lp <- R(dq)ᵀ lp + k (a - R(dq)ᵀ lp), dq = A's first column */

@@ -24,9 +24,10 @@ cdef class RestDetector:
     cdef double t                   # s at rest so far
     cdef double lp_time             # s since the low-passes' first sample, held at REST_TAU (the running-mean start)
     cdef bint started               # the low-passes have their first sample
-    cdef double gsum[3]             # the gyro samples times dt, summed over the still run before rest
-    cdef double gsum_t              # s: the time they span (at most time)
-    cdef bint first                 # this sample is the still run's first at rest (rest_rate)
+    cdef double gsum[3]             # the still run's gyro samples times dt, until an update takes them
+    cdef double gsum_t              # s: the time they span (from about time on, at rest)
+    cdef bint taken                 # an update has taken the run's sum (rest_rate)
+    cdef bint pending               # at rest, the sum not yet taken: the next update takes it
     cdef long long n                # samples at rest since the reset (zero-rate updates and gated ones)
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
@@ -49,7 +50,8 @@ cdef inline void rest_clear(RestDetector r) noexcept nogil:
         r.facc[i] = 0.0
         r.gsum[i] = 0.0
     r.gsum_t = 0.0
-    r.first = False
+    r.taken = False
+    r.pending = False
     r.t = 0.0
     r.lp_time = 0.0
     r.started = False
@@ -84,20 +86,23 @@ cdef inline bint rest_in_place(RestDetector r) noexcept nogil:
 
 
 cdef inline void rest_count(RestDetector r, bint still, const double* gyr, double dt) noexcept nogil:
-    """The still run's clock r.t, and its samples until it is at rest summed for rest_rate
-    (r.first: this sample is its first at rest): still, as only the run's length shows."""
-    cdef bint before = still and r.t < r.time
+    """The still run's clock r.t, and its samples summed until an update takes them
+    (rest_rate): still, as only the run's length shows. r.pending: at rest with the sum not yet
+    taken (the run's first sample at rest, or a later one while a gate holds the update)."""
+    cdef bint summing
     cdef int i
     if still and r.t == 0.0:
         for i in range(3):
             r.gsum[i] = 0.0
         r.gsum_t = 0.0
-    if before:
+        r.taken = False
+    summing = still and not r.taken
+    if summing:
         for i in range(3):
             r.gsum[i] += gyr[i] * dt
         r.gsum_t += dt
     r.t = r.t + dt if still else 0.0
-    r.first = before and r.t >= r.time
+    r.pending = summing and r.t >= r.time
 
 
 cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* acc,
@@ -159,12 +164,15 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
 
 
 cdef inline double rest_rate(RestDetector r, const double* gyr, double dt, double* z) noexcept nogil:
-    """The rate the zero-rate update (or the bias pull) takes at rest (rest_detect True), into z;
-    returns the time it averages. On a still run's first sample at rest, the mean of the run's
-    samples so far (r.time s of them): they were still, as only now the run's length shows, and
-    a filter that took this sample alone would lose them; after it, the sample itself (dt)."""
+    """The rate the zero-rate update (or the bias pull) takes at rest (rest_detect True, and a
+    gate's yes), into z; returns the time it averages. The run's first update takes the mean of
+    its samples so far (at least r.time s of them): they were still, as only the run's length
+    shows, and an update that took the one sample would lose them; after it, the sample
+    itself (dt)."""
     cdef int i
-    if r.first:
+    if r.pending:
+        r.pending = False
+        r.taken = True
         for i in range(3):
             z[i] = r.gsum[i] / r.gsum_t
         return r.gsum_t

@@ -29,6 +29,7 @@ cdef class RestDetector:
                 ("rest_gyr0", <double[:3]>self.gyr0, None), ("rest_acc0", <double[:3]>self.acc0, None),
                 ("rest_fgyr", <double[:3]>self.fgyr, None), ("rest_facc", <double[:3]>self.facc, None),
                 ("rest_gsum", <double[:3]>self.gsum, None), ("rest_gsum_t", <double[:1]>&self.gsum_t, TIMER),
+                ("rest_taken", <int[:1]><int*>&self.taken, FLAG),
                 ("t_rest", <double[:1]>&self.t, TIMER),
                 ("rest_lp_time", <double[:1]>&self.lp_time, TIMER),
                 ("rest_started", <int[:1]><int*>&self.started, FLAG),

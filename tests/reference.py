@@ -553,6 +553,7 @@ class RefRest:
         self.lp0 = None         # the low-passes where the still run began
         self.t = 0.0
         self.n = 0
+        self.taken = self.pending = False
 
     def __call__(self, gyr, acc, dt):
         if self.time <= 0:
@@ -578,24 +579,27 @@ class RefRest:
         # a still run ends when a low-pass drifts from where it began (a turning point)
         if still and self.t == 0.0:
             self.lp0 = (lg.copy(), la.copy())
-            self.run = []               # the run's (gyr, dt) until it is at rest
+            self.run = []               # the run's (gyr, dt) until an update takes them
+            self.taken = False
         elif still:
             still = all(tol <= 0 or np.linalg.norm(lp - lp0) <= tol
                         for lp, lp0, tol in zip(self.lp, self.lp0, self.drift_tol))
-        before = still and self.t < self.time
-        if before:
+        summing = still and not self.taken
+        if summing:
             self.run.append((gyr, dt))
         self.t = self.t + dt if still else 0.0
-        self.first = before and self.t >= self.time
+        self.pending = summing and self.t >= self.time
         if self.t >= self.time:
             self.n += 1
             return True
         return False
 
     def rate(self, gyr, dt):
-        """At rest: (the rate the zero-rate update takes, the time it averages): on a still
-        run's first sample at rest, the mean of the run's samples (dt-weighted), else the sample."""
-        if self.first:
+        """At rest, for the update made (after a gate's yes): (the rate it takes, the time it
+        averages): the run's first update takes the mean of its samples so far (dt-weighted),
+        a later one the sample."""
+        if self.pending:
+            self.pending, self.taken = False, True
             g = np.array([x for x, _ in self.run])
             w = np.array([d for _, d in self.run])
             return (w[:, None] * g).sum(axis=0) / w.sum(), float(w.sum())

@@ -525,7 +525,9 @@ def test_the_bias_gate_keeps_a_known_bias(name):
 def test_a_bias_beyond_the_gate_is_learned_after_rest_gate_time(name):
     """A turn-on bias of 1.9 deg/s about the vertical (under rest_gyro_tol, beyond the gate at
     2: 2 x bias_init_std 0.5 deg/s + 0.2 deg/s) on a still, level sensor: the gate holds the
-    zero-rate update until the still run is rest_gate_time long, then the bias is learned."""
+    zero-rate update until the still run is rest_gate_time long, then the run's first update
+    takes its 2 s of samples: the bias is learned at once (a first update of the one sample
+    left it about 0.7 deg/s off)."""
     n = int(6 * FS)
     rng = np.random.default_rng(9)
     bias = np.radians([0.2, -0.1, 1.9])
@@ -534,8 +536,9 @@ def test_a_bias_beyond_the_gate_is_learned_after_rest_gate_time(name):
     est = fusion.make(name, FS, rest_bias_gate=2.0)
     est.run(gyr[:int(2.0 * FS)], acc[:int(2.0 * FS)])
     assert est.at_rest and abs(est.bias[2]) < np.radians(0.1), np.degrees(est.bias)
-    est.run(gyr[int(2.0 * FS):int(2.2 * FS)], acc[int(2.0 * FS):int(2.2 * FS)])   # lifted at 2 s
-    assert abs(np.degrees(est.bias[2] - bias[2])) < 0.3, np.degrees(est.bias)
+    est.run(gyr[int(2.0 * FS):int(2.02 * FS)], acc[int(2.0 * FS):int(2.02 * FS)])   # lifted at 2 s
+    assert abs(np.degrees(est.bias[2] - bias[2])) < 0.05, np.degrees(est.bias)
+    est.run(gyr[int(2.02 * FS):int(2.2 * FS)], acc[int(2.02 * FS):int(2.2 * FS)])
     est.run(gyr[int(2.2 * FS):], acc[int(2.2 * FS):])
     assert abs(np.degrees(est.bias[2] - bias[2])) < 0.05, np.degrees(est.bias)
     est2 = fusion.make(name, FS, rest_bias_gate=2.0, rest_gate_time=1e4)    # the gate never lifted
