@@ -15,6 +15,7 @@ from cpython.ref cimport PyObject
 from libc.stdlib cimport malloc, calloc, free
 
 from fusion._ekf cimport EKF
+from fusion._rest cimport RestDetector
 from fusion._ekf import EKF as _EKF
 
 import numpy as np
@@ -52,6 +53,43 @@ cdef inline double* _lane(double* d, size_t cap, int f, size_t l) noexcept nogil
     return d + <size_t>f * cap + l
 
 
+cdef void _rest_to_lane(RestDetector r, double* d, size_t cap, size_t l) noexcept nogil:
+    """The rest detector's state into lane l."""
+    cdef int i
+    for i in range(3):
+        _lane(d, cap, EB_RG + i, l)[0] = r.gyr[i]
+        _lane(d, cap, EB_RA + i, l)[0] = r.acc[i]
+        _lane(d, cap, EB_RG0 + i, l)[0] = r.gyr0[i]
+        _lane(d, cap, EB_RA0 + i, l)[0] = r.acc0[i]
+        _lane(d, cap, EB_RFG + i, l)[0] = r.fgyr[i]
+        _lane(d, cap, EB_RFA + i, l)[0] = r.facc[i]
+        _lane(d, cap, EB_RGS + i, l)[0] = r.gsum[i]
+    _lane(d, cap, EB_RT, l)[0] = r.t
+    _lane(d, cap, EB_RLPT, l)[0] = r.lp_time
+    _lane(d, cap, EB_RGST, l)[0] = r.gsum_t
+    _lane(d, cap, EB_RTAKEN, l)[0] = 1.0 if r.taken else 0.0
+    _lane(d, cap, EB_RN, l)[0] = <double>r.n
+    _lane(d, cap, EB_RS, l)[0] = 1.0 if r.started else 0.0
+
+
+cdef void _lane_to_rest(double* d, size_t cap, size_t l, RestDetector r) noexcept nogil:
+    """Lane l's rest detector state (what the four-lane step changes) into r."""
+    cdef int i
+    for i in range(3):
+        r.gyr[i] = _lane(d, cap, EB_RG + i, l)[0]
+        r.acc[i] = _lane(d, cap, EB_RA + i, l)[0]
+        r.gyr0[i] = _lane(d, cap, EB_RG0 + i, l)[0]
+        r.acc0[i] = _lane(d, cap, EB_RA0 + i, l)[0]
+        r.fgyr[i] = _lane(d, cap, EB_RFG + i, l)[0]
+        r.facc[i] = _lane(d, cap, EB_RFA + i, l)[0]
+        r.gsum[i] = _lane(d, cap, EB_RGS + i, l)[0]
+    r.t = _lane(d, cap, EB_RT, l)[0]
+    r.lp_time = _lane(d, cap, EB_RLPT, l)[0]
+    r.gsum_t = _lane(d, cap, EB_RGST, l)[0]
+    r.taken = _lane(d, cap, EB_RTAKEN, l)[0] != 0.0
+    r.n = <long long>_lane(d, cap, EB_RN, l)[0]
+
+
 cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noexcept nogil:
     """Filter e's state (and with params its parameters) into lane l."""
     cdef int i, j
@@ -59,13 +97,6 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
         _lane(d, cap, EB_Q + i, l)[0] = e.q[i]
     for i in range(3):
         _lane(d, cap, EB_B + i, l)[0] = e.s.b[i]
-        _lane(d, cap, EB_RG + i, l)[0] = e.rest.gyr[i]
-        _lane(d, cap, EB_RA + i, l)[0] = e.rest.acc[i]
-        _lane(d, cap, EB_RG0 + i, l)[0] = e.rest.gyr0[i]
-        _lane(d, cap, EB_RA0 + i, l)[0] = e.rest.acc0[i]
-        _lane(d, cap, EB_RFG + i, l)[0] = e.rest.fgyr[i]
-        _lane(d, cap, EB_RFA + i, l)[0] = e.rest.facc[i]
-        _lane(d, cap, EB_RGS + i, l)[0] = e.rest.gsum[i]
         _lane(d, cap, EB_LP + i, l)[0] = e.acc_lp.lp[i]
         _lane(d, cap, EB_MDIRC + i, l)[0] = e.magd.s.dir_cur[i]
         _lane(d, cap, EB_MDIRS + i, l)[0] = e.magd.s.dir_slow[i]
@@ -73,12 +104,7 @@ cdef void _obj_to_lane(EKF e, double* d, size_t cap, size_t l, bint params) noex
         for j in range(i, 7):
             _lane(d, cap, EB_P + ekb_ix(i, j), l)[0] = e.s.P[7 * i + j]
     _lane(d, cap, EB_TUN, l)[0] = e.s.t_unmeasured
-    _lane(d, cap, EB_RT, l)[0] = e.rest.t
-    _lane(d, cap, EB_RLPT, l)[0] = e.rest.lp_time
-    _lane(d, cap, EB_RGST, l)[0] = e.rest.gsum_t
-    _lane(d, cap, EB_RTAKEN, l)[0] = 1.0 if e.rest.taken else 0.0
-    _lane(d, cap, EB_RN, l)[0] = <double>e.rest.n
-    _lane(d, cap, EB_RS, l)[0] = 1.0 if e.rest.started else 0.0
+    _rest_to_lane(e.rest, d, cap, l)
     for i in range(2):
         _lane(d, cap, EB_MCUR + i, l)[0] = e.magd.s.cur[i]
         _lane(d, cap, EB_MREF + i, l)[0] = e.magd.s.ref[i]
@@ -123,13 +149,6 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
         e.q[i] = _lane(d, cap, EB_Q + i, l)[0]
     for i in range(3):
         e.s.b[i] = _lane(d, cap, EB_B + i, l)[0]
-        e.rest.gyr[i] = _lane(d, cap, EB_RG + i, l)[0]
-        e.rest.acc[i] = _lane(d, cap, EB_RA + i, l)[0]
-        e.rest.gyr0[i] = _lane(d, cap, EB_RG0 + i, l)[0]
-        e.rest.acc0[i] = _lane(d, cap, EB_RA0 + i, l)[0]
-        e.rest.fgyr[i] = _lane(d, cap, EB_RFG + i, l)[0]
-        e.rest.facc[i] = _lane(d, cap, EB_RFA + i, l)[0]
-        e.rest.gsum[i] = _lane(d, cap, EB_RGS + i, l)[0]
         e.acc_lp.lp[i] = _lane(d, cap, EB_LP + i, l)[0]
         e.magd.s.dir_cur[i] = _lane(d, cap, EB_MDIRC + i, l)[0]
         e.magd.s.dir_slow[i] = _lane(d, cap, EB_MDIRS + i, l)[0]
@@ -139,11 +158,7 @@ cdef void _lane_to_obj(double* d, size_t cap, size_t l, EKF e) noexcept nogil:
             e.s.P[7 * i + j] = v
             e.s.P[7 * j + i] = v
     e.s.t_unmeasured = _lane(d, cap, EB_TUN, l)[0]
-    e.rest.t = _lane(d, cap, EB_RT, l)[0]
-    e.rest.lp_time = _lane(d, cap, EB_RLPT, l)[0]
-    e.rest.gsum_t = _lane(d, cap, EB_RGST, l)[0]
-    e.rest.taken = _lane(d, cap, EB_RTAKEN, l)[0] != 0.0
-    e.rest.n = <long long>_lane(d, cap, EB_RN, l)[0]
+    _lane_to_rest(d, cap, l, e.rest)
     for i in range(2):
         e.magd.s.cur[i] = _lane(d, cap, EB_MCUR + i, l)[0]
         e.magd.s.ref[i] = _lane(d, cap, EB_MREF + i, l)[0]
