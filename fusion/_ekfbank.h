@@ -618,8 +618,8 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
     if (ekb_any(on)) {
         ekb_v lpt = EKB_LD(EB_RLPT) + dt, k, dg = ekb_bc(0.0), da = ekb_bc(0.0), gtol = EKB_LD(EB_RGTOL);
         ekb_v atol = EKB_LD(EB_RATOL), gdtol = EKB_LD(EB_RGDTOL), adtol = EKB_LD(EB_RADTOL);
-        ekb_v rg[3], ra[3], t, dd, drift_g, drift_a, fg, fa, gs[3], gst;
-        ekb_m still = on, rest, start, raw, summing, pending, taken;
+        ekb_v rg[3], ra[3], t, dd, drift_g, drift_a, fg, fa, gs[3], gst = ekb_bc(0.0);
+        ekb_m still = on, rest, start, raw, summing = {0, 0, 0, 0}, pending, taken = {0, 0, 0, 0};
         ekb_v kf = dt / FUSION_REST_STILL_TAU;
         lpt = ekb_sel(lpt > FUSION_REST_TAU, ekb_bc(FUSION_REST_TAU), lpt);
         k = dt / (lpt + dt);
@@ -661,17 +661,20 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         }
         still = still & (start | (((gdtol <= 0.0) | (drift_g <= gdtol * gdtol))
                                   & ((adtol <= 0.0) | (drift_a <= adtol * adtol))));
-        /* rest_count: the run's samples summed until an update takes them; a start clears them */
-        taken = (EKB_LD(EB_RTAKEN) != 0.0) & ~(on & start);
-        summing = on & still & ~taken;
-        for (i = 0; i < 3; i++) {
-            gs[i] = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGS + i));
-            gs[i] = ekb_sel(summing, gs[i] + g[i] * dt, gs[i]);
-            EKB_ST(EB_RGS + i, gs[i]);
+        /* rest_count: the run's samples summed until an update takes them; a start clears them
+         * (nothing to do, and nothing loaded, while no lane is still) */
+        if (ekb_any(still)) {
+            taken = (EKB_LD(EB_RTAKEN) != 0.0) & ~(on & start);
+            summing = on & still & ~taken;
+            for (i = 0; i < 3; i++) {
+                gs[i] = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGS + i));
+                gs[i] = ekb_sel(summing, gs[i] + g[i] * dt, gs[i]);
+                EKB_ST(EB_RGS + i, gs[i]);
+            }
+            gst = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGST));
+            gst = ekb_sel(summing, gst + dt, gst);
+            EKB_ST(EB_RGST, gst);
         }
-        gst = ekb_sel(on & start, ekb_bc(0.0), EKB_LD(EB_RGST));
-        gst = ekb_sel(summing, gst + dt, gst);
-        EKB_ST(EB_RGST, gst);
         t = ekb_sel(still, EKB_LD(EB_RT) + dt, ekb_bc(0.0));
         t = ekb_sel(on, t, EKB_LD(EB_RT));
         EKB_ST(EB_RT, t);
@@ -702,7 +705,8 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
             ekb_keep(rest, p, q, b, p2, q2, b2);
             taken = taken | (pending & rest);
         }
-        EKB_ST(EB_RTAKEN, ekb_sel(taken, ekb_bc(1.0), ekb_bc(0.0)));
+        if (ekb_any(still))       /* a lane at rest is still */
+            EKB_ST(EB_RTAKEN, ekb_sel(taken, ekb_bc(1.0), ekb_bc(0.0)));
     }
     /* acc_lowpassed (started, not lost) where tau > 0, in the body frame as acc_gyro_lowpass:
      * lp <- R(dq)ᵀ lp + k (a - R(dq)ᵀ lp), dq = A's first column */
