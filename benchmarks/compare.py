@@ -19,6 +19,7 @@ import numpy as np
 import fusion
 from fusion import metrics
 from controllers.plots import new_figure   # the one figure helper, re-exported here
+from controllers.policy_io import save_figure as write_figure
 
 __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
            "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
@@ -220,10 +221,10 @@ def plot_errors(panels, path, title, t=None, fs=None):
 
 
 def save_figure(fig, path, dpi=110, rect=None):
-    """Lay ``fig`` out (tight, within ``rect`` if given) and write it as PNG to ``path`` (its
-    folder made); returns the path."""
+    """Lay ``fig`` out (tight, within ``rect`` if given) and write it to ``path`` whole or not
+    at all (controllers.policy_io.save_figure; its folder made); returns the path."""
     fig.tight_layout(**({} if rect is None else dict(rect=rect)))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    write_figure(fig, path, dpi=dpi)
     return path

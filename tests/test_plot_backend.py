@@ -39,3 +39,24 @@ print(matplotlib.get_backend())
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().lower() == "svg"
     assert (tmp_path / "e.png").stat().st_size > 1000 and (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_benchmark_figures_are_written_atomically(tmp_path, monkeypatch):
+    """benchmarks.compare.save_figure (accuracy.png, loso's chart, the estimator comparison's
+    figures): a save that fails halfway keeps the previous file whole, no temporary left."""
+    import matplotlib.figure
+    from benchmarks import compare
+    path = tmp_path / "fig.png"
+    fig = compare.new_figure()
+    fig.subplots().plot([0, 1], [0, 1])
+    compare.save_figure(fig, path)
+    before = path.read_bytes()
+    assert before.startswith(b"\x89PNG")
+
+    def broken(self, fname, *a, **k):
+        fname.write(b"partial") if hasattr(fname, "write") else Path(fname).write_bytes(b"partial")
+        raise OSError("disk full")
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", broken)
+    with pytest.raises(OSError, match="disk full"):
+        compare.save_figure(fig, path)
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["fig.png"]
