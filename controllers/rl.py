@@ -193,6 +193,7 @@ def make_vec_env(task, estimator, n_envs, seed, env_kwargs=None, monitor_dir=Non
     """``n_envs`` Monitor-wrapped environments in a ``SubprocVecEnv`` (or ``DummyVecEnv``;
     ``batched``: all in one process and one physics client, envs/vector.py);
     ``append``: the Monitor files are continued, not overwritten."""
+    require_import("controllers.rl.make_vec_env", "rl")
     from stable_baselines3.common.vec_env import DummyVecEnv
     if batched:
         import gymnasium as gym
