@@ -272,7 +272,7 @@ cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const dou
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
                    const double* acc, double dt) noexcept nogil:
     """Rest detection (fusion/_rest.pxd) and, at rest, the zero-rate update: the gyro measures
-    the bias, z = rest_rate (the sample, or the still run's mean on its first sample at rest),
+    the bias, z = rest_rate (the sample, or the still run's mean on its first update),
     h = b, H = [0 I3], the noise density over the time z averages, its gain on the bias only
     (docs/estimators.md, "Rest")."""
     cdef double U[21]    # P Hᵀ = P[:, 4:7]

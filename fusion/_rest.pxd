@@ -27,7 +27,6 @@ cdef class RestDetector:
     cdef double gsum[3]             # the still run's gyro samples times dt, until an update takes them
     cdef double gsum_t              # s: the time they span (from about time on, at rest)
     cdef bint taken                 # an update has taken the run's sum (rest_rate)
-    cdef bint pending               # at rest, the sum not yet taken: the next update takes it
     cdef long long n                # samples at rest since the reset (zero-rate updates and gated ones)
     # its state, as Estimator._state_fields: the holder's _state_fields adds it
     cdef list fields(self)
@@ -51,7 +50,6 @@ cdef inline void rest_clear(RestDetector r) noexcept nogil:
         r.gsum[i] = 0.0
     r.gsum_t = 0.0
     r.taken = False
-    r.pending = False
     r.t = 0.0
     r.lp_time = 0.0
     r.started = False
@@ -87,22 +85,18 @@ cdef inline bint rest_in_place(RestDetector r) noexcept nogil:
 
 cdef inline void rest_count(RestDetector r, bint still, const double* gyr, double dt) noexcept nogil:
     """The still run's clock r.t, and its samples summed until an update takes them
-    (rest_rate): still, as only the run's length shows. r.pending: at rest with the sum not yet
-    taken (the run's first sample at rest, or a later one while a gate holds the update)."""
-    cdef bint summing
+    (rest_rate): still, as only the run's length shows."""
     cdef int i
     if still and r.t == 0.0:
         for i in range(3):
             r.gsum[i] = 0.0
         r.gsum_t = 0.0
         r.taken = False
-    summing = still and not r.taken
-    if summing:
+    if still and not r.taken:
         for i in range(3):
             r.gsum[i] += gyr[i] * dt
         r.gsum_t += dt
     r.t = r.t + dt if still else 0.0
-    r.pending = summing and r.t >= r.time
 
 
 cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* acc,
@@ -168,10 +162,9 @@ cdef inline double rest_rate(RestDetector r, const double* gyr, double dt, doubl
     gate's yes), into z; returns the time it averages. The run's first update takes the mean of
     its samples so far (at least r.time s of them): they were still, as only the run's length
     shows, and an update that took the one sample would lose them; after it, the sample
-    itself (dt)."""
+    itself (dt). (At rest the sample is still, so the sum holds it until taken.)"""
     cdef int i
-    if r.pending:
-        r.pending = False
+    if not r.taken:
         r.taken = True
         for i in range(3):
             z[i] = r.gsum[i] / r.gsum_t

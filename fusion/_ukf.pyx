@@ -270,9 +270,9 @@ cdef class UKF(KalmanFilter):
 
     cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil:
         """At rest the gyro measures the bias (docs/estimators.md, "Rest"): z = rest_rate (the
-        sample, or the still run's mean on its first sample at rest; r: the noise density over
-        the time it averages), h = b, H = [0 I3] on the error (linear: no sigma points), the gain on the bias only,
-        K = [0; Pbb S⁻¹], S = Pbb + r I; P by the Joseph form: Ppp unchanged,
+        sample, or the still run's mean on its first update; r: the noise density over the time
+        it averages), h = b, H = [0 I3] on the error (linear: no sigma points), the gain on the
+        bias only, K = [0; Pbb S⁻¹], S = Pbb + r I; P by the Joseph form: Ppp unchanged,
         Ppb (I - Kb)ᵀ, (I - Kb) Pbb (I - Kb)ᵀ + r Kb Kbᵀ."""
         cdef double S[9]
         cdef double Si[9]

@@ -553,7 +553,7 @@ class RefRest:
         self.lp0 = None         # the low-passes where the still run began
         self.t = 0.0
         self.n = 0
-        self.taken = self.pending = False
+        self.taken = False
 
     def __call__(self, gyr, acc, dt):
         if self.time <= 0:
@@ -584,11 +584,9 @@ class RefRest:
         elif still:
             still = all(tol <= 0 or np.linalg.norm(lp - lp0) <= tol
                         for lp, lp0, tol in zip(self.lp, self.lp0, self.drift_tol))
-        summing = still and not self.taken
-        if summing:
+        if still and not self.taken:
             self.run.append((gyr, dt))
         self.t = self.t + dt if still else 0.0
-        self.pending = summing and self.t >= self.time
         if self.t >= self.time:
             self.n += 1
             return True
@@ -598,8 +596,8 @@ class RefRest:
         """At rest, for the update made (after a gate's yes): (the rate it takes, the time it
         averages): the run's first update takes the mean of its samples so far (dt-weighted),
         a later one the sample."""
-        if self.pending:
-            self.pending, self.taken = False, True
+        if not self.taken:
+            self.taken = True
             g = np.array([x for x, _ in self.run])
             w = np.array([d for _, d in self.run])
             return (w[:, None] * g).sum(axis=0) / w.sum(), float(w.sum())
