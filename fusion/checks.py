@@ -1,8 +1,8 @@
 """The one validator of numbers, integers, choices and flags given by users: fusion's
 estimators (through `fusion.Param`), the IMU model, the environments and the controllers.
 Each check returns the value in its canonical type or raises a ValueError that names the
-argument, says what is accepted and shows what was given. Also the check that a command's
-optional extra is installed (`require`)."""
+argument, says what is accepted and shows what was given. Also the checks that an optional
+extra is installed, for a command (`require`) and a library function (`require_import`)."""
 import importlib.util
 import math
 import numbers
