@@ -62,6 +62,13 @@ cdef inline void acc_gyro_lowpass(double tau, AccLowpass* s, const double* gyr,
     out[2] = lp[2]
 
 
+cdef inline bint acc_lowpass_settled(double tau, const AccLowpass* s) noexcept nogil:
+    """The low-pass has ended its running-mean start: started, tau or more since its first
+    sample. The Kalman filters' tilt variance grows back on the sample that settles it
+    (docs/estimators.md, "The start")."""
+    return tau > 0.0 and s.lp_started and s.lp_time >= tau
+
+
 cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:
     """True when the gyro did not measure this step's motion (no sample, a saturated one, or a
     gap of more than two nominal periods): the gyro frame is lost, and the low-pass restarts

@@ -10,7 +10,7 @@ from libc.string cimport memset
 
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
-from fusion._aided cimport mag_accepted, acc_input
+from fusion._aided cimport mag_accepted
 from fusion._core import check_fs, struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
@@ -171,7 +171,7 @@ cdef class AEKF(EKF):
         # that a shaken or fast-turning body's linear acceleration is averaged out before it
         # is tested (the raw samples of such a body fail the tests nearly all the time)
         raw = acc           # the reference's dip is learned from the raw samples
-        acc = acc_input(self, gyr, sat, self.s.b, acc, dt, af)
+        acc = self.acc_sample(gyr, sat, acc, dt, af)
         if self.rest.n > n_rest:
             # at rest the accelerometer's low-passed norm is this sensor's g (a scale error of
             # a few % would otherwise fail the norm test on every sample of a still sensor)

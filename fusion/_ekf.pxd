@@ -15,6 +15,9 @@ cdef class EKF(KalmanFilter):
     # the parts of _step, on this filter's state, for subclasses (aekf) and holders (cf-ekf's core)
     cdef void propagate(self, const double* gyr, double dt, bint sat) noexcept nogil
     cdef void predict(self, const double* gyr, double dt) noexcept nogil
+    # the accelerometer sample the update takes (acc_input, and the end of its low-pass's start)
+    cdef const double* acc_sample(self, const double* gyr, bint sat, const double* acc, double dt,
+                                  double* out) noexcept nogil
     cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil
     cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil
     cdef void rest_update(self, const double* gyr, const double* acc, double dt) noexcept nogil

@@ -5,7 +5,7 @@ Astro., 2023) (docs/estimators.md)."""
 import numpy as np
 from libc.string cimport memset
 
-from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._aided cimport rest_now, mag_accepted, acc_input, acc_settled
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -48,22 +48,39 @@ cdef inline void ekf_propagate(EKF e, double* q, EKFState* s, const double* gyr,
     if gyr != NULL:
         ekf_predict(e, q, s.b, s.P, gyr, dt)
     if v > 0.0:
-        ekf_inflate_attitude(q, s.P, v)
+        ekf_inflate_attitude(q, s.P, v, True)
 
 
-cdef inline void ekf_inflate_attitude(const double* q, double* P, double v) noexcept nogil:
-    """Add v (rad²) to the variance of the attitude angle about every body axis:
-    Pqq += (v / 4) Ξ(q) Ξ(q)ᵀ, the way the gyro noise enters in predict."""
+cdef inline void ekf_inflate_attitude(const double* q, double* P, double v,
+                                      bint heading) noexcept nogil:
+    """Add v (rad²) to the variance of the attitude angle about every body axis, the way the
+    gyro noise enters in predict: Pqq += (v / 4) Ξ(q) Ξ(q)ᵀ; heading False: about the two
+    horizontal axes only (the tilt), Pqq += (v / 4) Ξ(q) (I - h hᵀ) Ξ(q)ᵀ, h the body-frame
+    vertical, Ξ(q) h = [0, e_z] ⊗ q = u = (-q3, -q2, q1, q0)."""
     cdef double X[12]
+    cdef double u[4]
     cdef double s
     cdef int i, j
     xi_matrix(q, X)
+    u[0] = 0.0 if heading else -q[3]
+    u[1] = 0.0 if heading else -q[2]
+    u[2] = 0.0 if heading else q[1]
+    u[3] = 0.0 if heading else q[0]
     for i in range(4):
         for j in range(i, 4):
             s = P[i * 7 + j] + 0.25 * v * (X[i * 3] * X[j * 3] + X[i * 3 + 1] * X[j * 3 + 1]
-                                           + X[i * 3 + 2] * X[j * 3 + 2])
+                                           + X[i * 3 + 2] * X[j * 3 + 2] - u[i] * u[j])
             P[i * 7 + j] = s
             P[j * 7 + i] = s
+
+
+cdef inline void ekf_start_ended(EKF e, const double* q, double* P) noexcept nogil:
+    """The accelerometer's low-pass ends its running-mean start: the tilt's variance grows by
+    that of one mean over acc_lowpass, (acc_noise / g)² / acc_lowpass, which the filter took
+    as certain by fusing the growing mean sample by sample as if each were new
+    (docs/estimators.md, "The start")."""
+    cdef double sa = e.kalman.acc_noise / G0
+    ekf_inflate_attitude(q, P, sa * sa / e.acc_lowpass, False)
 
 
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
@@ -263,10 +280,17 @@ cdef inline bint ekf_mag_update(EKF e, double* q, double* b, double* P, const do
     return True
 
 
-cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* b,
-                                   const double* acc, double dt, double* out) noexcept nogil:
-    """acc_input (fusion/_aided.pxd) on the ekf's state, out of line."""
-    return acc_input(e, gyr, sat, b, acc, dt, out)
+cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const double* q,
+                                   EKFState* s, const double* acc, double dt,
+                                   double* out) noexcept nogil:
+    """acc_input (fusion/_aided.pxd) on the ekf's state, and where this sample ends the
+    low-pass's running-mean start, the tilt's variance grown back (ekf_start_ended); out of
+    line."""
+    cdef bint settled = acc_settled(e)
+    acc = acc_input(e, gyr, sat, s.b, acc, dt, out)
+    if not settled and acc_settled(e):
+        ekf_start_ended(e, q, s.P)
+    return acc
 
 
 cdef void ekf_rest(EKF e, double* q, EKFState* st, const double* gyr,
@@ -313,7 +337,7 @@ cdef inline void ekf_step(EKF e, double* q, EKFState* s, const double* gyr, cons
     if e.rest.time > 0.0:
         ekf_rest(e, q, s, gyr, acc, dt)
     if e.acc_lowpass > 0.0:
-        acc = acc_nav_lowpass(e, gyr, sat, s.b, acc, dt, af)
+        acc = acc_nav_lowpass(e, gyr, sat, q, s, acc, dt, af)
     if acc != NULL:     # one call site: the compiler inlines the update into the batch loop
         ekf_acc_update(e, q, s.b, s.P, acc, dt)
         unit = True
@@ -383,6 +407,10 @@ cdef class EKF(KalmanFilter):
 
     cdef void predict(self, const double* gyr, double dt) noexcept nogil:
         ekf_predict(self, self.q, self.s.b, self.s.P, gyr, dt)
+
+    cdef const double* acc_sample(self, const double* gyr, bint sat, const double* acc, double dt,
+                                  double* out) noexcept nogil:
+        return acc_nav_lowpass(self, gyr, sat, self.q, &self.s, acc, dt, out)
 
     cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil:
         ekf_acc_update(self, self.q, self.s.b, self.s.P, acc, dt)

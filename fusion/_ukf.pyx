@@ -6,7 +6,7 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._aided cimport rest_now, mag_accepted, acc_input, acc_settled
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -360,7 +360,7 @@ cdef class UKF(KalmanFilter):
         # the ekf's time update (EKF.propagate): unmeasured motion grows the attitude error
         # variance, here directly in rad² (the error p is the angle to first order); a sample
         # out of range is not a measurement: held as a dropped one (ekf_step)
-        cdef bint measured
+        cdef bint measured, settled
         cdef double af[3]
         cdef double v
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
@@ -376,7 +376,10 @@ cdef class UKF(KalmanFilter):
         if rest_now(self, gyr, acc, dt) and rest_gate_open(self.rest, self.s.b, self.s.P[21],
                                                            self.s.P[28], self.s.P[35]):
             self.zero_rate_update(gyr, dt)
+        settled = acc_settled(self)
         acc = acc_input(self, gyr, not measured and gyr != NULL, self.s.b, acc, dt, af)
+        if not settled and acc_settled(self):
+            self.start_ended()
         if acc != NULL:
             self._acc_correct(acc, dt)
         if mag_accepted(self, self.q, mag, gyr, dt):
@@ -384,6 +387,19 @@ cdef class UKF(KalmanFilter):
             self._mag_correct(mag, dt)
             self.heading_gain = False
         quat_normalise(self.q)
+
+    cdef void start_ended(self) noexcept nogil:
+        """The accelerometer's low-pass ends its running-mean start: the tilt's variance
+        grows by that of one mean over acc_lowpass, as the ekf's (ekf_start_ended):
+        P[:3, :3] += (acc_noise / g)² / acc_lowpass (I - h hᵀ), h the body-frame vertical."""
+        cdef double h[3]
+        cdef double sa = self.kalman.acc_noise / G0
+        cdef double v = sa * sa / self.acc_lowpass
+        cdef int i, j
+        up_in_body(self.q, h)
+        for i in range(3):
+            for j in range(3):
+                self.s.P[i * 6 + j] += v * ((1.0 if i == j else 0.0) - h[i] * h[j])
 
     cdef bint _bias(self, double* out) noexcept nogil:
         out[0], out[1], out[2] = self.s.b[0], self.s.b[1], self.s.b[2]

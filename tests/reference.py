@@ -415,10 +415,11 @@ def acc_lowpass_lost(est, gyr, sat, dt):
         est.acc_lp, est.acc_qg, est.acc_lp_time = None, IDENTITY.copy(), 0.0
 
 
-def acc_lowpass_step(est, gyr, b, acc, dt):
+def acc_lowpass_step(est, gyr, b, acc, dt, start_ended=None):
     """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
     (never corrected), turned back into the body frame; est.acc_lp None before the first.
-    For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples.
+    For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples;
+    start_ended() is called on the sample that ends them (the Kalman filters' tilt variance).
     The definition, VQF's frame form: the kernel (fusion/_acclp.pxd) holds the same filter in
     the body frame, and the kernel = reference tests check the two agree."""
     if gyr is not None and est.acc_lp is not None:
@@ -427,8 +428,11 @@ def acc_lowpass_step(est, gyr, b, acc, dt):
     if est.acc_lp is None:
         est.acc_lp, est.acc_lp_time = an, 0.0
     else:
+        settling = est.acc_lp_time < est.acc_lowpass
         est.acc_lp_time = min(est.acc_lp_time + dt, est.acc_lowpass)
         est.acc_lp = est.acc_lp + dt / (est.acc_lp_time + dt) * (an - est.acc_lp)
+        if settling and est.acc_lp_time >= est.acc_lowpass and start_ended is not None:
+            start_ended()
     return rotmat(est.acc_qg).T @ est.acc_lp
 
 
@@ -643,6 +647,14 @@ class RefEKF(RestAndMagCounts, RefEstimator):
             Xi = xi_matrix(self.q)
             self.P[:4, :4] += (v / 4) * (Xi @ Xi.T)
 
+    def _start_ended(self):
+        """The low-pass's running-mean start ends: the tilt's variance grows by one mean's,
+        v = (acc_noise / g)² / acc_lowpass, about the two horizontal axes:
+        Pqq += (v / 4) Xi (I - h hᵀ) Xiᵀ, h the body-frame vertical."""
+        Xi, h = xi_matrix(self.q), acc_model(self.q)
+        v = (self.acc_noise / G) ** 2 / self.acc_lowpass
+        self.P[:4, :4] += v / 4 * (Xi @ (I3 - np.outer(h, h)) @ Xi.T)
+
     @property
     def bias(self):
         return self.b.copy()
@@ -716,7 +728,7 @@ class RefEKF(RestAndMagCounts, RefEstimator):
         acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
         self._rest(gyr, acc, dt)                                         # rest
         if acc is not None and self.acc_lowpass > 0:                     # 2. (acc_lowpass)
-            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt, self._start_ended)
         if acc is not None:                                              # 2.
             Rm = (self.acc_noise / G) ** 2 / dt * I3
             self._correct(normalise(acc), acc_model, Rm, "tilt" if self.acc_update == "tilt" else "full")

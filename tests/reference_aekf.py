@@ -130,7 +130,7 @@ class RefAEKF(ref.RefEKF):
         raw = acc
         ref.acc_lowpass_lost(self, gyr, ref.is_saturated(gyr, self.gyro_range), dt)
         if acc is not None and self.acc_lowpass > 0:
-            acc = ref.acc_lowpass_step(self, gyr, self.b, acc, dt)
+            acc = ref.acc_lowpass_step(self, gyr, self.b, acc, dt, self._start_ended)
         # 2. the tests, against the readings the predicted attitude expects
         u = rotmat(self.q).T @ UP
         acc_rej = self._acc_test(acc, u, dt) if acc is not None else False

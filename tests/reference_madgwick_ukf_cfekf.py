@@ -211,6 +211,13 @@ class RefUKF(RestAndMagCounts, RefEstimator):
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
 
+    def _start_ended(self):
+        """As RefEKF's: the low-pass's start ends, the tilt's variance grows by one mean's:
+        P[:3, :3] += (acc_noise / g)² / acc_lowpass (I - h hᵀ), h the body-frame vertical
+        (the error is a body-frame angle)."""
+        h = rotmat(self.q)[2]
+        self.P[:3, :3] += (self.acc_noise / G) ** 2 / self.acc_lowpass * (I3 - np.outer(h, h))
+
     @property
     def bias(self):
         return self.b.copy()
@@ -287,7 +294,7 @@ class RefUKF(RestAndMagCounts, RefEstimator):
             self.P = IKH @ self.P @ IKH.T + K @ Rm @ K.T
         acc_lowpass_lost(self, gyr, is_saturated(gyr, self.gyro_range), dt)
         if acc is not None and self.acc_lowpass > 0:
-            acc = acc_lowpass_step(self, gyr, self.b, acc, dt)
+            acc = acc_lowpass_step(self, gyr, self.b, acc, dt, self._start_ended)
         if acc is not None:
             self._correct(normalise(acc), acc_model_rows, (self.acc_noise / G) ** 2 / dt * I3)
         if mag is not None and self.magd(self.q, mag, gyr, dt):

@@ -251,6 +251,40 @@ def test_acc_lowpass_is_a_kalman_filter_option():
                 fusion.make(name, FS, acc_lowpass=bad)
 
 
+@pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "ukf"])
+def test_start_end_grows_the_tilt_variance(name):
+    """docs/estimators.md, "The start": on the sample that ends the low-pass's running-mean
+    start the tilt variance (about the two horizontal axes) grows by one mean's,
+    (acc_noise / g)² / acc_lowpass, and the heading's does not. A level body at rest, the
+    angle covariance before and after that sample (the update that follows takes well under
+    5 % of it back: its noise, acc_noise² / dt, is far above the variance)."""
+    tau, acc_noise = 0.5, 0.8
+    est = fusion.make(name, FS, acc_lowpass=tau, acc_noise=acc_noise, rest_time=0.0)
+    est.reset([1.0, 0.0, 0.0, 0.0])
+    v = (acc_noise / 9.81) ** 2 / tau
+    rng = np.random.default_rng(4)
+
+    def angle_cov():
+        P = est.covariance
+        if name == "ukf":
+            return P[:3, :3]
+        Xi = ref.xi_matrix(est.quaternion)
+        return 4 * Xi.T @ P[:4, :4] @ Xi
+
+    jumps = []
+    for i in range(int(2 * tau * FS)):
+        before = angle_cov()
+        est.run(rng.normal(0, 1e-3, (1, 3)), np.array([[0.0, 0.0, 9.81]]) + rng.normal(0, 0.02, (1, 3)))
+        d = angle_cov() - before
+        jumps.append((d[0, 0], d[1, 1], d[2, 2]))
+    jumps = np.array(jumps)
+    k = int(np.argmax(jumps[:, 0]))
+    assert k == round(tau * FS), k                          # the sample with lp_time = tau
+    assert 0.95 * v < jumps[k, 0] < 1.001 * v and 0.95 * v < jumps[k, 1] < 1.001 * v, (jumps[k], v)
+    assert abs(jumps[k, 2]) < 1e-3 * v, jumps[k]            # heading untouched
+    assert (np.delete(jumps[:, :2], k, axis=0) < 0.01 * v).all()    # once
+
+
 @pytest.mark.parametrize("motion_rate", [1.0, 30.0])       # 30: the pi² cap is reached
 def test_recovery_inflation(data, motion_rate):
     """docs/robustness.md, "Recovery": saturated samples (gyro_range), a run of dropped
