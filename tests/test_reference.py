@@ -272,7 +272,7 @@ def test_start_end_grows_the_tilt_variance(name):
         return 4 * Xi.T @ P[:4, :4] @ Xi
 
     jumps = []
-    for i in range(int(2 * tau * FS)):
+    for _ in range(int(2 * tau * FS)):
         before = angle_cov()
         est.run(rng.normal(0, 1e-3, (1, 3)), np.array([[0.0, 0.0, 9.81]]) + rng.normal(0, 0.02, (1, 3)))
         d = angle_cov() - before
