@@ -62,11 +62,12 @@ cdef inline void acc_gyro_lowpass(double tau, AccLowpass* s, const double* gyr,
     out[2] = lp[2]
 
 
-cdef inline bint acc_lowpass_settled(double tau, const AccLowpass* s) noexcept nogil:
-    """The low-pass has ended its running-mean start: started, tau or more since its first
-    sample. The Kalman filters' tilt variance grows back on the sample that settles it
-    (docs/estimators.md, "The start")."""
-    return tau > 0.0 and s.lp_started and s.lp_time >= tau
+cdef inline bint acc_lowpass_settles(double tau, const AccLowpass* s, double t0) noexcept nogil:
+    """This sample ended the low-pass's running-mean start: its lp_time was t0 (< tau) before
+    the sample and is tau now (a restart, where the gyro frame is lost, sets it to 0; tau 0:
+    never). The Kalman filters' tilt variance grows back then (docs/estimators.md, "The
+    start")."""
+    return t0 < tau <= s.lp_time
 
 
 cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:

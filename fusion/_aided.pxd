@@ -7,7 +7,7 @@
 from fusion._core cimport Estimator
 from fusion._rest cimport RestDetector, rest_detect
 from fusion._magdist cimport MagDetector, magd_check
-from fusion._acclp cimport AccLowpass, acc_lowpassed, acc_lowpass_settled
+from fusion._acclp cimport AccLowpass, acc_lowpassed
 
 cdef class AidedFilter(Estimator):
     cdef readonly RestDetector rest   # rest detection (fusion/_rest.pxd), time 0: off
@@ -38,8 +38,3 @@ cdef inline const double* acc_input(AidedFilter e, const double* gyr, bint sat, 
     estimate; sat: the gyro sample is saturated)."""
     return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
 
-cdef inline bint acc_settled(AidedFilter e) noexcept nogil:
-    """e's low-pass has ended its running-mean start (acc_lowpass_settled): not before
-    acc_input and so after it, when this sample ends the start (a restart, where the gyro
-    frame is lost, never does)."""
-    return acc_lowpass_settled(e.acc_lowpass, &e.acc_lp)

@@ -5,7 +5,8 @@ Astro., 2023) (docs/estimators.md)."""
 import numpy as np
 from libc.string cimport memset
 
-from fusion._aided cimport rest_now, mag_accepted, acc_input, acc_settled
+from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._acclp cimport acc_lowpass_settles
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -286,9 +287,9 @@ cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const dou
     """acc_input (fusion/_aided.pxd) on the ekf's state, and where this sample ends the
     low-pass's running-mean start, the tilt's variance grown back (ekf_start_ended); out of
     line."""
-    cdef bint settled = acc_settled(e)
+    cdef double t0 = e.acc_lp.lp_time
     acc = acc_input(e, gyr, sat, s.b, acc, dt, out)
-    if not settled and acc_settled(e):
+    if acc_lowpass_settles(e.acc_lowpass, &e.acc_lp, t0):
         ekf_start_ended(e, q, s.P)
     return acc
 

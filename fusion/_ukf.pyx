@@ -6,7 +6,8 @@ import numpy as np
 from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
-from fusion._aided cimport rest_now, mag_accepted, acc_input, acc_settled
+from fusion._aided cimport rest_now, mag_accepted, acc_input
+from fusion._acclp cimport acc_lowpass_settles
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -360,7 +361,8 @@ cdef class UKF(KalmanFilter):
         # the ekf's time update (EKF.propagate): unmeasured motion grows the attitude error
         # variance, here directly in rad² (the error p is the angle to first order); a sample
         # out of range is not a measurement: held as a dropped one (ekf_step)
-        cdef bint measured, settled
+        cdef bint measured
+        cdef double t0
         cdef double af[3]
         cdef double v
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
@@ -376,9 +378,9 @@ cdef class UKF(KalmanFilter):
         if rest_now(self, gyr, acc, dt) and rest_gate_open(self.rest, self.s.b, self.s.P[21],
                                                            self.s.P[28], self.s.P[35]):
             self.zero_rate_update(gyr, dt)
-        settled = acc_settled(self)
+        t0 = self.acc_lp.lp_time
         acc = acc_input(self, gyr, not measured and gyr != NULL, self.s.b, acc, dt, af)
-        if not settled and acc_settled(self):
+        if acc_lowpass_settles(self.acc_lowpass, &self.acc_lp, t0):
             self.start_ended()
         if acc != NULL:
             self._acc_correct(acc, dt)
