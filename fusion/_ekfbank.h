@@ -10,7 +10,8 @@
  * the pipeline, and the loads and stores are whole vectors.
  *
  * Only the usual sample runs here (ekfb_fast): initialised, every vector valid, the gyro
- * within its range, no time gap, the detectors and the low-pass started. The caller steps any
+ * within its range, no time gap, the detectors started and the low-pass settled (past its
+ * running-mean start, whose end grows the tilt variance: ekf_start_ended). The caller steps any
  * other lane through its estimator object (the scalar kernel itself) and copies its state back.
  * Branches become masks: the zero-rate update at rest runs when a lane of the block is at rest
  * and is kept in those lanes only; the magnetometer update likewise where the disturbance
