@@ -10,8 +10,8 @@
  * the pipeline, and the loads and stores are whole vectors.
  *
  * Only the usual sample runs here (ekfb_fast): initialised, every vector valid, the gyro
- * within its range, no time gap, the detectors started and the low-pass settled (past its
- * running-mean start, whose end grows the tilt variance: ekf_start_ended). The caller steps any
+ * within its range, no time gap, the detectors and the low-pass started, and not the sample
+ * that ends the low-pass's running-mean start (its tilt variance: ekf_start_ended). The caller steps any
  * other lane through its estimator object (the scalar kernel itself) and copies its state back.
  * Branches become masks: the zero-rate update at rest runs when a lane of the block is at rest
  * and is kept in those lanes only; the magnetometer update likewise where the disturbance
@@ -581,9 +581,12 @@ static inline size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g,
                /* no gap: no unmeasured time, the low-pass's gyro frame kept */
                && !(hl > 1.5 * dtn)
                && (EKB_S(EB_RTIME) <= 0.0 || EKB_S(EB_RS) != 0.0)
-               /* the low-pass settled: its start, and the tilt variance its end adds
-                * (ekf_start_ended), run in the scalar kernel */
-               && (EKB_S(EB_TAU) <= 0.0 || (EKB_S(EB_LPS) != 0.0 && EKB_S(EB_LPT) >= EKB_S(EB_TAU)))
+               /* the low-pass started, and this sample does not end its running-mean start
+                * (acc_lowpass_settles; the tilt variance that adds, ekf_start_ended, runs in
+                * the scalar kernel) */
+               && (EKB_S(EB_TAU) <= 0.0 || (EKB_S(EB_LPS) != 0.0
+                                            && !(EKB_S(EB_LPT) < EKB_S(EB_TAU)
+                                                 && EKB_S(EB_LPT) + hl >= EKB_S(EB_TAU))))
                && (ml == NULL || EKB_S(EB_MTIME) <= 0.0 || EKB_S(EB_MSET) > 0.0);
         EKB_S(EB_FAST) = fast ? 1.0 : 0.0;
         slow += !fast;
@@ -711,12 +714,11 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         if (ekb_any(still))       /* a lane at rest is still */
             EKB_ST(EB_RTAKEN, ekb_sel(taken, ekb_bc(1.0), ekb_bc(0.0)));
     }
-    /* acc_lowpassed (settled, not lost) where tau > 0, in the body frame as acc_gyro_lowpass:
-     * lp <- R(dq)ᵀ lp + k (a - R(dq)ᵀ lp), dq = A's first column, k = dt / (tau + dt) (its
-     * lp_time held at tau) */
+    /* acc_lowpassed (started, not lost) where tau > 0, in the body frame as acc_gyro_lowpass:
+     * lp <- R(dq)ᵀ lp + k (a - R(dq)ᵀ lp), dq = A's first column */
     on = EKB_LD(EB_TAU) > 0.0;
     if (ekb_any(on)) {
-        ekb_v lp[3], t[3], k;
+        ekb_v lp[3], t[3], tau = EKB_LD(EB_TAU), lpt, k;
         ekb_v w, x, y, z;
         ekb_phi(g[0] - b[0], g[1] - b[1], g[2] - b[2], dt, A);
         w = A[0]; x = A[4]; y = A[8]; z = A[12];
@@ -725,12 +727,15 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         t[0] = (w*w + x*x - y*y - z*z) * lp[0] + 2.0 * (x*y + w*z) * lp[1] + 2.0 * (x*z - w*y) * lp[2];
         t[1] = 2.0 * (x*y - w*z) * lp[0] + (w*w - x*x + y*y - z*z) * lp[1] + 2.0 * (y*z + w*x) * lp[2];
         t[2] = 2.0 * (x*z + w*y) * lp[0] + 2.0 * (y*z - w*x) * lp[1] + (w*w - x*x - y*y + z*z) * lp[2];
-        k = dt / (EKB_LD(EB_TAU) + dt);
+        lpt = EKB_LD(EB_LPT) + dt;
+        lpt = ekb_sel(lpt > tau, tau, lpt);
+        k = dt / (lpt + dt);
         for (i = 0; i < 3; i++) {
             lp[i] = t[i] + k * (a[i] - t[i]);
             EKB_ST(EB_LP + i, ekb_sel(on, lp[i], EKB_LD(EB_LP + i)));
             a[i] = ekb_sel(on, lp[i], a[i]);
         }
+        EKB_ST(EB_LPT, ekb_sel(on, lpt, EKB_LD(EB_LPT)));
     }
     {
         ekb_v sa = EKB_LD(EB_AN) / 9.81;
