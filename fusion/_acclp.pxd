@@ -3,6 +3,7 @@
 # estimation with bias estimation and magnetic disturbance rejection", 2023); the ekf family,
 # mahony, madgwick and the ukf share it, each with its own AccLowpass (its state fields:
 # fusion._core.struct_fields(<AccLowpass[:1]>&..., ACC_LP_CHECKS, "acc_")).
+from libc.math cimport M_PI
 from fusion._qmath cimport half_angle_terms, rot_to_body
 
 
@@ -68,6 +69,15 @@ cdef inline bint acc_lowpass_settles(double tau, const AccLowpass* s, double t0)
     never). The Kalman filters' tilt variance grows back then (docs/estimators.md, "The
     start")."""
     return t0 < tau <= s.lp_time
+
+
+cdef inline double start_variance(double sa, double tau, double dt) noexcept nogil:
+    """The variance (rad² of tilt) of the running mean that ends the start on a sample of step
+    dt: sa² / (tau + dt), sa the accelerometer's noise density over g, the n samples of the
+    mean spanning lp_time + dt = tau + dt; at most π², an angle's (tau below one step: about
+    one sample's own variance, sa² / dt)."""
+    cdef double v = sa * sa / (tau + dt)
+    return v if v < M_PI * M_PI else M_PI * M_PI
 
 
 cdef inline bint acc_lowpass_lost(const double* gyr, bint sat, double dt, double dt_nominal) noexcept nogil:

@@ -37,4 +37,3 @@ cdef inline const double* acc_input(AidedFilter e, const double* gyr, bint sat, 
     """acc_lowpassed on e's low-pass: the accelerometer sample e corrects with (b: its bias
     estimate; sat: the gyro sample is saturated)."""
     return acc_lowpassed(e.acc_lowpass, &e.acc_lp, gyr, sat, b, acc, dt, e.dt_nominal, out)
-

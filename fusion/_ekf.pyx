@@ -6,7 +6,7 @@ import numpy as np
 from libc.string cimport memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
-from fusion._acclp cimport acc_lowpass_settles
+from fusion._acclp cimport acc_lowpass_settles, start_variance
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -75,13 +75,12 @@ cdef inline void ekf_inflate_attitude(const double* q, double* P, double v,
             P[j * 7 + i] = s
 
 
-cdef inline void ekf_start_ended(EKF e, const double* q, double* P) noexcept nogil:
-    """The accelerometer's low-pass ends its running-mean start: the tilt's variance grows by
-    that of one mean over acc_lowpass, (acc_noise / g)² / acc_lowpass, which the filter took
-    as certain by fusing the growing mean sample by sample as if each were new
+cdef inline void ekf_start_ended(EKF e, const double* q, double* P, double dt) noexcept nogil:
+    """The accelerometer's low-pass ends its running-mean start (dt: this sample's step): the
+    tilt's variance grows by that of the mean it ended with, start_variance, which the filter
+    took as certain by fusing the growing mean sample by sample as if each were new
     (docs/estimators.md, "The start")."""
-    cdef double sa = e.kalman.acc_noise / G0
-    ekf_inflate_attitude(q, P, sa * sa / e.acc_lowpass, False)
+    ekf_inflate_attitude(q, P, start_variance(e.kalman.acc_noise / G0, e.acc_lowpass, dt), False)
 
 
 cdef inline void ekf_predict(EKF e, double* q, const double* b, double* P, const double* gyr,
@@ -290,7 +289,7 @@ cdef const double* acc_nav_lowpass(EKF e, const double* gyr, bint sat, const dou
     cdef double t0 = e.acc_lp.lp_time
     acc = acc_input(e, gyr, sat, s.b, acc, dt, out)
     if acc_lowpass_settles(e.acc_lowpass, &e.acc_lp, t0):
-        ekf_start_ended(e, q, s.P)
+        ekf_start_ended(e, q, s.P, dt)
     return acc
 
 

@@ -15,6 +15,6 @@ cdef class UKF(KalmanFilter):
     cdef void correct(self, const double* X, const double* Z, const double* z,
                       double r) noexcept nogil
     cdef void zero_rate_update(self, const double* gyr, double dt) noexcept nogil
-    cdef void start_ended(self) noexcept nogil
+    cdef void start_ended(self, double dt) noexcept nogil
     cdef void _acc_correct(self, const double* acc, double dt) noexcept nogil
     cdef void _mag_correct(self, const double* mag, double dt) noexcept nogil

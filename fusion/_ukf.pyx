@@ -7,7 +7,7 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
 from fusion._aided cimport rest_now, mag_accepted, acc_input
-from fusion._acclp cimport acc_lowpass_settles
+from fusion._acclp cimport acc_lowpass_settles, start_variance
 from fusion._rest cimport rest_gate_open, rest_rate
 from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
@@ -381,7 +381,7 @@ cdef class UKF(KalmanFilter):
         t0 = self.acc_lp.lp_time
         acc = acc_input(self, gyr, not measured and gyr != NULL, self.s.b, acc, dt, af)
         if acc_lowpass_settles(self.acc_lowpass, &self.acc_lp, t0):
-            self.start_ended()
+            self.start_ended(dt)
         if acc != NULL:
             self._acc_correct(acc, dt)
         if mag_accepted(self, self.q, mag, gyr, dt):
@@ -390,13 +390,12 @@ cdef class UKF(KalmanFilter):
             self.heading_gain = False
         quat_normalise(self.q)
 
-    cdef void start_ended(self) noexcept nogil:
+    cdef void start_ended(self, double dt) noexcept nogil:
         """The accelerometer's low-pass ends its running-mean start: the tilt's variance
-        grows by that of one mean over acc_lowpass, as the ekf's (ekf_start_ended):
-        P[:3, :3] += (acc_noise / g)² / acc_lowpass (I - h hᵀ), h the body-frame vertical."""
+        grows by that of the mean it ended with, as the ekf's (ekf_start_ended):
+        P[:3, :3] += start_variance (I - h hᵀ), h the body-frame vertical."""
         cdef double h[3]
-        cdef double sa = self.kalman.acc_noise / G0
-        cdef double v = sa * sa / self.acc_lowpass
+        cdef double v = start_variance(self.kalman.acc_noise / G0, self.acc_lowpass, dt)
         cdef int i, j
         up_in_body(self.q, h)
         for i in range(3):

@@ -419,7 +419,7 @@ def acc_lowpass_step(est, gyr, b, acc, dt, start_ended=None):
     """acc_lowpass: acc low-passed in the frame est.acc_qg that turns with gyr - b alone
     (never corrected), turned back into the body frame; est.acc_lp None before the first.
     For its first acc_lowpass seconds (est.acc_lp_time) the running mean of the samples;
-    start_ended() is called on the sample that ends them (the Kalman filters' tilt variance).
+    start_ended(dt) is called on the sample that ends them (the Kalman filters' tilt variance).
     The definition, VQF's frame form: the kernel (fusion/_acclp.pxd) holds the same filter in
     the body frame, and the kernel = reference tests check the two agree."""
     if gyr is not None and est.acc_lp is not None:
@@ -432,8 +432,14 @@ def acc_lowpass_step(est, gyr, b, acc, dt, start_ended=None):
         est.acc_lp_time = min(est.acc_lp_time + dt, est.acc_lowpass)
         est.acc_lp = est.acc_lp + dt / (est.acc_lp_time + dt) * (an - est.acc_lp)
         if settling and est.acc_lp_time >= est.acc_lowpass and start_ended is not None:
-            start_ended()
+            start_ended(dt)
     return rotmat(est.acc_qg).T @ est.acc_lp
+
+
+def start_variance(acc_noise, acc_lowpass, dt):
+    """The variance of the running mean the start ended with: its n samples at the noise
+    density acc_noise / g span acc_lowpass + dt; at most pi² (an angle's)."""
+    return min((acc_noise / G) ** 2 / (acc_lowpass + dt), math.pi ** 2)
 
 
 def make_magdist(est):
@@ -647,12 +653,12 @@ class RefEKF(RestAndMagCounts, RefEstimator):
             Xi = xi_matrix(self.q)
             self.P[:4, :4] += (v / 4) * (Xi @ Xi.T)
 
-    def _start_ended(self):
-        """The low-pass's running-mean start ends: the tilt's variance grows by one mean's,
-        v = (acc_noise / g)² / acc_lowpass, about the two horizontal axes:
-        Pqq += (v / 4) Xi (I - h hᵀ) Xiᵀ, h the body-frame vertical."""
+    def _start_ended(self, dt):
+        """The low-pass's running-mean start ends: the tilt's variance grows by start_variance
+        about the two horizontal axes: Pqq += (v / 4) Xi (I - h hᵀ) Xiᵀ, h the body-frame
+        vertical."""
         Xi, h = xi_matrix(self.q), acc_model(self.q)
-        v = (self.acc_noise / G) ** 2 / self.acc_lowpass
+        v = start_variance(self.acc_noise, self.acc_lowpass, dt)
         self.P[:4, :4] += v / 4 * (Xi @ (I3 - np.outer(h, h)) @ Xi.T)
 
     @property

@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from reference import (G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
+                       start_variance,
                        measured_gyr, RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian,
                        gyro_valid, unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi,
                        qconj, qmul, rotmat, vector_valid)
@@ -211,12 +212,11 @@ class RefUKF(RestAndMagCounts, RefEstimator):
         self.magd = make_magdist(self)
         self.acc_lp, self.acc_qg = None, np.array([1.0, 0.0, 0.0, 0.0])
 
-    def _start_ended(self):
-        """As RefEKF's: the low-pass's start ends, the tilt's variance grows by one mean's:
-        P[:3, :3] += (acc_noise / g)² / acc_lowpass (I - h hᵀ), h the body-frame vertical
-        (the error is a body-frame angle)."""
+    def _start_ended(self, dt):
+        """As RefEKF's: the low-pass's start ends, the tilt's variance grows by start_variance:
+        P[:3, :3] += v (I - h hᵀ), h the body-frame vertical (the error is a body-frame angle)."""
         h = rotmat(self.q)[2]
-        self.P[:3, :3] += (self.acc_noise / G) ** 2 / self.acc_lowpass * (I3 - np.outer(h, h))
+        self.P[:3, :3] += start_variance(self.acc_noise, self.acc_lowpass, dt) * (I3 - np.outer(h, h))
 
     @property
     def bias(self):

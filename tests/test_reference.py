@@ -251,38 +251,52 @@ def test_acc_lowpass_is_a_kalman_filter_option():
                 fusion.make(name, FS, acc_lowpass=bad)
 
 
+@pytest.mark.parametrize("tilt_deg", [0.0, 35.0])
 @pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "ukf"])
-def test_start_end_grows_the_tilt_variance(name):
+def test_start_end_grows_the_tilt_variance(name, tilt_deg):
     """docs/estimators.md, "The start": on the sample that ends the low-pass's running-mean
-    start the tilt variance (about the two horizontal axes) grows by one mean's,
-    (acc_noise / g)² / acc_lowpass, and the heading's does not. A level body at rest, the
-    angle covariance before and after that sample (the update that follows takes well under
-    5 % of it back: its noise, acc_noise² / dt, is far above the variance)."""
+    start the tilt variance (about the two horizontal axes) grows by the mean's,
+    (acc_noise / g)² / (acc_lowpass + dt), and the heading's does not. A body at rest, level or
+    tilted, the angle covariance (in the navigation frame) before and after that sample (the
+    update that follows takes well under 5 % of it back: its noise, acc_noise² / dt, is far
+    above the variance). And with acc_lowpass below one step and a large acc_noise the growth
+    stops at pi², an angle's."""
     tau, acc_noise = 0.5, 0.8
-    est = fusion.make(name, FS, acc_lowpass=tau, acc_noise=acc_noise, rest_time=0.0)
-    est.reset([1.0, 0.0, 0.0, 0.0])
-    v = (acc_noise / 9.81) ** 2 / tau
+    q0 = ref.normalise(np.array([math.cos(math.radians(tilt_deg) / 2), math.sin(math.radians(tilt_deg) / 2), 0.0, 0.0]))
+    g_body = ref.rotmat(q0).T @ np.array([0.0, 0.0, 9.81])
     rng = np.random.default_rng(4)
 
-    def angle_cov():
+    def angle_cov(est):
         P = est.covariance
         if name == "ukf":
-            return P[:3, :3]
-        Xi = ref.xi_matrix(est.quaternion)
-        return 4 * Xi.T @ P[:4, :4] @ Xi
+            S = P[:3, :3]
+        else:
+            Xi = ref.xi_matrix(est.quaternion)
+            S = 4 * Xi.T @ P[:4, :4] @ Xi
+        R = ref.rotmat(est.quaternion)              # body-frame angle -> navigation frame
+        return R @ S @ R.T
 
-    jumps = []
-    for _ in range(int(2 * tau * FS)):
-        before = angle_cov()
-        est.run(rng.normal(0, 1e-3, (1, 3)), np.array([[0.0, 0.0, 9.81]]) + rng.normal(0, 0.02, (1, 3)))
-        d = angle_cov() - before
-        jumps.append((d[0, 0], d[1, 1], d[2, 2]))
-    jumps = np.array(jumps)
-    k = int(np.argmax(jumps[:, 0]))
+    def jumps(est, n):
+        out = []
+        for _ in range(n):
+            before = angle_cov(est)
+            est.run(rng.normal(0, 1e-3, (1, 3)), g_body[None] + rng.normal(0, 0.02, (1, 3)))
+            d = angle_cov(est) - before
+            out.append((d[0, 0], d[1, 1], d[2, 2]))
+        return np.array(out)
+
+    est = fusion.make(name, FS, acc_lowpass=tau, acc_noise=acc_noise, rest_time=0.0)
+    est.reset(q0)
+    v = (acc_noise / 9.81) ** 2 / (tau + 1 / FS)
+    j = jumps(est, int(2 * tau * FS))
+    k = int(np.argmax(j[:, 0]))
     assert k == round(tau * FS), k                          # the sample with lp_time = tau
-    assert 0.95 * v < jumps[k, 0] < 1.001 * v and 0.95 * v < jumps[k, 1] < 1.001 * v, (jumps[k], v)
-    assert abs(jumps[k, 2]) < 1e-3 * v, jumps[k]            # heading untouched
-    assert (np.delete(jumps[:, :2], k, axis=0) < 0.01 * v).all()    # once
+    assert 0.95 * v < j[k, 0] < 1.001 * v and 0.95 * v < j[k, 1] < 1.001 * v, (j[k], v)
+    assert abs(j[k, 2]) < 2e-3 * v, j[k]                    # heading untouched
+    assert (np.delete(j[:, :2], k, axis=0) < 0.01 * v).all()    # once
+    big = fusion.make(name, FS, acc_lowpass=1e-3, acc_noise=50.0, rest_time=0.0)
+    big.reset(q0)
+    assert jumps(big, 3)[:, :2].max() <= math.pi ** 2 * (1 + 1e-9)
 
 
 @pytest.mark.parametrize("motion_rate", [1.0, 30.0])       # 30: the pi² cap is reached
