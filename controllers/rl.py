@@ -387,6 +387,7 @@ def clone_teacher(model, venv, teacher, steps, epochs=30, batch_size=256, action
     ``batch_size``) with the cloned actor as the policy (SAC's own critic loss), so that the
     first actor updates follow a critic that knows the clone. Returns the number of steps
     collected."""
+    require_import("controllers.rl.clone_teacher", "rl")
     import torch
     sac = hasattr(model, "replay_buffer")
     obs, acts, rews, dones = _collect_teacher(model, venv, teacher, steps, sac, progress)

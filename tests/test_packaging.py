@@ -236,7 +236,7 @@ def test_envs_without_gymnasium_names_the_extra():
 
 
 @pytest.mark.parametrize("call", ["load_policy('ppo-waypoints-ekf')", "train('ppo', 'waypoints', 'ekf', timesteps=8)",
-                                  "make_vec_env('track', 'ekf', 1, 0)"])
+                                  "make_vec_env('track', 'ekf', 1, 0)", "clone_teacher(None, None, None, 8)"])
 def test_the_rl_functions_without_torch_name_the_extra(call):
     """`import controllers.rl` stays light; its functions that need torch say which extra to install."""
     r = _without(["torch"], f"import controllers.rl as rl; rl.{call}")
