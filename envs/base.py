@@ -120,6 +120,34 @@ def _mag_zone_spec(mag_zones):
     return zs
 
 
+def parse_action(action: ArrayLike) -> tuple[float, float, bool]:
+    """(a0, a1, clipped): the action as two floats clipped to [-1, 1], and whether it was
+    clipped; ValueError if it is not 2 finite real numbers."""
+    if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind == "f":
+        a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
+    else:
+        try:
+            a = np.asarray(action)
+        except (TypeError, ValueError):
+            a = None
+        # real numbers only: a cast would drop a complex action's imaginary part and read
+        # True as 1.0 (and parse strings)
+        if a is None or a.dtype.kind not in "iuf":
+            raise ValueError(f"action must be 2 finite real numbers in [-1, 1] (float or int), "
+                             f"got {action!r}")
+        a = a.astype(np.float64)
+        if a.shape != (2,):
+            raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
+        a0, a1 = float(a[0]), float(a[1])
+    if not (math.isfinite(a0) and math.isfinite(a1)):
+        raise ValueError(f"action must be finite, got {action!r}")
+    if a0 > 1.0 or a0 < -1.0 or a1 > 1.0 or a1 < -1.0:
+        a0 = 1.0 if a0 > 1.0 else (-1.0 if a0 < -1.0 else a0)
+        a1 = 1.0 if a1 > 1.0 else (-1.0 if a1 < -1.0 else a1)
+        return a0, a1, True
+    return a0, a1, False
+
+
 class SphereRobotBase(gym.Env):
     """Pendulum-driven spherical robot, IMU and estimator in the loop: the physics, sensing
     and estimation common to the tasks. A task subclass sets ``task``, ``TASK_OBS`` (its
@@ -889,28 +917,9 @@ class SphereRobotBase(gym.Env):
 
     def _check_action(self, action):
         """The action as two floats in [-1, 1] (clipped, counted); ValueError if not 2 finite numbers."""
-        if type(action) is np.ndarray and action.shape == (2,) and action.dtype.kind == "f":
-            a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
-        else:
-            try:
-                a = np.asarray(action)
-            except (TypeError, ValueError):
-                a = None
-            # real numbers only: a cast would drop a complex action's imaginary part and read
-            # True as 1.0 (and parse strings)
-            if a is None or a.dtype.kind not in "iuf":
-                raise ValueError(f"action must be 2 finite real numbers in [-1, 1] (float or int), "
-                                 f"got {action!r}")
-            a = a.astype(np.float64)
-            if a.shape != (2,):
-                raise ValueError(f"action must have shape (2,) (drive voltage, steering), got shape {a.shape}")
-            a0, a1 = float(a[0]), float(a[1])
-        if not (math.isfinite(a0) and math.isfinite(a1)):
-            raise ValueError(f"action must be finite, got {action!r}")
-        if a0 > 1.0 or a0 < -1.0 or a1 > 1.0 or a1 < -1.0:
+        a0, a1, clipped = parse_action(action)
+        if clipped:
             self._clipped += 1
-            a0 = 1.0 if a0 > 1.0 else (-1.0 if a0 < -1.0 else a0)
-            a1 = 1.0 if a1 > 1.0 else (-1.0 if a1 < -1.0 else a1)
         return a0, a1
 
     def _encoder_counts(self):

@@ -36,17 +36,15 @@ about half of the time, profiled) is not shared by batching.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from envs.base import NEEDS_RESET, SphereRobotBase, parse_action
 from fusion.checks import integer
-
-if TYPE_CHECKING:
-    from envs.base import SphereRobotBase
 
 __all__ = ["SphereBotVectorEnv", "SB3VecEnv", "make_track_vec", "make_waypoints_vec"]
 
@@ -197,6 +195,15 @@ class SphereBotVectorEnv(VectorEnv):
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
         envs = self.envs
+        # every row is checked before any robot begins its step, so that a refused row leaves
+        # the others as they were (their clip counts, their step's sums)
+        for i, (e, a) in enumerate(zip(envs, actions, strict=True)):
+            if e._needs_reset:
+                raise RuntimeError(NEEDS_RESET)
+            try:
+                parse_action(a)
+            except ValueError as err:
+                raise ValueError(f"actions[{i}]: {err}") from None
         cmd = []
         for e, a in zip(envs, actions, strict=True):
             a0, a1 = e._begin_step(a)

@@ -150,3 +150,25 @@ def test_reset_takes_a_seed_per_robot():
                 assert w in str(e.value)
     finally:
         venv.close()
+
+
+def test_a_refused_row_leaves_every_robot_as_it_was():
+    """Every row of the actions is checked before any robot begins its step: a NaN in the
+    last row used to leave the robots before it with their step begun (a clipped action
+    counted twice when the step was taken again)."""
+    venv = gym.make_vec("SphereBotTrack-v1", num_envs=3, vectorization_mode="vector_entry_point",
+                        estimator="truth", episode_s=0.5)
+    try:
+        venv.reset(seed=0)
+        robots = venv.unwrapped.envs
+        bad = np.array([[2.0, 0.0], [0.0, 0.0], [np.nan, 0.0]])
+        with pytest.raises(ValueError, match=r"actions\[2\].*finite"):
+            venv.step(bad)
+        assert [r._clipped for r in robots] == [0, 0, 0]
+        with pytest.raises(ValueError, match=r"actions\[0\].*real numbers"):
+            venv.step(np.array([[0, 0], [1j, 0], [0, 0]]))
+        bad[2, 0] = 0.0
+        venv.step(bad)
+        assert [r._clipped for r in robots] == [1, 0, 0]
+    finally:
+        venv.close()
