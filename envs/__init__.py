@@ -28,11 +28,13 @@ _LAZY = {"SphereBotTrackEnv": "envs.track", "SphereBotWaypointsEnv": "envs.waypo
 ENV_IDS = ("SphereBotTrack-v1", "SphereBotWaypoints-v1", "SphereBotTrack-v0", "SphereBotWaypoints-v0")
 
 _TRACK, _WAYPOINTS = "envs.track:SphereBotTrackEnv", "envs.waypoints:SphereBotWaypointsEnv"
+# No max_episode_steps: each environment truncates its own episodes after episode_s (s), which a
+# TimeLimit of a fixed step count would override (episode_s or control_hz given to gym.make)
 _SPECS = {
-    "SphereBotTrack-v1": dict(entry_point=_TRACK, kwargs={}, max_episode_steps=1500),          # 30 s at 50 Hz
-    "SphereBotWaypoints-v1": dict(entry_point=_WAYPOINTS, kwargs={}, max_episode_steps=3000),  # 60 s at 50 Hz
-    "SphereBotTrack-v0": dict(entry_point=_TRACK, kwargs={"realism": "ideal"}, max_episode_steps=1500),
-    "SphereBotWaypoints-v0": dict(entry_point=_WAYPOINTS, kwargs={"realism": "ideal"}, max_episode_steps=3000),
+    "SphereBotTrack-v1": dict(entry_point=_TRACK, kwargs={}),
+    "SphereBotWaypoints-v1": dict(entry_point=_WAYPOINTS, kwargs={}),
+    "SphereBotTrack-v0": dict(entry_point=_TRACK, kwargs={"realism": "ideal"}),
+    "SphereBotWaypoints-v0": dict(entry_point=_WAYPOINTS, kwargs={"realism": "ideal"}),
 }
 # N robots in one process and one physics client (envs/vector.py): gymnasium.make_vec(id,
 # num_envs=N, vectorization_mode="vector_entry_point")

@@ -233,6 +233,8 @@ class SphereRobotBase(gym.Env):
         eps = self.default_episode_s if episode_s is None else episode_s
         self.episode_s = number("episode_s", eps, 0.0, 1e6, open_low=True)
         self.max_steps = max(1, int(round(self.episode_s * self.control_hz)))
+        # a recorded video plays at the control rate (one frame a step)
+        self.metadata = {**type(self).metadata, "render_fps": self.control_hz}
         self._check_world(imu_offset, bumps, bump_height, ramps, ramp_deg, ramp_height, n_mag_zones, earth_field)
         self.slippery_patches = integer("slippery_patches", slippery_patches, 0, 1000)
         self.patch_friction = number("patch_friction", patch_friction, 0.0, 1.0)

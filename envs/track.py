@@ -60,7 +60,7 @@ class SphereBotTrackEnv(SphereRobotBase):
 
     Terminated: out of the arena (``info["out_of_arena"]``) or stuck (true speed < 2 cm/s
     for 3 s while |drive| > 0.5, ``info["stuck"]``). Truncated: after ``episode_s``
-    (default 30 s; the registered ids: ``max_episode_steps=1500``).
+    (default 30 s = 1500 steps at 50 Hz; the registered ids set no step limit of their own).
 
     ## Arguments
 

@@ -59,7 +59,9 @@ class SphereBotVectorEnv(VectorEnv):
         num_envs = integer("num_envs", num_envs, 1, 1024)
         if kwargs.get("render_mode") is not None:
             raise ValueError("render_mode must be None for the batched vector environment")
-        kwargs.pop("max_episode_steps", None)       # the episode length is the env's episode_s
+        if kwargs.pop("max_episode_steps", None) is not None:
+            raise ValueError("max_episode_steps is not taken by the batched vector environment: "
+                             "the robots' episodes end after episode_s (s)")
         self.num_envs = num_envs
         self.envs = [env_cls(**kwargs) for _ in range(self.num_envs)]
         e0 = self.envs[0]

@@ -54,8 +54,8 @@ class SphereBotWaypointsEnv(SphereRobotBase):
     ## Episode end
 
     Terminated: all waypoints reached (``info["goal_reached"]``), out of the arena or stuck
-    (as the track task). Truncated: after ``episode_s`` (default 60 s; the registered ids:
-    ``max_episode_steps=3000``).
+    (as the track task). Truncated: after ``episode_s`` (default 60 s = 3000 steps at 50 Hz;
+    the registered ids set no step limit of their own).
 
     ## Arguments
 

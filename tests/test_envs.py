@@ -45,11 +45,33 @@ def ideal():
 def test_registered_ids_and_limits():
     for env_id, steps in (("SphereBotTrack-v1", 1500), ("SphereBotWaypoints-v1", 3000),
                           ("SphereBotTrack-v0", 1500), ("SphereBotWaypoints-v0", 3000)):
-        spec = gym.spec(env_id)
-        assert spec.max_episode_steps == steps
+        # no TimeLimit of a fixed step count: it overrode episode_s and control_hz (a 60 s
+        # episode was cut at 30 s)
+        assert gym.spec(env_id).max_episode_steps is None
+        env = gym.make(env_id, estimator="truth")
+        assert env.unwrapped.max_steps == steps
+        env.close()
     env = gym.make("SphereBotWaypoints-v0", estimator="mahony")
     assert env.unwrapped.task == "waypoints"
     env.close()
+
+
+def test_gym_make_truncates_after_episode_s():
+    """An episode made through gym.make ends after episode_s at control_hz, both given (the
+    registered step limit cut this one at 1500 steps, 30 s)."""
+    env = gym.make("SphereBotTrack-v0", estimator="truth", episode_s=15.5, control_hz=100.0)
+    try:
+        env.reset(seed=0)
+        for k in range(1, 1551):
+            _, _, term, trunc, _ = env.step(np.zeros(2))
+            assert not term
+            assert trunc == (k == 1550)
+    finally:
+        env.close()
+    assert env.metadata["render_fps"] == 100.0       # a recorded video plays in real time
+    with pytest.raises(ValueError, match="max_episode_steps"):
+        gym.make_vec("SphereBotTrack-v1", num_envs=2, vectorization_mode="vector_entry_point",
+                     max_episode_steps=5)
 
 
 def test_import_creates_no_physics_client():
