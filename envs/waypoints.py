@@ -49,7 +49,9 @@ class SphereBotWaypointsEnv(SphereRobotBase):
 
     As ``SphereBotTrackEnv``; the dead-reckoned position starts at the true start.
     ``n_waypoints`` waypoints, each 1.5-3.5 m from the previous in a random direction, kept
-    within 40 % of the arena size of the centre.
+    within 40 % of the arena size of the centre: a direction that leaves that square is turned,
+    in steps of 5 degrees either way, to the nearest one that stays in it (below an arena of
+    6.2 m, where no direction may, the step goes toward the farthest corner, as far as fits).
 
     ## Episode end
 
@@ -97,8 +99,7 @@ class SphereBotWaypointsEnv(SphereRobotBase):
         ang = rng.uniform(-math.pi, math.pi, size=self.n_waypoints)
         dist = rng.uniform(1.5, 3.5, size=self.n_waypoints)
         for a, d in zip(ang, dist, strict=True):
-            x = min(lim, max(-lim, x + d * math.cos(a)))
-            y = min(lim, max(-lim, y + d * math.sin(a)))
+            x, y = _step_within(x, y, a, d, lim)
             pts.append((x, y))
         self._waypoints = np.array(pts)
         self._wp_xy = pts       # the same, as floats: read every step (numpy's scalars are slower)
@@ -145,3 +146,19 @@ class SphereBotWaypointsEnv(SphereRobotBase):
 
     def _task_step_info(self, info, success):
         info["goal_reached"] = bool(success)
+
+
+def _step_within(x, y, a, d, lim):
+    """The point d from (x, y) in the direction nearest to a (turned 5 degrees at a time)
+    inside the square |x|, |y| <= lim; toward its farthest corner, as far as fits, if none.
+    (A clamp to the square put consecutive waypoints on the same corner: a reward for
+    reaching one point twice.)"""
+    for k in range(37):
+        for b in ((a,) if k == 0 else (a + math.radians(5 * k), a - math.radians(5 * k))):
+            nx, ny = x + d * math.cos(b), y + d * math.sin(b)
+            if -lim <= nx <= lim and -lim <= ny <= lim:
+                return nx, ny
+    cx, cy = (-lim if x > 0 else lim), (-lim if y > 0 else lim)
+    r = math.hypot(cx - x, cy - y)
+    f = min(d, r) / r
+    return x + f * (cx - x), y + f * (cy - y)
