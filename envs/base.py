@@ -501,9 +501,13 @@ class SphereRobotBase(gym.Env):
     # ------------------------------------------------------------------------------------
     # random draws of an episode (all from self.np_random, in a fixed order)
 
-    def _draw_layout(self):
+    def _draw_layout(self, start=None):
+        """(start_xy, start_yaw, bumps, ramps): the start drawn, or ``start`` (x, y) in its
+        place (drawn all the same, so that the rest of the layout is the same)."""
         rng = self.np_random
         start_xy = rng.uniform(-0.5, 0.5, size=2)
+        if start is not None:
+            start_xy = start
         start_yaw = float(rng.uniform(-math.pi, math.pi))
         half = 0.5 * self.arena_size
 
@@ -814,9 +818,10 @@ class SphereRobotBase(gym.Env):
         super().reset(seed=seed)
         if self._client is None:
             self._connect()
-        self._xy0, self._yaw0, bumps, ramps = self._draw_layout()
-        if options is not None:
-            self._apply_options(options)
+        start = self._checked_options(options)
+        # the bumps and ramps keep clear of the start used, the drawn one or the option's
+        self._xy0, self._yaw0, bumps, ramps = self._draw_layout(start.get("start_xy"))
+        self._yaw0 = start.get("start_yaw", self._yaw0)
         self._draw_task()
         if self._imu is None:
             self._imu = fimu.IMU(self.imu_spec, self.np_random, physics_rate_hz=self.physics_hz,
@@ -858,7 +863,11 @@ class SphereRobotBase(gym.Env):
         psi = self._heading_est()
         return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
 
-    def _apply_options(self, options):
+    def _checked_options(self, options):
+        """reset()'s options as {"start_xy": (2,) floats, "start_yaw": float}, each if given."""
+        out = {}
+        if options is None:
+            return out
         if not isinstance(options, Mapping):
             raise ValueError(f"options must be None or a dict with start_xy and/or start_yaw, got {options!r}")
         bad = sorted(map(str, set(options) - {"start_xy", "start_yaw"}))
@@ -873,9 +882,10 @@ class SphereRobotBase(gym.Env):
                     or np.any(np.abs(xy) > 0.5 * self.arena_size)):
                 raise ValueError(f"options['start_xy'] must be 2 real numbers (x, y) inside the arena "
                                  f"(|x|, |y| <= {0.5 * self.arena_size:g} m), got {options['start_xy']!r}")
-            self._xy0 = xy.astype(float)
+            out["start_xy"] = xy.astype(float)
         if "start_yaw" in options:
-            self._yaw0 = number("options['start_yaw']", options["start_yaw"])
+            out["start_yaw"] = number("options['start_yaw']", options["start_yaw"])
+        return out
 
     def step(self, action: ArrayLike) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._compiled_step and self.signal_log is None:

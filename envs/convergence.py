@@ -28,8 +28,8 @@ DURATION_S = 10.0
 class _Env(SphereBotTrackEnv):
     """The bumps (if any) across the path: 1.2 cm capsules at x = 1, 2, ... m."""
 
-    def _draw_layout(self):
-        xy, yaw, bumps, ramps = super()._draw_layout()
+    def _draw_layout(self, start=None):
+        xy, yaw, bumps, ramps = super()._draw_layout(start)
         return xy, yaw, [(1.0 + i, 0.0, 0.0) for i in range(len(bumps))], ramps
 
 

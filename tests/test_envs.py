@@ -155,6 +155,28 @@ def test_specific_force_from_velocity_differences(ideal):
     assert worst < 1e-9
 
 
+def test_obstacles_keep_clear_of_a_start_given_in_the_options():
+    """The bumps and ramps keep START_CLEARANCE from the start used: a start_xy option on an
+    obstacle drawn for the episode's own start used to start the robot inside the ramp (thrown
+    0.37 m up at 2 m/s)."""
+    import pybullet as p
+    env = SphereRobotEnv(estimator="truth", imu="ideal", bumps=3, ramps=3, arena_size=10.0)
+    try:
+        env.reset(seed=0)
+        centres = [p.getBasePositionAndOrientation(b, physicsClientId=env._client)[0][:2]
+                   for b in env._bodies[1:-1]]
+        assert centres
+        for xy in centres:
+            _, info = env.reset(seed=0, options={"start_xy": xy})
+            assert abs(info["position"][2] - env.robot.shell_radius) < 0.01
+            assert np.linalg.norm(info["velocity"]) < 0.05
+            for _ in range(25):
+                _, _, _, _, info = env.step([0.0, 0.0])
+            assert np.linalg.norm(info["velocity"]) < 0.05
+    finally:
+        env.close()
+
+
 def test_magnetometer_is_earth_field_in_body_frame_outside_zones():
     env = SphereRobotEnv(estimator="truth", imu="ideal", mag_zones=[(0.0, 0.0, 40.0)], realism="ideal")
     env.reset(seed=7, options={"start_xy": (0.0, 0.0)})
