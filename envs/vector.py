@@ -71,6 +71,7 @@ class SphereBotVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.OBS, self.task, self.control_hz, self.robot = e0.OBS, e0.task, e0.control_hz, e0.robot
         self._bank = None
+        self._last_obs = None           # the observations last returned (reset_mask)
         if e0._est is not None:
             # one bank steps every robot's estimator when all have a sample (the usual case);
             # each robot holds its bank filter, for its bias, counters, reset and lone updates
@@ -112,7 +113,20 @@ class SphereBotVectorEnv(VectorEnv):
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every robot. ``seed``: None (each robot draws its own), an integer s >= 0
         (robot i: s + i) or a list of ``num_envs`` seeds, each an integer >= 0 or None (as
-        gymnasium's SyncVectorEnv takes them)."""
+        gymnasium's SyncVectorEnv takes them). ``options["reset_mask"]`` (a bool array of
+        ``num_envs``, as SyncVectorEnv takes it): only those robots, the others' last
+        observations returned as they were; the other options go to every robot reset."""
+        mask = None
+        if options is not None and "reset_mask" in options:
+            options = dict(options)
+            mask = options.pop("reset_mask")
+            if (not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != (self.num_envs,)
+                    or not mask.any()):
+                raise ValueError(f"options['reset_mask'] must be a numpy bool array of shape ({self.num_envs},) "
+                                 f"with at least one True, got {mask!r}")
+            if self._last_obs is None:
+                raise ValueError("options['reset_mask'] needs a reset of every robot first")
+            options = options or None
         if isinstance(seed, (list, tuple)) or (isinstance(seed, np.ndarray) and seed.ndim == 1):
             if len(seed) != self.num_envs:
                 raise ValueError(f"seed must be None, an integer >= 0 or a list of num_envs = {self.num_envs} "
@@ -129,11 +143,18 @@ class SphereBotVectorEnv(VectorEnv):
         super().reset(seed=first)
         if self._client is None:
             self._connect()
+        index = list(range(self.num_envs)) if mask is None else [int(i) for i in np.flatnonzero(mask)]
+        out = self._reset_some(index, [seeds[i] for i in index], options)
+        if mask is None:
+            obs = np.empty((self.num_envs,) + self.single_observation_space.shape, dtype=np.float32)
+        else:
+            obs = self._last_obs.copy()
         infos = {}
-        out = self._reset_some(range(self.num_envs), seeds, options)
-        for i, (_, info) in enumerate(out):
+        for i, (o, info) in zip(index, out, strict=True):
+            obs[i] = o
             infos = self._add_info(infos, info, i)
-        return np.stack([o for o, _ in out]), infos
+        self._last_obs = obs.copy()
+        return obs, infos
 
     def _reset_some(self, index, seeds, options=None):
         """Reset the robots ``index`` (with ``seeds``): their settling runs together, and the
@@ -230,6 +251,7 @@ class SphereBotVectorEnv(VectorEnv):
                 info = {"final_obs": obs[i].copy(), "final_info": info, **fresh[i][1]}
                 obs[i] = fresh[i][0]
             infos = self._add_info(infos, info, i)
+        self._last_obs = obs.copy()
         return obs, rew, term, trunc, infos
 
     def close_extras(self, **kwargs: Any) -> None:

@@ -172,3 +172,29 @@ def test_a_refused_row_leaves_every_robot_as_it_was():
         assert [r._clipped for r in robots] == [1, 0, 0]
     finally:
         venv.close()
+
+
+def test_reset_mask_resets_those_robots_only():
+    """options["reset_mask"], as gymnasium's SyncVectorEnv takes it (it was refused as an
+    unknown option): the masked robots' new episodes are their single environments', the
+    others' last observations come back as they were."""
+    kw = dict(estimator="ekf", episode_s=2.0)
+    venv = gym.make_vec("SphereBotTrack-v1", num_envs=3, vectorization_mode="vector_entry_point", **kw)
+    try:
+        with pytest.raises(ValueError, match="every robot first"):
+            venv.reset(options={"reset_mask": np.array([True, False, False])})
+        venv.reset(seed=0)
+        for _ in range(3):
+            last = venv.step(np.full((3, 2), 0.5, dtype=np.float32))[0]
+        obs, info = venv.reset(seed=10, options={"reset_mask": np.array([False, True, False])})
+        np.testing.assert_array_equal(obs[[0, 2]], last[[0, 2]])
+        assert list(info["_position"]) == [False, True, False]      # infos of the reset robot only
+        single = gym.make("SphereBotTrack-v1", **kw)
+        np.testing.assert_array_equal(obs[1], single.reset(seed=11)[0])
+        single.close()
+        venv.step(np.zeros((3, 2), dtype=np.float32))
+        for bad in ([True, False, False], np.array([0, 1, 0]), np.array([False] * 3), np.array([True, False])):
+            with pytest.raises(ValueError, match="reset_mask"):
+                venv.reset(options={"reset_mask": bad})
+    finally:
+        venv.close()
