@@ -265,11 +265,11 @@ class SphereRobotBase(gym.Env):
                              f"{', '.join(self.metadata['render_modes'])}")
         self.render_mode = render_mode
         try:
-            rw, rh = (int(v) for v in render_size)
+            rw, rh = render_size
+            rw, rh = integer("render_size[0]", rw, 16, 4096), integer("render_size[1]", rh, 16, 4096)
         except (TypeError, ValueError):
-            rw = rh = 0
-        if not (16 <= rw <= 4096 and 16 <= rh <= 4096):
-            raise ValueError(f"render_size must be (width, height), each in [16, 4096], got {render_size!r}")
+            raise ValueError(f"render_size must be (width, height), two integers in [16, 4096], "
+                             f"got {render_size!r}") from None
         self.render_size = (rw, rh)
 
     def _check_rates(self, imu_hz, physics_hz, control_hz):
@@ -325,7 +325,12 @@ class SphereRobotBase(gym.Env):
                              f"({'; '.join(ESTIMATOR_OWNED[k] for k in owned)})")
         if estimator != "truth":
             # build once here so that bad parameters fail at construction
-            self._est = fusion.make(estimator, self.imu_hz, on_invalid="skip", **self._est_params)
+            try:
+                self._est = fusion.make(estimator, self.imu_hz, on_invalid="skip", **self._est_params)
+            except (TypeError, ValueError) as e:
+                if not self._est_params:
+                    raise
+                raise type(e)(f"estimator_params: {e}") from None
         else:
             if self._est_params:
                 raise ValueError("estimator_params must be empty for estimator='truth'")

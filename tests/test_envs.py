@@ -424,6 +424,10 @@ def test_close_disconnects():
     ({"render_mode": "ascii"}, ["rgb_array", "human"]),
     ({"mag_zones": [(0.0, 1.0)]}, ["mag_zones"]),
     ({"imu_offset": (0.0, 0.0, 0.5)}, ["imu_offset"]),
+    ({"render_size": (100.7, 50)}, ["render_size", "integers", "100.7"]),     # was: truncated to 100
+    ({"render_size": (320, 240, 3)}, ["render_size", "(width, height)"]),
+    # the estimator's own parameter errors name the argument they came in
+    ({"estimator": "ekf", "estimator_params": {"acc_noise": -1.0}}, ["estimator_params: acc_noise"]),
 ])
 def test_bad_arguments_raise_value_error(kw, words):
     with pytest.raises(ValueError) as e:
