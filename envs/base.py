@@ -120,6 +120,14 @@ def _mag_zone_spec(mag_zones):
     return zs
 
 
+def heading_of(w: float, x: float, y: float, z: float) -> float:
+    """The robot's heading (rad) of the attitude quaternion (w, x, y, z): the rolling direction,
+    perpendicular to the axle (body y) in the horizontal plane, atan2(-R01, R11). Unlike the
+    yaw of the body x axis it does not flip when the frame pitches past 90 deg (pendulum
+    swung up by hard braking)."""
+    return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
+
+
 def parse_action(action: ArrayLike) -> tuple[float, float, bool]:
     """(a0, a1, clipped): the action as two floats clipped to [-1, 1], and whether it was
     clipped; ValueError if it is not 2 finite real numbers."""
@@ -1065,16 +1073,12 @@ class SphereRobotBase(gym.Env):
         b = self._est.bias if self._est is not None else None
         return None if b is None else tuple(b.tolist())
 
-    # Heading: the rolling direction, perpendicular to the axle (body y) in the horizontal
-    # plane: atan2(-R01, R11). Unlike the yaw of the body x axis it does not flip when the
-    # frame pitches past 90 deg (pendulum swung up by hard braking).
     def _heading_est(self):
-        w, x, y, z = self._q_est_wxyz()
-        return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
+        return heading_of(*self._q_est_wxyz())
 
     def _heading_true(self):
         x, y, z, w = self._true[1]
-        return math.atan2(-2 * (x * y - w * z), 1 - 2 * (x * x + z * z))
+        return heading_of(w, x, y, z)
 
     def _observation(self, psi, bias):
         """The observation, given the estimated heading ``psi`` and gyro ``bias`` (or None)."""
