@@ -109,8 +109,13 @@ def _recorded(names, args, out):
                     count[tr.set] = count.get(tr.set, 0) + tr.ok
                     keep.append(tr)
             trials = keep
+        scored = [tr.key for tr in trials if tr.ok]
+        if args.plot_trial is not None and args.plot_trial not in scored:
+            sys.exit(f"error: --plot-trial {args.plot_trial!r} is not a scored trial of {data_dir}"
+                     f"{' (--quick keeps 2 per set)' if args.quick else ''}; scored: {', '.join(scored[:8])}"
+                     f"{', ...' if len(scored) > 8 else ''}")
         plot_key = args.plot_trial or next((tr.key for tr in trials if tr.ok and tr.has_mag),
-                                           next((tr.key for tr in trials if tr.ok), None))
+                                           next(iter(scored), None))
         print(f"recorded data: {len(trials)} trials in {data_dir}")
         trial_rows, skipped, tcurves = compare.compare_trials(names, trials, keep_curves=(plot_key,))
         skipped = unreadable + skipped

@@ -89,6 +89,9 @@ def _check_names(kind, names, accepted):
     if bad or not names:
         what = f"unknown {kind}(s) {', '.join(map(repr, bad))}" if bad else f"no {kind} given"
         raise ValueError(f"{what}; accepted: {', '.join(accepted)}")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:       # each would run its cells again and repeat their rows in episodes.csv
+        raise ValueError(f"{kind}(s) {', '.join(map(repr, twice))} given more than once")
     return names
 
 

@@ -161,6 +161,17 @@ def test_estimators_data_must_be_a_folder(tmp_path, name):
     assert "Traceback" not in r.stderr and not (tmp_path / "out").exists()     # was: a note, exit 0
 
 
+def test_estimators_unknown_plot_trial_is_refused(tmp_path):
+    """An unknown --plot-trial was ignored (no figure, no word, exit 0)."""
+    data = tmp_path / "data" / "s"
+    data.mkdir(parents=True)
+    _trial(data / "good.npz", gyr=np.random.default_rng(0).normal(0, 0.01, (20, 3)))
+    r = run([SCRIPT, "--out", str(tmp_path / "out"), "--quick", "--estimators", "gyro", "--data",
+             str(tmp_path / "data"), "--plot-trial", "s/nope"], timeout=300)
+    assert r.returncode != 0 and "--plot-trial 's/nope'" in r.stderr and "s/good" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+
+
 def test_estimators_bad_npz_is_skipped(tmp_path):
     data = tmp_path / "data" / "s"
     data.mkdir(parents=True)

@@ -34,6 +34,9 @@ def test_plan_skips_missing_policies_and_names_bad_input(tmp_path):
         with pytest.raises(ValueError, match=f"unknown {what}.*accepted: ") as e:
             compare.plan(*args, 1, 0)
         assert "flat" in str(e.value) or "pid" in str(e.value) or "ekf" in str(e.value) or "track" in str(e.value)
+    # a name twice ran its cells twice over and repeated their rows in episodes.csv
+    with pytest.raises(ValueError, match="estimator.*'ekf' given more than once"):
+        compare.plan(["track"], ["flat"], ["truth", "ekf", "ekf"], ["pid"], 1, 0)
 
 
 def test_cli_bad_input_before_any_work(tmp_path, capsys, monkeypatch):
