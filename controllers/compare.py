@@ -303,6 +303,23 @@ def _load_cached(path, key):
     return d["rows"]
 
 
+def _not_the_jobs_rows(rows, job):
+    """Why cached ``rows`` are not the rows of ``job`` (its cell, one per episode seed, every
+    metric a number); None if they are."""
+    seeds = [job["seed"] + i for i in range(job["episodes"])]
+    if len(rows) != len(seeds):
+        return f"{len(rows)} rows for {len(seeds)} episodes"
+    for r, seed in zip(rows, seeds, strict=True):
+        if not isinstance(r, dict) or r.get("episode_seed") != seed:
+            return f"a row that is not episode seed {seed}'s"
+        wrong = [k for k in ("task", "scenario", "estimator", "controller") if r.get(k) != job[k]]
+        wrong += [m for m in EPISODE_METRICS[job["task"]]
+                  if isinstance(r.get(m), bool) or not isinstance(r.get(m), (int, float))]
+        if wrong:
+            return f"episode seed {seed}: {', '.join(wrong)} missing or wrong"
+    return None
+
+
 def _open_cache(jobs, cache_dir, resume, results, log):
     """(cache folder, each job's cell key); with ``resume`` fills ``results`` with the cells
     already cached for this code version."""
@@ -312,7 +329,12 @@ def _open_cache(jobs, cache_dir, resume, results, log):
     keys = [cell_key(j, version) for j in jobs]
     if resume:
         for i, k in enumerate(keys):
-            results[i] = _load_cached(cache / f"{k}.json", k)
+            rows = _load_cached(cache / f"{k}.json", k)
+            why = None if rows is None else _not_the_jobs_rows(rows, jobs[i])
+            if why:         # an edited or damaged file: the cell runs again
+                log(f"resume: {cache / f'{k}.json'} is not this cell's ({why}); running it again")
+                rows = None
+            results[i] = rows
         n = sum(r is not None for r in results)
         log(f"resume: {n} of {len(jobs)} cells cached for this code version ({version})")
     return cache, keys

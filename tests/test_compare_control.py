@@ -92,6 +92,19 @@ def test_cache_resume_and_code_version(tmp_path, monkeypatch):
     victim.write_text("{not json")
     again = compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, resume=True, log=lambda *a: None)
     assert again == first
+    # nor one whose rows are not the cell's (they were taken: a cell without rows, or with a
+    # metric missing, which summarise then failed on without naming the file)
+    import json
+    d = json.loads(victim.read_text())
+    for edit in (lambda r: r.clear(), lambda r: r[0].pop("heading_ss"), lambda r: r[0].update(heading_ss="x"),
+                 lambda r: r[0].update(episode_seed=99), lambda r: r[0].update(estimator="ekf")):
+        rows = json.loads(json.dumps(d["rows"]))
+        edit(rows)
+        victim.write_text(json.dumps(dict(d, rows=rows)))
+        msgs = []
+        assert compare.run_grid(jobs, workers=1, progress=False, cache_dir=tmp_path, resume=True,
+                                log=msgs.append) == first
+        assert any(victim.name in m and "running it again" in m for m in msgs), msgs
 
 
 def test_ray_two_node_cluster_equals_local(tmp_path, monkeypatch):
