@@ -42,7 +42,7 @@ import numpy as np
 from fusion.checks import integer, require
 
 from controllers.policy_io import save_figure
-from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_PAIRS, SETTLE_BAND_DEG,
+from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "ROBOTS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
@@ -433,12 +433,14 @@ def summarise(rows, seed=0):
     (``<m>_iqm``, ``_iqm_lo``, ``_iqm_hi``); against the ``truth`` cell of the same task,
     scenario and controller, the paired difference over the shared episode seeds
     (``delta_<m>``, ``delta_<m>_lo``, ``delta_<m>_hi``; NaN without a truth cell) and
-    ``separated``: whether the main metric's difference interval excludes 0 (for a
-    continuous main metric, only from ``MIN_PAIRS`` shared seeds on)."""
+    ``separated``: whether the main metric's difference excludes 0 at the family's level,
+    95 % Bonferroni-adjusted over the k estimators compared with the same truth cell
+    (level 1 - 0.05 / k: ``sep_level``, the interval ``sep_lo``, ``sep_hi``), so that the
+    chance of any false ``*`` among them stays within 5 %."""
     groups = {}
     for r in rows:
         groups.setdefault(_cell_key(r), {})[r["episode_seed"]] = r
-    out = []
+    out, family = [], {}
     for (task, sc, est, ctrl), eps in groups.items():
         row = {"task": task, "scenario": sc, "estimator": est, "controller": ctrl, "episodes": len(eps),
                "main_metric": MAIN_METRIC[task][0]}
@@ -457,12 +459,19 @@ def summarise(rows, seed=0):
             else:
                 d = {"delta": float("nan"), "lo": float("nan"), "hi": float("nan")}
             row["delta_" + m], row["delta_" + m + "_lo"], row["delta_" + m + "_hi"] = d["delta"], d["lo"], d["hi"]
-        main = MAIN_METRIC[task][0]
-        lo, hi = row["delta_" + main + "_lo"], row["delta_" + main + "_hi"]
-        # a continuous difference from fewer than MIN_PAIRS seeds is never called separated
-        enough = main in BINARY_METRICS or len(seeds) >= MIN_PAIRS
-        row["separated"] = bool(enough and math.isfinite(lo) and (lo > 0 or hi < 0))
+        row["separated"] = False
+        row["sep_level"] = row["sep_lo"] = row["sep_hi"] = float("nan")
+        if est != "truth" and seeds:
+            family.setdefault((task, sc, ctrl), []).append((row, eps, truth, seeds))
         out.append(row)
+    for members in family.values():
+        level = 1.0 - 0.05 / len(members)
+        for row, eps, truth, seeds in members:
+            main = row["main_metric"]
+            d = paired_difference([eps[s][main] for s in seeds], [truth[s][main] for s in seeds], main,
+                                  seed=seed, level=level)
+            row["sep_level"], row["sep_lo"], row["sep_hi"] = level, d["lo"], d["hi"]
+            row["separated"] = bool(math.isfinite(d["lo"]) and (d["lo"] > 0 or d["hi"] < 0))
     out.sort(key=lambda r: (r["task"], r["scenario"], r["controller"], _rank_key(r)))
     return out
 
@@ -506,12 +515,14 @@ def _rank_key(r):
     return (1, harm if math.isfinite(harm) else math.inf, r["estimator"])
 
 
-def min_detectable_success(n: int) -> int | None:
+def min_detectable_success(n: int, level: float = 0.95) -> int | None:
     """The smallest number of failed runs out of ``n`` (against a truth that succeeds in
-    all ``n``) whose paired interval excludes 0; None if even ``n`` failures do not."""
+    all ``n``) whose paired interval at ``level`` excludes 0; None if even ``n`` failures do not."""
+    from scipy.stats import norm
+    z = float(norm.isf((1 - level) / 2))
     for k in range(1, n + 1):
         x = np.r_[np.zeros(k), np.ones(n - k)]
-        if newcombe_paired(x, np.ones(n))[2] < 0:
+        if newcombe_paired(x, np.ones(n), z)[2] < 0:
             return k
     return None
 
@@ -574,8 +585,8 @@ def _headline_cell(r, main):
     if not math.isfinite(d):
         return "-"
     unit = " pp" if pct else ""
-    return (f"{_signed(d, pct)}{unit} [{_signed(lo, pct)}, {_signed(hi, pct)}]"
-            + (" *" if r["separated"] else ""))
+    ci = f" [{_signed(lo, pct)}, {_signed(hi, pct)}]" if math.isfinite(lo) else ""
+    return f"{_signed(d, pct)}{unit}{ci}" + (" *" if r["separated"] else "")
 
 
 def headline_table(summary):
@@ -634,24 +645,31 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
         "true state. Success: Wilson interval; the other metrics: expanded percentile bootstrap (2,000 "
         "resamples, seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
         "controller and floor over the same seeds (success: Newcombe's paired interval, in percentage "
-        "points; others: paired bootstrap); `*`: its interval excludes 0 (continuous metrics: from "
-        f"{MIN_PAIRS} seeds on). Rows ranked by Δ of the main metric, from the least harm. Track "
+        "points; others: paired bootstrap; none from fewer than "
+        f"{MIN_BOOT} episodes); `*`: the main metric's difference excludes 0 at the level of its family, "
+        "95 % Bonferroni-adjusted over the estimators compared with the same truth cell (1 - 0.05 / k; "
+        "summary.csv: sep_level, sep_lo, sep_hi), so that any false `*` among them has at most a 5 % chance. "
+        "Rows ranked by Δ of the main metric, from the least harm. Track "
         "metrics: steady state = samples at least "
         f"{SETTLE_WINDOW_S:g} s after each command change; settle = time until the heading error stays "
         f"within {SETTLE_BAND_DEG:g} deg.", ""]
+    levels = sorted({r["sep_level"] for r in summary if math.isfinite(r["sep_level"])})
     for n in ns:
-        k = min_detectable_success(n)
-        lines.append(f"With {n} episodes per cell, a success difference against a truth that reaches every goal "
-                     f"is detected from {k} failed runs of {n} ({100 * k / n:.0f} percentage points)."
-                     if k else f"With {n} episodes per cell no success difference can be detected.")
+        for level in levels or [0.95]:
+            k = min_detectable_success(n, level)
+            lines.append(f"With {n} episodes per cell, a success difference against a truth that reaches every "
+                         f"goal gets its `*` (level {100 * level:.2f} %) from {k} failed runs of {n} "
+                         f"({100 * k / n:.0f} percentage points)." if k else
+                         f"With {n} episodes per cell no success difference gets a `*` (level {100 * level:.2f} %).")
     lines.append("")
     head = headline_table(summary)
     if head:
         mains = ", ".join(f"{t}: {MAIN_METRIC[t][0]}" for t in TASKS if any(r["task"] == t for r in summary))
         lines += ["## Headline table", "",
                   f"The main metric ({mains}): `truth` rows give the value, the others the paired difference "
-                  "against `truth` (same controller, floor and seeds) with its 95 % interval; `*`: the interval "
-                  "excludes 0. Rows in the order of the first column. Also in headline.md.", ""] + head + [""]
+                  "against `truth` (same controller, floor and seeds) with its 95 % interval; `*`: it excludes 0 "
+                  "at its family's Bonferroni-adjusted level (above). Rows in the order of the first column. "
+                  "Also in headline.md.", ""] + head + [""]
         _write_atomic(out / "headline.md", "\n".join(head) + "\n")
     for task in sorted({r["task"] for r in summary}):
         for sc in sorted({r["scenario"] for r in summary if r["task"] == task}):
@@ -693,8 +711,8 @@ def _headline_panel(ax, summary, task, sc):
             d, lo, hi = (r["delta_" + main] * pct, r["delta_" + main + "_lo"] * pct,
                          r["delta_" + main + "_hi"] * pct)
             yk = yy + (k - (len(ctrls) - 1) / 2) * off
-            ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]], fmt="o", color=_COLOR[c], ms=5, capsize=3,
-                        label=c)
+            ax.errorbar([d], [yk], xerr=[[d - lo], [hi - d]] if math.isfinite(lo) else None, fmt="o",
+                        color=_COLOR[c], ms=5, capsize=3, label=c)
             # the cell's own value beside its interval (success as an absolute rate)
             ax.annotate(_fmt(r[main], pct=main in BINARY_METRICS) + ("" if pct > 1 else f" {UNITS[main]}"),
                         (hi if math.isfinite(hi) else d, yk), xytext=(4, 0), textcoords="offset points",

@@ -46,7 +46,7 @@ if TYPE_CHECKING:
     from controllers.base import Controller
 
 __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
-           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MIN_PAIRS", "MAIN_METRIC", "BINARY_METRICS",
+           "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MIN_BOOT", "MAIN_METRIC", "BINARY_METRICS",
            "SETTLE_WINDOW_S", "SETTLE_BAND_DEG"]
 
 EPISODE_METRICS = {
@@ -66,10 +66,12 @@ SETTLE_WINDOW_S = 3.0
 SETTLE_BAND_DEG = 10.0
 Z95 = 1.959963984540054
 N_BOOT = 2000
-#: the fewest pairs from which a continuous paired difference can be called separated from
-#: 0: with n pairs an interval inside the data's range excludes 0 whenever all n differences
-#: share a sign, probability 2^(1-n) under no difference; 6 is the first n where it is <= 5 %
-MIN_PAIRS = 6
+#: the fewest values from which a bootstrap interval is given (NaN below): with fewer, the
+#: expanded percentile interval is the data's range, which covers a normal mean 74 % of the
+#: time at 3 values and 88 % at 4 (simulated), and a paired difference's excludes 0 whenever
+#: all n differences share a sign, probability 2^(1-n) under no difference; 6 is the first n
+#: where that is <= 5 % (coverage 94 % there)
+MIN_BOOT = 6
 
 
 def _wrap(a):
@@ -297,10 +299,10 @@ def bootstrap_ci(values: Any, stat: Callable[..., Any] = np.mean, strata: Sequen
     ``level`` (``_expanded_level``), resampling with replacement within each stratum
     (``strata``: a label per value; None: one stratum), seeded. ``stat`` takes an
     (n_boot, n) array and ``axis=1``. A percentile interval of a mean or an IQM stays within
-    the values' range. Fewer than 2 values: (NaN, NaN)."""
+    the values' range. Fewer than ``MIN_BOOT`` values: (NaN, NaN)."""
     v = np.asarray(values, dtype=float)
     n = len(v)
-    if n < 2:           # one value has no sampling distribution: no interval, not [v, v]
+    if n < MIN_BOOT:        # no interval that would claim its level (one value: not [v, v])
         return float("nan"), float("nan")
     level = _expanded_level(n, level)
     rng = np.random.default_rng(seed)
@@ -336,10 +338,10 @@ def interval(values: Any, metric: str, seed: int = 0) -> dict[str, float]:
     return {"mean": float(v.mean()), "lo": lo, "hi": hi, "iqm": float(iqm(v)), "iqm_lo": ilo, "iqm_hi": ihi, "n": n}
 
 
-def paired_difference(x: Any, y: Any, metric: str, seed: int = 0) -> dict[str, float]:
+def paired_difference(x: Any, y: Any, metric: str, seed: int = 0, level: float = 0.95) -> dict[str, float]:
     """mean(x - y) over the pairs where both are finite (the same episode seed under two
-    estimators), with its 95 % interval: Newcombe's paired method for a 0/1 metric, a
-    bootstrap of the pairs otherwise. Returns dict of delta, lo, hi, n."""
+    estimators), with its interval at ``level``: Newcombe's paired method for a 0/1 metric,
+    a bootstrap of the pairs otherwise. Returns dict of delta, lo, hi, n."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     if x.shape != y.shape:
@@ -350,9 +352,10 @@ def paired_difference(x: Any, y: Any, metric: str, seed: int = 0) -> dict[str, f
     if n == 0:
         return {"delta": float("nan"), "lo": float("nan"), "hi": float("nan"), "n": 0}
     if metric in BINARY_METRICS:
-        d, lo, hi = newcombe_paired(x, y)
+        from scipy.stats import norm
+        d, lo, hi = newcombe_paired(x, y, z=float(norm.isf((1 - level) / 2)))
     else:
         diff = x - y
         d = float(diff.mean())
-        lo, hi = bootstrap_ci(diff, np.mean, seed=seed)
+        lo, hi = bootstrap_ci(diff, np.mean, seed=seed, level=level)
     return {"delta": d, "lo": lo, "hi": hi, "n": n}
