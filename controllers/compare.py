@@ -624,18 +624,8 @@ def _csv_text(rows, keys):
     return buf.getvalue()
 
 
-def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
-    """Per-episode CSV, summary Markdown + CSV, the headline figure, the path map (PNG)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    first = ("task", "scenario", "estimator", "controller", "episode_seed")
-    keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
-    # each file is written whole or not at all (an interrupted write keeps the previous one)
-    _write_atomic(out / "episodes.csv", _csv_text(rows, keys))
-    sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
-    skeys = sorted({k for r in summary for k in r},
-                   key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
-    _write_atomic(out / "summary.csv", _csv_text(summary, skeys))
+def _summary_intro(summary, command, seconds):
+    """summary.md's opening lines: the command, how each cell is read, what the episodes detect."""
     ns = sorted({r["episodes"] for r in summary})
     lines = ["# Control under each attitude estimator", ""]
     if command:
@@ -662,6 +652,22 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
                          f"({100 * k / n:.0f} percentage points)." if k else
                          f"With {n} episodes per cell no success difference gets a `*` (level {100 * level:.2f} %).")
     lines.append("")
+    return lines
+
+
+def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=None, seconds=None):
+    """Per-episode CSV, summary Markdown + CSV, the headline figure, the path map (PNG)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    first = ("task", "scenario", "estimator", "controller", "episode_seed")
+    keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
+    # each file is written whole or not at all (an interrupted write keeps the previous one)
+    _write_atomic(out / "episodes.csv", _csv_text(rows, keys))
+    sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
+    skeys = sorted({k for r in summary for k in r},
+                   key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
+    _write_atomic(out / "summary.csv", _csv_text(summary, skeys))
+    lines = _summary_intro(summary, command, seconds)
     head = headline_table(summary)
     if head:
         mains = ", ".join(f"{t}: {MAIN_METRIC[t][0]}" for t in TASKS if any(r["task"] == t for r in summary))

@@ -5,8 +5,12 @@ cdef extern from *:
     """
     #define FUSION_GRAVITY 9.81
     #define FUSION_STANDARD_GRAVITY 9.80665
+    #define FUSION_BIAS_MAX 100.0
     """
     # m/s^2: gravity in every model of this project (a still, level accelerometer reads it)
     double GRAVITY "FUSION_GRAVITY"
     # m/s^2 per g: standard gravity, the "g" of datasheets
     double STANDARD_GRAVITY "FUSION_STANDARD_GRAVITY"
+    # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70); a learned bias is
+    # held within it (a loop its gains made unstable), and a loaded state's
+    double BIAS_MAX "FUSION_BIAS_MAX"

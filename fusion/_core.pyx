@@ -4,7 +4,8 @@ import numpy as np
 cimport numpy as cnp
 from libc.math cimport sqrt, atan2, asin, isfinite
 from libc.string cimport memcpy
-from fusion._constants cimport GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY
+from fusion._constants cimport (GRAVITY as C_GRAVITY, STANDARD_GRAVITY as C_STANDARD_GRAVITY,
+                               BIAS_MAX as C_BIAS_MAX)
 from fusion.checks import number, choice, state_header, not_masked, SAMPLES_HINT
 
 from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul,
@@ -43,7 +44,7 @@ FLAG = (0, 1)           # check of a bint field
 COUNT = (0, 2 ** 62)
 # checks of float fields (_checked_field): (lo, hi) for every element; "unit" a unit vector
 # (the quaternions); "cov" a covariance; None the default magnitude bound VALUE_MAX
-BIAS_MAX = 100.0        # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70)
+BIAS_MAX = C_BIAS_MAX   # rad/s (fusion/_constants.pxd)
 BIAS = (-BIAS_MAX, BIAS_MAX)
 TIME_MAX = 1e9          # s (32 years): the timers (rest, unmeasured run, ...)
 # A timer grows without bound (4 s of run() at dt=100 passes 1e9 s); est.state() exports it
@@ -253,8 +254,11 @@ def _checked_field(name, value, view, check):
 
 
 def _check_covariance(name, v, value):
-    """v (k² values, row-major) a symmetric positive-definite covariance whose variances are at
-    most COV_MAX, or a ValueError: an indefinite P stays indefinite, a huge one overflows."""
+    """v (k² values, row-major) a symmetric positive-semidefinite covariance whose variances
+    are at most COV_MAX, or a ValueError: an indefinite P stays indefinite, a huge one
+    overflows. Semidefinite within rounding (eigenvalues >= -1e-10 of its largest entry): the
+    kernels make such a P themselves (a zero bias_init_std's bias block; the ukf's rounding,
+    which its sigma points take), and their own state must load."""
     cdef Py_ssize_t k = int(round(np.sqrt(v.shape[0])))
     P = v.reshape(k, k)
     scale = float(np.abs(P).max())
@@ -262,10 +266,8 @@ def _check_covariance(name, v, value):
         raise ValueError(f"state field {name!r} must be a symmetric covariance, got {value!r}")
     if np.diag(P).max() > COV_MAX:
         raise ValueError(f"state field {name!r} must have variances <= {COV_MAX:g}, got {value!r}")
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        raise ValueError(f"state field {name!r} must be positive definite, got {value!r}") from None
+    if np.linalg.eigvalsh(0.5 * (P + P.T)).min() < -1e-10 * scale:
+        raise ValueError(f"state field {name!r} must be positive semidefinite, got {value!r}")
 
 
 def _restore(cls, state):
@@ -637,7 +639,7 @@ cdef class Estimator:
         state is replaced; this estimator's configuration (fs, frame, parameters) is kept.
         A ValueError (and nothing changed) for another estimator, another state version,
         missing or extra fields, wrong shapes or types, or values out of their ranges (each
-        field's in _state_fields: a covariance symmetric positive definite, a bias within
+        field's in _state_fields: a covariance symmetric positive semidefinite, a bias within
         BIAS_MAX, timers within TIME_MAX, ...)."""
         _exclusively(self, self._load_state, (state,))
 

@@ -1,9 +1,10 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """`madgwick`: Madgwick's gradient-descent orientation filter (docs/madgwick.md)."""
 import numpy as np
-from libc.math cimport sqrt
+from libc.math cimport fmax, fmin, sqrt
 from libc.string cimport memset
 
+from fusion._constants cimport BIAS_MAX
 from fusion._core import struct_fields, BIAS, RECOVERY
 from fusion.params import Param, table, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, MAGDIST, REST_PULL
 from fusion._qmath cimport (quat_propagate, quat_normalise, rot_to_body, rot_to_nav,
@@ -149,6 +150,10 @@ cdef class Madgwick(AidedFilter):
                 self.s.bw[0] += k * (-q[1] * g[0] + q[0] * g[1] + q[3] * g[2] - q[2] * g[3])
                 self.s.bw[1] += k * (-q[2] * g[0] - q[3] * g[1] + q[0] * g[2] + q[1] * g[3])
                 self.s.bw[2] += k * (-q[3] * g[0] + q[2] * g[1] - q[1] * g[2] + q[0] * g[3])
+                # a zeta that makes the loop unstable winds the bias up without bound: held
+                # at BIAS_MAX
+                for i in range(3):
+                    self.s.bw[i] = fmin(fmax(self.s.bw[i], -BIAS_MAX), BIAS_MAX)
             k = self.beta * dt if f == 1.0 else f * max(self.beta, BETA_RECOVERY) * dt
             q[0] -= k * g[0]
             q[1] -= k * g[1]

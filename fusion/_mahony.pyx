@@ -8,7 +8,8 @@ from libc.math cimport sqrt
 from libc.string cimport memcpy, memset
 
 from fusion._core cimport Estimator, run_fast, batch_loop
-from fusion._core import struct_fields, BIAS_MAX, RECOVERY
+from fusion._constants cimport BIAS_MAX
+from fusion._core import struct_fields, RECOVERY
 from fusion.params import Param, table, MAGDIST, GYRO_RANGE, MAG_UPDATE, ACC_LOWPASS, REST_PULL
 from fusion._aided cimport AidedFilter, rest_now, mag_accepted, acc_input
 from fusion._rest cimport rest_rate
@@ -122,6 +123,7 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
     cdef double e[3]
     cdef double P[4]
     cdef double c, s, k, rho, rho2, h2, h4, n1, n2, n
+    cdef int i
     if gyr != NULL:
         # q1 = q ⊗ [c, s wg] = c q + s (q ⊗ [0, wg]): the product with wg does not wait for
         # c and s (the gyro's chain: eint -> wg -> |wg| -> c, s -> q1)
@@ -179,6 +181,13 @@ cdef inline void mahony_step(double* q, double* eint, double kp, double ki,
         eint[0] += e[0] * dt
         eint[1] += e[1] * dt
         eint[2] += e[2] * dt
+        # gains that make the loop unstable (ki dt near 1) wind the integral up without bound:
+        # held where its bias, -ki eint, is BIAS_MAX
+        for i in range(3):
+            if ki * eint[i] > BIAS_MAX:
+                eint[i] = BIAS_MAX / ki
+            elif ki * eint[i] < -BIAS_MAX:
+                eint[i] = -BIAS_MAX / ki
     if kp > 0.0:
         # q2 = q1 ⊗ [c, s kp e] = c q1 + s kp P, P = q1 ⊗ [0, e] = q1 ⊗ [0, R1ᵀ w] =
         # |q1|² [0, w] ⊗ q1 (R1 is R's homogeneous form, |q1|² times the rotation): P from

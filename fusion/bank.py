@@ -53,13 +53,18 @@ def make_bank(name: str, fs: float, count: int, frame: str = "ENU", on_invalid: 
     count = integer("count", count, 1, COUNT_MAX)
     per = {k: v for k, v in params.items() if _per_filter(v)}
     for k, v in per.items():
+        if isinstance(v, np.ndarray) and v.ndim != 1:
+            raise ValueError(f"parameter {k} must be one value for all filters or a sequence of count = "
+                             f"{count} values, got an array of shape {v.shape}")
         if len(v) != count:
             raise ValueError(f"parameter {k} has {len(v)} values but count is {count}: give one "
                              f"value for all filters or a sequence of length {count}")
+        # (an array's elements as Python values: numpy scalars' .item(), an object array's as they are)
+        per[k] = v.tolist() if isinstance(v, np.ndarray) else v
     filters = []
     for i in range(count):
         p = dict(params)
-        p.update({k: (v[i].item() if isinstance(v, np.ndarray) else v[i]) for k, v in per.items()})
+        p.update({k: v[i] for k, v in per.items()})
         try:
             filters.append(fusion.make(name, fs, frame=frame, on_invalid=on_invalid, **p))
         except ValueError as e:

@@ -211,7 +211,7 @@ def load_folder(folder: str | os.PathLike, only_ok: bool = False,
     if not folder.is_dir():
         raise ValueError(f"data folder {str(folder)!r} is not a folder")
     trials = []
-    for p in sorted(folder.rglob("*.npz")):
+    for p in sorted(q for q in folder.rglob("*.npz") if q.is_file()):      # (a folder named x.npz is no trial)
         try:
             trials.append(load_trial(p))
         except (ValueError, OSError) as e:

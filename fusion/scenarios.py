@@ -171,6 +171,55 @@ def _cumprod_quat(d):
     return p
 
 
+def _vec3(name, v):
+    """v as 3 finite floats, or a ValueError naming it."""
+    a = np.asarray(v)
+    if a.dtype.kind not in "fiu" or a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be 3 finite real numbers, got {v!r}")
+    return a.astype(float)
+
+
+def _pair(name, v):
+    """v as 2 finite floats, or a ValueError naming it."""
+    a = np.asarray(v)
+    if a.dtype.kind not in "fiu" or a.shape != (2,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be 2 finite real numbers, got {v!r}")
+    return float(a[0]), float(a[1])
+
+
+def _checked_motion(name, motion):
+    """The preset of scenario ``name`` with make_scenario's ``motion`` overrides, checked."""
+    preset = {k: v for k, v in SCENARIOS[name].items() if k != "doc"}
+    unknown = set(motion) - {"tilt", "turn", "freq", "bursts_per_min", "burst_acc"}
+    if unknown:
+        raise ValueError(f"unknown scenario parameter(s) {sorted(unknown)}")
+    preset.update(motion)
+    for k in ("tilt", "turn"):
+        preset[k] = number(k, preset[k], 0.0, 1e4, unit=" deg")
+    # (at most one burst a second on average: a huge rate looped for minutes)
+    preset["bursts_per_min"] = number("bursts_per_min", preset["bursts_per_min"], 0.0, 60.0)
+    preset["burst_acc"] = number("burst_acc", preset["burst_acc"], 0.0, 1e3, unit=" m/s^2")
+    if "freq" in preset:
+        lo, hi = _pair("freq", preset["freq"])
+        if not 0.0 < lo <= hi <= 1e3:
+            raise ValueError(f"freq must be (lo, hi) Hz with 0 < lo <= hi <= 1000, got {preset['freq']!r}")
+        preset["freq"] = (lo, hi)
+    return preset
+
+
+def _checked_noise(ideal, gyro_bias, **densities):
+    """make_scenario's sensor errors: DEFAULT_NOISE with the given ones, checked; none if ideal."""
+    if ideal:
+        return dict(gyro_noise=0.0, acc_noise=0.0, mag_noise=0.0, gyro_bias=(0.0, 0.0, 0.0))
+    noise = dict(DEFAULT_NOISE)
+    for k, v in densities.items():
+        if v is not None:
+            noise[k] = number(k, v, 0.0, 1e3)
+    if gyro_bias is not None:
+        noise["gyro_bias"] = _vec3("gyro_bias", gyro_bias)
+    return noise
+
+
 def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0, seed: int = 0, *,
                   ideal: bool = False, gyro_noise: float | None = None, acc_noise: float | None = None,
                   mag_noise: float | None = None, gyro_bias: ArrayLike | None = None, field: ArrayLike = FIELD,
@@ -185,24 +234,18 @@ def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0
     """
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; available: {', '.join(SCENARIOS)}")
-    fs, duration, seed = float(fs), float(duration), integer("seed", seed, 0)
-    if not (np.isfinite(fs) and fs > 0):
-        raise ValueError(f"fs must be a positive sample rate in Hz, got {fs}")
+    fs, seed = number("fs", fs, 0.0, 1e6, open_low=True, unit=" Hz"), integer("seed", seed, 0)
+    duration = number("duration", duration, 0.0, 1e6, open_low=True, unit=" s")
     n = int(round(duration * fs))
     if n < 1:
         raise ValueError(f"duration * fs must give at least one sample, got {duration} s at {fs} Hz")
-    preset = {k: v for k, v in SCENARIOS[name].items() if k != "doc"}
-    unknown = set(motion) - {"tilt", "turn", "freq", "bursts_per_min", "burst_acc"}
-    if unknown:
-        raise ValueError(f"unknown scenario parameter(s) {sorted(unknown)}")
-    preset.update(motion)
-    noise = dict(DEFAULT_NOISE)
-    for k, v in dict(gyro_noise=gyro_noise, acc_noise=acc_noise, mag_noise=mag_noise,
-                     gyro_bias=gyro_bias).items():
-        if v is not None:
-            noise[k] = v
-    if ideal:
-        noise = dict(gyro_noise=0.0, acc_noise=0.0, mag_noise=0.0, gyro_bias=(0.0, 0.0, 0.0))
+    preset = _checked_motion(name, motion)
+    g = number("g", g, 0.0, 1e3, open_low=True, unit=" m/s^2")
+    noise = _checked_noise(ideal, gyro_noise=gyro_noise, acc_noise=acc_noise, mag_noise=mag_noise,
+                           gyro_bias=gyro_bias)
+    field = _vec3("field", field)
+    if not np.any(field):
+        raise ValueError("field must not be zero")
 
     motion_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     dt_s = 1.0 / fs
@@ -213,7 +256,10 @@ def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0
     e0, sines = _draw_path(motion_rng, preset["turn"], preset["tilt"], preset.get("freq", (0.05, 0.5)))
     if q_start is None:
         q_start = quat.from_euler(_euler_path(np.array([-dt_s]), e0, sines)[0][0])
-    q_start = quat.normalise(quat.as_quat(q_start, "q_start"))
+    q_start = quat.as_quat(q_start, "q_start")
+    if q_start.shape != (4,) or not np.all(np.isfinite(q_start)) or not np.any(q_start):
+        raise ValueError(f"q_start must be 4 finite numbers [w, x, y, z], not all zero, got {q_start!r}")
+    q_start = quat.normalise(q_start)
     omega = _body_rate(*_euler_path(t - dt_s / 2, e0, sines))      # mid-step rate, held
     q_true = quat.normalise(quat.mul(q_start, _cumprod_quat(quat.exp(omega, dt_s))))
     a_lin = _bursts(motion_rng, t, preset["bursts_per_min"], preset["burst_acc"])
@@ -526,7 +572,7 @@ def failure_scenario(name: str, duration: float = 60.0, seed: int = 0) -> Scenar
         sc.acc += (on * 6.0 * np.sin(2 * np.pi * 47.0 * t))[:, None] * axis
         acc_dist = on
     elif name == "tapping":
-        starts = rng.uniform(0.0, duration - 0.1, int(duration / 2.0))
+        starts = rng.uniform(0.0, max(duration - 0.1, 0.0), int(duration / 2.0))
         for s in starts:
             k = (t >= s) & (t < s + 0.02)
             u = rng.standard_normal(3)

@@ -31,6 +31,8 @@ import sys
 
 import numpy as np
 
+BIAS_MAX = 100.0    # rad/s: the learned gyro bias is held within it (no gyro has a larger one)
+
 G = 9.81
 C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -513,7 +515,8 @@ class RefMahony(RestAndMagCounts, RefEstimator):
                 c = (c @ up) * up
             e += self.mag_weight * c
         if self.ki > 0 and not recovering:                               # 4.
-            self.eps = self.eps + e * dt
+            # held where the bias, -ki eps, is BIAS_MAX (a loop its gains made unstable)
+            self.eps = np.clip(self.eps + e * dt, -BIAS_MAX / self.ki, BIAS_MAX / self.ki)
         if self.kp > 0:
             q = phi(f * self.kp * e, dt) @ q
         self.q = normalise(q)

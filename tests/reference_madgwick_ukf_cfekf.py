@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from reference import (G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
+from reference import (BIAS_MAX, G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
                        start_variance,
                        measured_gyr, RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian,
                        gyro_valid, unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi,
@@ -106,7 +106,7 @@ class RefMadgwick(RefEstimator):
         if n > self.DEAD_ZONE:
             g = grad / n
             if boost == 1.0:
-                self.bw = self.bw + self.zeta * dt * 2.0 * qmul(qconj(q), g)[1:]
+                self.bw = np.clip(self.bw + self.zeta * dt * 2.0 * qmul(qconj(q), g)[1:], -BIAS_MAX, BIAS_MAX)
             # recovering: the ramp on at least the report's beta, 0.041 rad/s
             q = q - (self.beta if boost == 1.0 else boost * max(self.beta, 0.041)) * dt * g
         self.q = normalise(q)

@@ -67,10 +67,10 @@ def test_loso_ratio_interval_is_paired():
     different difficulty, ours 1.1x VQF on each, give 1.1 with no spread (an unpaired
     interval would span the difficulty); a mixed cell's interval holds its ratio."""
     from benchmarks import loso
-    c = loso.Cell("s", "6-axis", ["a", "b", "c", "d"], [None] * 4)
-    c.vqf = [dict(total=v) for v in (0.5, 1.0, 4.0, 9.0)]
+    c = loso.Cell("s", "6-axis", ["a", "b", "c", "d", "e", "f"], [None] * 6)
+    c.vqf = [dict(total=v) for v in (0.5, 1.0, 4.0, 9.0, 2.0, 0.7)]
     lo, hi = loso.ratio_ci([dict(total=1.1 * r["total"]) for r in c.vqf], c)
     assert lo == pytest.approx(1.1) and hi == pytest.approx(1.1)
-    ours = [dict(total=v) for v in (0.4, 1.3, 3.9, 9.5)]
+    ours = [dict(total=v) for v in (0.4, 1.3, 3.9, 9.5, 2.2, 0.6)]
     lo, hi = loso.ratio_ci(ours, c)
     assert lo < loso.ratio(ours, c) < hi

@@ -164,6 +164,12 @@ def test_bad_construction():
     b = fusion.make_bank("ekf", 100.0, 2, mag_update="heading", acc_noise=np.array([1.0, 2.0]))
     assert [p["mag_update"] for p in b.params] == ["heading"] * 2
     assert [p["acc_noise"] for p in b.params] == [1.0, 2.0]
+    # an object array takes None (was: AttributeError); a 2-D one is refused by name (was
+    # numpy's "can only convert an array of size 1")
+    b = fusion.make_bank("ekf", 100.0, 2, gyro_range=np.array([None, 5.0], dtype=object))
+    assert [p["gyro_range"] for p in b.params] == [None, 5.0]
+    with pytest.raises(ValueError, match=r"acc_noise.*shape \(2, 2\)"):
+        fusion.make_bank("ekf", 100.0, 2, acc_noise=np.ones((2, 2)))
 
 
 def test_bad_arrays(data):

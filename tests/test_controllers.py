@@ -80,10 +80,11 @@ def test_pid_reaches_waypoints_under_truth():
 
 
 def test_aggregate_intervals():
-    eps = [{m: v for m in EPISODE_METRICS["track"]} for v in (1.0, 2.0, 3.0, float("nan"))]
+    eps = [{m: v for m in EPISODE_METRICS["track"]} for v in (1.0, 2.0, 3.0, 1.0, 2.0, 3.0, float("nan"))]
     s = aggregate(eps, "track")["return"]
-    assert s["mean"] == pytest.approx(2.0) and s["n"] == 3 and s["std"] == pytest.approx(1.0)
+    assert s["mean"] == pytest.approx(2.0) and s["n"] == 6 and s["std"] == pytest.approx(math.sqrt(0.8))
     assert 1.0 <= s["lo"] < 2.0 < s["hi"] <= 3.0 and s["iqm"] == pytest.approx(2.0)
+    assert math.isnan(aggregate(eps[:3], "track")["return"]["lo"])        # fewer than MIN_BOOT: none
 
 
 def test_evaluate_bad_input():

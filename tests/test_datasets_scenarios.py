@@ -150,9 +150,21 @@ def test_scenario_bad_arguments():
     with pytest.raises(ValueError, match="unknown scenario"):
         scenarios.make_scenario("nope")
     with pytest.raises(ValueError, match="at least one sample"):
-        scenarios.make_scenario("static", duration=0.0)
+        scenarios.make_scenario("static", duration=0.001)
     with pytest.raises(ValueError, match="unknown scenario parameter"):
         scenarios.make_scenario("mixed", wobble=3)
+    # each was NaN data, a bare numpy / int() error, or minutes of looping
+    for kw, words in ((dict(duration=0.0), "duration"), (dict(duration=np.nan), "duration"),
+                      (dict(duration=np.inf), "duration"), (dict(fs=np.nan), "fs"),
+                      (dict(q_start=[0, 0, 0, 0]), "q_start"), (dict(q_start=[1, 0, 0]), "q_start"),
+                      (dict(acc_noise=np.nan), "acc_noise"), (dict(gyro_noise=-1.0), "gyro_noise"),
+                      (dict(g=np.nan), "g must"), (dict(gyro_bias=[0, np.inf, 0]), "gyro_bias"),
+                      (dict(field=[0, 0, 0]), "field"), (dict(bursts_per_min=1e12), "bursts_per_min"),
+                      (dict(freq=(0.5, 0.1)), "freq"), (dict(tilt="a"), "tilt")):
+        with pytest.raises(ValueError, match=words):
+            scenarios.make_scenario("mixed", **kw)
+    sc = scenarios.failure_scenario("tapping", duration=0.05)     # was: numpy's "high - low < 0"
+    assert sc.n == round(0.05 * 286.0) and np.isfinite(sc.acc).all()
 
 
 @pytest.mark.parametrize("seed", [-1, "a", 1.5, True, None])

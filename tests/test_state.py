@@ -206,3 +206,37 @@ def test_a_state_of_the_previous_version_is_refused_by_its_version(name):
             with pytest.raises(ValueError, match=rf"state version {version} was saved by an older build: "
                                                  r"this build reads version 9 only .*est\.state\(\)"):
                 load(s)
+
+
+@pytest.mark.parametrize("name, params, six_axis", [
+    # a zero bias_init_std (accepted): the fresh filter's bias block is zero, semidefinite
+    ("ekf", dict(bias_init_std=0.0), False), ("iir-ekf", dict(bias_init_std=0.0), False),
+    ("aekf", dict(bias_init_std=0.0), False), ("cf-ekf", dict(bias_init_std=0.0), False),
+    ("ekf", dict(bias_init_std=0.0, bias_noise=0.0), False),
+    # the ukf's covariance indefinite by rounding (min eigenvalue -1e-16), which its sigma
+    # points take: 1 Hz, the gyro nearly always saturated
+    ("ukf", dict(gyro_range=0.01), True),
+    # gains that make the loop unstable: the bias wound up to 200-450 rad/s, beyond the load's
+    # BIAS_MAX; now held at it
+    ("mahony", dict(ki=100.0), False), ("madgwick", dict(zeta=10.0), False), ("cf-ekf", dict(ki=100.0), False),
+])
+def test_every_state_a_filter_makes_loads(name, params, six_axis):
+    """est.state() of a filter that ran on valid samples at accepted parameters always loads:
+    each case was refused ('P must be positive definite', 'eint must be in ...'), and with it
+    pickle, deepcopy and the bank of the filter."""
+    fs = 1.0 if name == "ukf" else 100.0
+    sc = make_scenario("mixed", fs=100.0, duration=60.0 if fs == 100.0 else 30.0, seed=3 if six_axis else 0)
+    est = fusion.make(name, fs, **params)
+    for k in range(3):
+        if k:
+            est.run(sc.gyr[:3000 // k], sc.acc[:3000 // k], None if six_axis else sc.mag[:3000 // k])
+        twin = pickle.loads(pickle.dumps(est))
+        assert twin.state() == est.state()
+        copy.deepcopy(est)
+        fusion.Bank([est])
+    if name in ("mahony", "madgwick", "cf-ekf"):
+        assert np.abs(est.bias).max() <= 100.0 + 1e-9
+    # and continues bit for bit
+    q1 = est.run(sc.gyr[:200], sc.acc[:200], None if six_axis else sc.mag[:200])
+    q2 = twin.run(sc.gyr[:200], sc.acc[:200], None if six_axis else sc.mag[:200])
+    np.testing.assert_array_equal(q1, q2)
