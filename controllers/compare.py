@@ -764,8 +764,10 @@ def _plot_headline(summary, path):
     for ax, (task, sc) in zip(axes[:, 0], panels):
         _headline_panel(ax, summary, task, sc)
     n = sorted({r["episodes"] for r in summary})
+    few = (f"\n(heading: no interval from fewer than {MIN_BOOT} episodes; points are means)"
+           if min(n) < MIN_BOOT else "")
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
-                 f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals)", fontsize=10)
+                 f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals){few}", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
     return None
