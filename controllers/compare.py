@@ -871,7 +871,8 @@ def _parser():
                     help=f"the demo: {QUICK['episodes']} episodes per cell, estimators {QUICK['estimators']}, "
                          f"controllers {QUICK['controllers']} (about 30 s on 2 cores)")
     ap.add_argument("--full", action="store_true",
-                    help=f"the full grid: every estimator, {FULL_EPISODES} episodes per cell (about 12 min on 2 cores for the README's 9 estimators; "
+                    help=f"the full grid: every estimator, {FULL_EPISODES} episodes per cell "
+                         "(about 12 min on 2 cores for the README's 9 estimators; "
                          "use --backend ray on a cluster, and --resume after an interruption)")
     ap.add_argument("--backend", choices=("local", "ray"), default="local",
                     help="local: a process pool on this machine; ray: Ray tasks (one session per run; the "
