@@ -11,6 +11,7 @@ them: from the first sample (accelerometer, plus magnetometer in 9-axis mode), d
 parameters unless given.
 """
 import csv
+import io
 import math
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import numpy as np
 import fusion
 from fusion import metrics
 from controllers.plots import new_figure   # the one figure helper, re-exported here
-from controllers.policy_io import save_figure as write_figure
+from controllers.policy_io import save_figure as write_figure, write_text
 
 __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
            "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
@@ -56,6 +57,8 @@ def score_mode(q_est, q_ref, mode):
         q_est, psi = metrics.remove_heading_offset(q_est, q_ref, return_offset=True)
         offset = math.degrees(psi)
     err = metrics.attitude_errors(q_est, q_ref)
+    if not np.isfinite(err["total"]).any():        # (as metrics.score: a mean of NaN would blank the set's)
+        raise ValueError("no rows with a reference quaternion (finite, non-zero) to score")
     return {k: metrics.rmse(err[k]) for k in ERRORS}, err, offset, q_est
 
 
@@ -99,9 +102,9 @@ def compare_trials(names, trials, params=None, log=print, progress=True, keep_cu
         if not tr.ok:
             skipped.append((tr.key, tr.quality))
             log(f"skip {tr.key}: quality {tr.quality!r}")
-        elif not np.isfinite(tr.quat).all(axis=1).any():
-            skipped.append((tr.key, "no finite reference"))
-            log(f"skip {tr.key}: no finite reference quaternion")
+        elif not metrics.reference_rows(tr.quat).any():
+            skipped.append((tr.key, "no reference quaternion (finite, non-zero)"))
+            log(f"skip {tr.key}: no reference quaternion (finite, non-zero)")
         else:
             scoreable.append(tr)
     jobs = [(tr, mode, name) for tr in scoreable
@@ -170,14 +173,14 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     stem.parent.mkdir(parents=True, exist_ok=True)
     columns = list(columns or (rows[0].keys() if rows else []))
     csv_path, md_path = stem.with_suffix(".csv"), stem.with_suffix(".md")
-    with open(csv_path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow({c: (repr(float(r[c])) if isinstance(r.get(c), (float, np.floating)) else r.get(c, ""))
-                        for c in columns})
-    md = (f"# {title}\n\n" if title else "") + markdown_table(rows, columns, digits)
-    md_path.write_text(md)
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: (repr(float(r[c])) if isinstance(r.get(c), (float, np.floating)) else r.get(c, ""))
+                    for c in columns})
+    write_text(csv_path, buf.getvalue())
+    write_text(md_path, (f"# {title}\n\n" if title else "") + markdown_table(rows, columns, digits))
     return csv_path, md_path
 
 
@@ -188,7 +191,7 @@ def write_report(path, parts, skipped, written, skipped_title="Not scored"):
     if skipped:
         parts = parts + [f"## {skipped_title}\n", markdown_table([dict(what=k, reason=r) for k, r in skipped])]
     parts = parts + ["## Files\n", "\n".join(f"- {Path(p).name}" for p in written) + "\n"]
-    path.write_text("\n".join(parts))
+    write_text(path, "\n".join(parts))
     return path
 
 

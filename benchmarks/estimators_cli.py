@@ -89,33 +89,45 @@ def _synthetic(names, args, out):
     return syn_scores, syn_euler, written
 
 
-def _recorded(names, args, out):
-    """Score ``names`` on the recorded trials (if the data folder is there): (aggregate rows,
-    skipped (key, reason), files written)."""
-    written = []
+def _load_recorded(args):
+    """The recorded trials to score, before anything is written (a bad --plot-trial stops the
+    run here): (data folder or None, trials, unreadable (key, reason), the trial to plot)."""
     data_dir = Path(args.data) if args.data else datasets.default_data_dir()
+    if data_dir is None:
+        return None, [], [], None
+    unreadable = []
+    try:
+        trials = datasets.load_folder(data_dir, unreadable=unreadable)
+    except ValueError as e:             # (two trials with one key; bad files are in unreadable)
+        sys.exit(f"error: {e}")
+    if args.quick:
+        keep, count = [], {}
+        for tr in trials:          # non-'ok' trials stay in, to be reported as skipped
+            if not tr.ok or count.get(tr.set, 0) < 2:
+                count[tr.set] = count.get(tr.set, 0) + tr.ok
+                keep.append(tr)
+        trials = keep
+    scored = [tr.key for tr in trials if tr.ok]
+    if args.plot_trial is not None and args.plot_trial not in scored:
+        sys.exit(f"error: --plot-trial {args.plot_trial!r} is not a scored trial of {data_dir}"
+                 f"{' (--quick keeps 2 per set)' if args.quick else ''}; scored: {', '.join(scored[:8])}"
+                 f"{', ...' if len(scored) > 8 else ''}")
+    plot_key = args.plot_trial or next((tr.key for tr in trials if tr.ok and tr.has_mag),
+                                       next(iter(scored), None))
+    return data_dir, trials, unreadable, plot_key
+
+
+def _recorded(names, recorded, out):
+    """Score ``names`` on the recorded trials (``_load_recorded``'s; none without the data
+    folder): (aggregate rows, skipped (key, reason), files written)."""
+    written = []
+    data_dir, trials, unreadable, plot_key = recorded
     trial_rows, agg_rows, skipped = [], [], []
     if data_dir is None:
         print(f"recorded data: folder not found ({datasets.DATA_LOCATION}); skipping the recorded-trial comparison")
     else:
-        unreadable = []
-        trials = datasets.load_folder(data_dir, unreadable=unreadable)
         for key, reason in unreadable:
             print(f"skipped unreadable trial file {key}: {reason}")
-        if args.quick:
-            keep, count = [], {}
-            for tr in trials:          # non-'ok' trials stay in, to be reported as skipped
-                if not tr.ok or count.get(tr.set, 0) < 2:
-                    count[tr.set] = count.get(tr.set, 0) + tr.ok
-                    keep.append(tr)
-            trials = keep
-        scored = [tr.key for tr in trials if tr.ok]
-        if args.plot_trial is not None and args.plot_trial not in scored:
-            sys.exit(f"error: --plot-trial {args.plot_trial!r} is not a scored trial of {data_dir}"
-                     f"{' (--quick keeps 2 per set)' if args.quick else ''}; scored: {', '.join(scored[:8])}"
-                     f"{', ...' if len(scored) > 8 else ''}")
-        plot_key = args.plot_trial or next((tr.key for tr in trials if tr.ok and tr.has_mag),
-                                           next(iter(scored), None))
         print(f"recorded data: {len(trials)} trials in {data_dir}")
         trial_rows, skipped, tcurves = compare.compare_trials(names, trials, keep_curves=(plot_key,))
         skipped = unreadable + skipped
@@ -176,12 +188,13 @@ def main(argv=None):
     if args.data is not None and not Path(args.data).is_dir():
         sys.exit(f"error: --data {args.data!r} is not a folder; give the recorded-data folder "
                  f"or leave --data out (default: {datasets.DATA_LOCATION})")
+    recorded = _load_recorded(args)
     out = Path(args.out)
     problem = _writable(out)
     if problem:
         sys.exit(f"error: {problem}")
     syn_scores, syn_euler, written = _synthetic(names, args, out)
-    agg_rows, skipped, more = _recorded(names, args, out)
+    agg_rows, skipped, more = _recorded(names, recorded, out)
     written += more
     syn_md, agg_md = _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out)
 

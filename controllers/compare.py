@@ -41,7 +41,7 @@ import numpy as np
 
 from fusion.checks import integer, require
 
-from controllers.policy_io import save_figure
+from controllers.policy_io import save_figure, write_text
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
@@ -286,13 +286,6 @@ def ray_session(address=None, workers=None, policy_dir=None):
         ray.shutdown()
 
 
-def _write_atomic(path, text):
-    """``text`` to ``path`` whole or not at all (``policy_io.atomic_write``), UTF-8."""
-    from controllers.policy_io import atomic_write
-    data = text.encode()
-    atomic_write(path, lambda f: f.write(data))
-
-
 def _load_cached(path, key):
     try:
         d = json.loads(Path(path).read_text())
@@ -407,7 +400,7 @@ def run_grid(jobs, backend="local", workers=None, address=None, progress=True, c
         for k in [i] + copies[i]:
             results[k] = [dict(r, controller=jobs[k]["controller"]) for r in rows]
             if cache is not None:
-                _write_atomic(cache / f"{keys[k]}.json",
+                write_text(cache / f"{keys[k]}.json",
                               json.dumps({"key": keys[k], "job": jobs[k], "rows": results[k]}, default=str))
             bar.update()
 
@@ -662,11 +655,11 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     first = ("task", "scenario", "estimator", "controller", "episode_seed")
     keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
     # each file is written whole or not at all (an interrupted write keeps the previous one)
-    _write_atomic(out / "episodes.csv", _csv_text(rows, keys))
+    write_text(out / "episodes.csv", _csv_text(rows, keys))
     sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
     skeys = sorted({k for r in summary for k in r},
                    key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
-    _write_atomic(out / "summary.csv", _csv_text(summary, skeys))
+    write_text(out / "summary.csv", _csv_text(summary, skeys))
     lines = _summary_intro(summary, command, seconds)
     head = headline_table(summary)
     if head:
@@ -676,7 +669,7 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
                   "against `truth` (same controller, floor and seeds) with its 95 % interval; `*`: it excludes 0 "
                   "at its family's Bonferroni-adjusted level (above). Rows in the order of the first column. "
                   "Also in headline.md.", ""] + head + [""]
-        _write_atomic(out / "headline.md", "\n".join(head) + "\n")
+        write_text(out / "headline.md", "\n".join(head) + "\n")
     for task in sorted({r["task"] for r in summary}):
         for sc in sorted({r["scenario"] for r in summary if r["task"] == task}):
             lines += _summary_table(task, sc, [r for r in summary if r["task"] == task and r["scenario"] == sc])
@@ -684,7 +677,7 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     if why:
         lines += ["## Headline figure", "", why, ""]
         log(why)
-    _write_atomic(out / "summary.md", "\n".join(lines))
+    write_text(out / "summary.md", "\n".join(lines))
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
     log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + (", headline.md" if head else "")

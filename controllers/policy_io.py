@@ -58,6 +58,13 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:
         os.close(fd)
 
 
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """``text`` to ``path`` whole or not at all (``atomic_write``), UTF-8; a character UTF-8
+    cannot hold (a surrogate from a file name that is not UTF-8) written as its escape."""
+    data = text.encode("utf-8", errors="backslashreplace")
+    atomic_write(path, lambda f: f.write(data))
+
+
 def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 110) -> None:
     """A matplotlib figure to ``path`` whole or not at all (``atomic_write``), in the format
     its suffix names (PNG without one)."""

@@ -59,16 +59,16 @@ cdef double _pairwise(const double* a, Py_ssize_t n) noexcept nogil:
 
 
 cdef int _read3(object v, double* out, str msg) except -1:
-    """3 numbers as ``x[0:3] = v`` takes them in the reference (numpy assignment)."""
+    """3 finite real numbers as the reference's ``_three`` takes them (a tuple of 3 Python
+    floats and a float64 array of 3 read directly), else ValueError(msg): a NaN on a step
+    without a sample would enter the low-pass and fail a later sample."""
     cdef cnp.ndarray arr
-    if type(v) is tuple and len(<tuple>v) == 3:
-        try:
-            out[0] = (<tuple>v)[0]
-            out[1] = (<tuple>v)[1]
-            out[2] = (<tuple>v)[2]
-            return 0
-        except TypeError:
-            pass
+    cdef bint read = False
+    if type(v) is tuple and len(<tuple>v) == 3 and all(type(e) is float for e in <tuple>v):
+        out[0] = (<tuple>v)[0]
+        out[1] = (<tuple>v)[1]
+        out[2] = (<tuple>v)[2]
+        read = True
     elif type(v) is np.ndarray:
         arr = <cnp.ndarray>v
         if (cnp.PyArray_TYPE(arr) == cnp.NPY_DOUBLE and cnp.PyArray_NDIM(arr) == 1
@@ -76,15 +76,16 @@ cdef int _read3(object v, double* out, str msg) except -1:
             out[0] = (<double*>cnp.PyArray_GETPTR1(arr, 0))[0]
             out[1] = (<double*>cnp.PyArray_GETPTR1(arr, 1))[0]
             out[2] = (<double*>cnp.PyArray_GETPTR1(arr, 2))[0]
-            return 0
-    x = np.zeros(3)
-    try:
-        x[:] = v
-    except (ValueError, TypeError):
-        raise ValueError(f"{msg}, got {v!r}") from None
-    out[0] = x[0]
-    out[1] = x[1]
-    out[2] = x[2]
+            read = True
+    if not read:
+        x = np.asarray(v)
+        if x.shape != (3,) or x.dtype.kind not in "iuf":
+            raise ValueError(f"{msg}, got {v!r}")
+        out[0] = x[0]
+        out[1] = x[1]
+        out[2] = x[2]
+    if not (isfinite(out[0]) and isfinite(out[1]) and isfinite(out[2])):
+        raise ValueError(f"{msg}, got {v!r}")
     return 0
 
 
@@ -393,10 +394,10 @@ cdef class StepKernel:
         cdef double a[3]
         cdef double m[3]
         cdef double d = 0.0
-        _read3(gyr_true, g, "gyr_true must be 3 real numbers (rad/s)")
-        _read3(acc_true, a, "acc_true must be 3 real numbers (m/s^2)")
+        _read3(gyr_true, g, "gyr_true must be 3 finite real numbers (rad/s)")
+        _read3(acc_true, a, "acc_true must be 3 finite real numbers (m/s^2)")
         if mag_true is not None:
-            _read3(mag_true, m, "mag_true must be 3 real numbers or None")
+            _read3(mag_true, m, "mag_true must be 3 finite real numbers or None")
         if dt is not None:
             d = dt
         if not self.step_c(g, a, m if mag_true is not None else NULL, d, dt is not None):

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fusion.checks import flag
+
 __all__ = ["Trial", "load_trial", "load_folder", "default_data_dir", "ENV_VAR", "DEFAULT_DATA_DIR", "DATA_LOCATION",
            "EXPECTED", "REQUIRED"]
 
@@ -107,7 +109,11 @@ def _float(d, key, path):
     int or float: the cast would silently change the meaning of the other dtypes (a complex
     array loses its imaginary part, a timedelta64 't' becomes counts of its own unit, bool
     and strings become numbers)."""
-    arr = _get(d, key, path)
+    return _as_float(_get(d, key, path), key, path)
+
+
+def _as_float(arr, key, path):
+    """``_float`` of an array already read."""
     if np.iscomplexobj(arr):
         raise ValueError(f"{path}: {key!r} must be real, {EXPECTED[key]} (got complex dtype {arr.dtype})")
     if arr.dtype.kind not in "iuf":
@@ -140,11 +146,53 @@ def _rows(d, n, cols, key, path):
     return arr
 
 
+def _steps(t_raw, t, fs, path):
+    """The sample steps ``dt`` (the first 1 / fs) of the stamps ``t`` (``t_raw`` as stored),
+    with the checks of ``fs`` and the stamps (``load_trial``)."""
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
+    if not np.isfinite(t).all():        # a last stamp of inf passed the increase test below
+        raise ValueError(f"{path}: time stamps 't' must be finite seconds "
+                         f"(row {int(np.argmax(~np.isfinite(t)))} is {t[~np.isfinite(t)][0]})")
+    n = t.shape[0]
+    dt = np.empty(n)
+    if n:
+        dt[0] = 1.0 / fs
+        dt[1:] = np.diff(t)
+        if n > 1 and not (dt[1:] > 0).all():
+            raise ValueError(f"{path}: time stamps 't' must increase strictly "
+                             f"(first bad step at row {int(np.argmax(dt[1:] <= 0)) + 1})")
+    if n > 2:
+        _check_stamps(t_raw, t, dt[1:], fs, path)
+    return dt
+
+
+def _check_stamps(t_raw, t, steps, fs, path):
+    """The stamps are seconds at about the rate ``fs`` (their median step within a factor of 2
+    of 1 / fs: stamps in ms, or an ``fs`` that is not the stamps' rate, would give every
+    estimator wrong steps), in a dtype that resolves the steps (float16 at 15 s is 8 ms apart)."""
+    step = float(np.median(steps))
+    if not 0.5 <= step * fs <= 2.0:
+        raise ValueError(f"{path}: the time stamps 't' step by {step:g} (median) but 'fs' is {fs:g} Hz, "
+                         f"a step of {1.0 / fs:g} s: 't' must be in seconds and 'fs' the stamps' rate "
+                         f"(within a factor of 2)")
+    if t_raw.dtype.kind == "f":
+        spacing = float(np.spacing(np.abs(t_raw).max()))
+        if spacing > 0.01 * step:
+            raise ValueError(f"{path}: 't' is {t_raw.dtype}, which is {spacing:g} s apart at "
+                             f"{float(np.abs(t).max()):g} s, over 1 % of the {step:g} s steps: store 't' "
+                             f"as float64 seconds")
+
+
 def load_trial(path: str | os.PathLike) -> Trial:
     """Read one ``.npz`` trial into a ``Trial``. FileNotFoundError for a missing file;
     ValueError naming the file, the key and what it must hold for a missing key, a bad shape
-    or a non-numeric array, and for a file numpy cannot read as ``.npz`` (not a zip, a member
-    that fails its CRC or is not ``.npy``)."""
+    or a non-numeric array, for a file numpy cannot read as ``.npz`` (not a zip, a member
+    that fails its CRC or is not ``.npy``), and for time stamps that are not finite, strictly
+    increasing seconds at about ``fs`` (their median step within a factor of 2 of ``1 / fs``)
+    in a dtype that resolves the steps (float16 does not)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"path must be a file path (str or os.PathLike), got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"trial file {str(path)!r} does not exist")
@@ -167,7 +215,8 @@ def load_trial(path: str | os.PathLike) -> Trial:
             want = "; ".join(f"{k!r}: {EXPECTED[k]}" for k in missing)
             raise ValueError(f"{path}: missing key(s) {missing}, required (expected {want}); "
                              f"the file has {sorted(d.files)}")
-        t = _float(d, "t", path)
+        t_raw = _get(d, "t", path)
+        t = _as_float(t_raw, "t", path)
         if t.ndim != 1:
             raise ValueError(f"{path}: 't' must have shape (N,), got {t.shape} (expected {EXPECTED['t']})")
         n = t.shape[0]
@@ -182,18 +231,7 @@ def load_trial(path: str | os.PathLike) -> Trial:
         quality = _text(d, "quality", path) if "quality" in d.files else "ok"
         notes = _text(d, "notes", path) if "notes" in d.files else ""
         extra = {k: np.asarray(_get(d, k, path, raw_ok=True)) for k in d.files if k not in _KNOWN}
-    if not (np.isfinite(fs) and fs > 0):
-        raise ValueError(f"{path}: 'fs' must be a positive sample rate, got {fs}")
-    if not np.isfinite(t).all():        # a last stamp of inf passed the increase test below
-        raise ValueError(f"{path}: time stamps 't' must be finite seconds "
-                         f"(row {int(np.argmax(~np.isfinite(t)))} is {t[~np.isfinite(t)][0]})")
-    dt = np.empty(n)
-    if n:
-        dt[0] = 1.0 / fs
-        dt[1:] = np.diff(t)
-        if n > 1 and not (dt[1:] > 0).all():
-            raise ValueError(f"{path}: time stamps 't' must increase strictly "
-                             f"(first bad step at row {int(np.argmax(dt[1:] <= 0)) + 1})")
+    dt = _steps(t_raw, t, fs, path)
     return Trial(name=path.stem, set=path.parent.name, t=t, gyr=gyr, acc=acc, mag=mag, quat=q,
                  fs=fs, quality=quality, notes=notes, dt=dt, path=path, extra=extra)
 
@@ -204,7 +242,15 @@ def load_folder(folder: str | os.PathLike, only_ok: bool = False,
     with one sub-folder per set), sorted by set and name. ``only_ok`` drops trials whose
     quality is not 'ok'. ValueError with the path when ``folder`` does not exist or is not a
     folder; ``load_trial``'s errors for a bad file, unless ``unreadable`` is a list: then each
-    bad file is skipped and ``("<set>/<name>", message)`` appended to it."""
+    bad file is skipped and ``("<set>/<name>", message)`` appended to it. Trial keys
+    (``<set>/<name>``) must be unique: two files with one key (``a/set/x.npz`` and
+    ``b/set/x.npz``) are a ValueError naming both."""
+    if not isinstance(folder, (str, os.PathLike)):
+        raise ValueError(f"folder must be a folder path (str or os.PathLike), got {type(folder).__name__}")
+    only_ok = flag("only_ok", only_ok)
+    if unreadable is not None and not isinstance(unreadable, list):
+        raise ValueError(f"unreadable must be None or a list to append (key, message) pairs to, "
+                         f"got {type(unreadable).__name__}")
     folder = Path(folder)
     if not folder.exists():
         raise ValueError(f"data folder {str(folder)!r} does not exist")
@@ -219,6 +265,10 @@ def load_folder(folder: str | os.PathLike, only_ok: bool = False,
                 raise
             unreadable.append((f"{p.parent.name}/{p.stem}", str(e)))
     trials.sort(key=lambda tr: (tr.set, tr.name))
+    for a, b in zip(trials, trials[1:]):
+        if a.key == b.key:
+            raise ValueError(f"two trials have the key {a.key!r} (the set folder's name and the file's): "
+                             f"{a.path} and {b.path}; rename one, or load the folders one at a time")
     return [tr for tr in trials if tr.ok] if only_ok else trials
 
 

@@ -605,6 +605,15 @@ def _quantiser(spec):
     return 0.0, -spec.range, spec.range, math.isfinite(spec.range)
 
 
+def _three(v, msg):
+    """One step's 3 finite real numbers (a NaN on a step without a sample would enter the
+    low-pass and fail a later sample), else ValueError(msg). As ``_imu.pyx``'s ``_read3``."""
+    x = np.asarray(v)
+    if x.shape != (3,) or x.dtype.kind not in "iuf" or not np.isfinite(x).all():
+        raise ValueError(f"{msg}, got {v!r}")
+    return x
+
+
 class IMU:
     """The sensor model: ``IMU(spec_or_preset_name, rng, physics_rate_hz=None, mag_unit="uT")``.
 
@@ -1175,6 +1184,10 @@ class IMU:
         else None. The first call after ``reset()`` is time 0 (its dt is not used); later
         calls advance by ``dt`` (s), default 1/physics_rate_hz. Arguments as one row of
         ``simulate``'s (3 numbers each)."""
+        if dt is not None:
+            if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, numbers.Real):
+                raise ValueError(f"dt must be a number of seconds or None, got {dt!r}")
+            dt = float(dt)
         k = self._kernel
         if k is not None:
             if not k.live:
@@ -1195,20 +1208,11 @@ class IMU:
     def _step_input(self, gyr_true, acc_true, mag_true):
         """One step's true motion, checked, into the scratch row x (9,)."""
         x = self._x
-        try:
-            x[0:3] = gyr_true
-        except (ValueError, TypeError):
-            raise ValueError(f"gyr_true must be 3 real numbers (rad/s), got {gyr_true!r}") from None
-        try:
-            x[3:6] = acc_true
-        except (ValueError, TypeError):
-            raise ValueError(f"acc_true must be 3 real numbers (m/s^2), got {acc_true!r}") from None
+        x[0:3] = _three(gyr_true, "gyr_true must be 3 finite real numbers (rad/s)")
+        x[3:6] = _three(acc_true, "acc_true must be 3 finite real numbers (m/s^2)")
         has_mag = mag_true is not None
         if has_mag:
-            try:
-                x[6:9] = mag_true
-            except (ValueError, TypeError):
-                raise ValueError(f"mag_true must be 3 real numbers or None, got {mag_true!r}") from None
+            x[6:9] = _three(mag_true, "mag_true must be 3 finite real numbers or None")
         if self._mag_on is None:
             self._mag_on = has_mag
         elif self._mag_on != has_mag:

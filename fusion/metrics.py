@@ -20,9 +20,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion import quat
+from fusion.checks import flag
 from fusion.quat import Array
 
-__all__ = ["ANGLES", "euler_errors", "euler_table", "attitude_errors", "heading_offset",
+__all__ = ["ANGLES", "reference_rows", "euler_errors", "euler_table", "attitude_errors", "heading_offset",
            "remove_heading_offset", "score", "rmse", "spectrum"]
 
 ANGLES = ("yaw", "pitch", "roll")
@@ -47,7 +48,7 @@ def _pair(q_est, q_ref, names=("q_est", "q_ref")):
         else:
             raise ValueError(f"{names[0]} and {names[1]} must have the same number of rows, "
                              f"got {a.shape[0]} and {b.shape[0]}")
-    bad = _has_reference(b) & ~_has_reference(a)
+    bad = reference_rows(b) & ~reference_rows(a)
     if bad.any():
         raise ValueError(f"{names[0]} must be a finite, nonzero quaternion on every row with a "
                          f"reference: {int(bad.sum())} of {a.shape[0]} rows are not (first: row "
@@ -56,7 +57,7 @@ def _pair(q_est, q_ref, names=("q_est", "q_ref")):
     return a, b
 
 
-def _has_reference(q):
+def reference_rows(q: ArrayLike) -> NDArray[np.bool_]:
     """The rows of q that are a rotation (finite, not zero): where the reference is one, a row
     is scored; where it is not, it is dropped."""
     return np.isfinite(quat.normalise(q)).all(axis=1)
@@ -72,7 +73,7 @@ def euler_errors(q_est: ArrayLike, q_true: ArrayLike) -> Array:
     with columns (yaw, pitch, roll); rows with a non-finite (or zero) reference dropped, as
     ``score`` ignores them."""
     a, b = _pair(q_est, q_true, ("q_est", "q_true"))
-    keep = _has_reference(b)
+    keep = reference_rows(b)
     d = np.degrees(quat.to_euler(a[keep]) - quat.to_euler(b[keep]))
     return _wrap_deg(d)
 
@@ -175,7 +176,7 @@ def score(q_est: ArrayLike, q_ref: ArrayLike, six_axis: bool = False) -> dict[st
     not a finite, nonzero quaternion on one of them. With ``six_axis=True`` one
     constant heading offset is removed first (``remove_heading_offset``), as
     the data folder's README asks for estimators without a magnetometer."""
-    err = attitude_errors(remove_heading_offset(q_est, q_ref) if six_axis else q_est, q_ref)
+    err = attitude_errors(remove_heading_offset(q_est, q_ref) if flag("six_axis", six_axis) else q_est, q_ref)
     if not np.isfinite(err["total"]).any():
         raise ValueError("no rows with a finite reference quaternion to score")
     return {k: rmse(v) for k, v in err.items()}

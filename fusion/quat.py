@@ -18,16 +18,29 @@ __all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "t
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def _real(x, name):
+    """``x`` as a float array; ValueError naming ``name`` for a masked array (its mask would be
+    dropped: fill the masked rows with NaN, ``x.filled(np.nan)``, to leave them unscored) and for
+    values that are not real numbers (complex, bool, strings, objects)."""
+    if isinstance(x, np.ma.MaskedArray):
+        raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass "
+                         f"{name}.filled(np.nan) (NaN rows of a reference are not scored)")
+    a = np.asarray(x)
+    if a.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must hold real numbers (int or float), got dtype {a.dtype}")
+    return a.astype(float, copy=False)
+
+
 def as_quat(q: ArrayLike, name: str = "q") -> Array:
     """``q`` as a float array with last axis 4, else ValueError naming ``name``."""
-    q = np.asarray(q, dtype=float)
+    q = _real(q, name)
     if q.ndim == 0 or q.shape[-1] != 4:
         raise ValueError(f"{name} must have shape (..., 4) [w, x, y, z], got {q.shape}")
     return q
 
 
 def _as_vec(v, name="v"):
-    v = np.asarray(v, dtype=float)
+    v = _real(v, name)
     if v.ndim == 0 or v.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (..., 3), got {v.shape}")
     return v
@@ -137,14 +150,30 @@ def exp(omega: ArrayLike, dt: float | ArrayLike) -> Array:
     """Increment of a constant body rate ``omega`` (..., 3) over ``dt`` (scalar or (...,)):
     ``q⁺ = q ⊗ exp(omega, dt)``, the exact exponential (``Φ`` of docs/estimators.md)."""
     omega = _as_vec(omega, "omega")
-    return from_rotvec(omega * np.asarray(dt, dtype=float)[..., None])
+    return from_rotvec(omega * _per_row(dt, "dt", omega.shape[:-1])[..., None])
+
+
+def _per_row(x, name, rows):
+    """``x`` (a scalar, or one value per row of shape ``rows``, or rows of its own for one row)
+    as floats; ValueError where its shape would combine with ``rows`` into a new one (a column
+    ``(N, 1)`` against ``N`` rows would give ``N x N``)."""
+    x = _real(x, name)
+    try:
+        shape = np.broadcast_shapes(x.shape, rows)
+    except ValueError:
+        shape = None
+    if shape not in (x.shape, tuple(rows)):
+        raise ValueError(f"{name} must be a scalar or have shape {tuple(rows)} (one per row), got {x.shape}")
+    return x
 
 
 def from_axis_angle(axis: ArrayLike, angle: float | ArrayLike) -> Array:
     """Quaternion of a rotation by ``angle`` (rad) about ``axis`` (normalised here)."""
     axis = _as_vec(axis, "axis")
-    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-    return from_rotvec(axis * np.asarray(angle, dtype=float)[..., None])
+    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+    if not (np.isfinite(norm).all() and (norm > 0).all()):
+        raise ValueError("axis must be finite and non-zero (a rotation about no axis is undefined)")
+    return from_rotvec(axis / norm * _per_row(angle, "angle", axis.shape[:-1])[..., None])
 
 
 def angle(p: ArrayLike, q: ArrayLike) -> Array:

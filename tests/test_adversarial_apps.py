@@ -170,6 +170,22 @@ def test_estimators_unknown_plot_trial_is_refused(tmp_path):
              str(tmp_path / "data"), "--plot-trial", "s/nope"], timeout=300)
     assert r.returncode != 0 and "--plot-trial 's/nope'" in r.stderr and "s/good" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()        # refused before the synthetic tables were written
+
+
+def test_estimators_a_trial_without_reference_does_not_blank_its_set(tmp_path):
+    """A trial whose reference is all zero was skipped in 6-axis but scored NaN in 9-axis,
+    which made the set's 9-axis mean NaN."""
+    data = tmp_path / "data" / "s"
+    data.mkdir(parents=True)
+    mag = np.tile([0.2, 0.0, -0.4], (20, 1))
+    _trial(data / "good.npz", gyr=np.random.default_rng(0).normal(0, 0.01, (20, 3)), mag=mag)
+    _trial(data / "zero.npz", quat=np.zeros((20, 4)), mag=mag)
+    r = run([SCRIPT, "--out", str(tmp_path / "out"), "--estimators", "gyro", "--data",
+             str(tmp_path / "data")], timeout=300)
+    assert r.returncode == 0, r.stderr
+    agg = (tmp_path / "out" / "trials_aggregate.csv").read_text()
+    assert "nan" not in agg.lower() and "s/zero" in (tmp_path / "out" / "report.md").read_text()
 
 
 def test_estimators_bad_npz_is_skipped(tmp_path):

@@ -222,3 +222,42 @@ def test_load_folder_collects_corrupt_files(tmp_path):
     assert [tr.key for tr in trials] == ["s/good"]
     assert [k for k, _ in bad] == ["s/crc", "s/raw"]
     assert str(crc) in bad[0][1]
+
+
+@pytest.mark.parametrize("t, fs, match", [
+    (np.arange(200) * 10.0, 100.0, "must be in seconds"),                  # stamps in ms
+    (np.arange(200) / 100.0, 1.0, "must be in seconds"),                   # fs not the stamps' rate
+    ((np.arange(1500) / 100.0).astype(np.float16), 100.0, "store 't' as float64"),
+])
+def test_stamps_in_other_units_or_an_unresolving_dtype_are_refused(tmp_path, t, fs, match):
+    """Stamps in ms (every step 1000x), an fs that is not the stamps' rate, or float16 stamps
+    (8 ms apart at 15 s) gave every estimator wrong steps, silently."""
+    a = _arrays(n=t.shape[0], fs=fs)
+    a["t"] = t
+    with pytest.raises(ValueError, match=match):
+        datasets.load_trial(_write(tmp_path / "s" / "x.npz", **a))
+
+
+def test_stamps_a_little_off_the_nominal_rate_load(tmp_path):
+    a = _arrays(n=200)
+    a["t"] = np.arange(200) / 104.0            # 4 % off, as a real set's clock
+    assert datasets.load_trial(_write(tmp_path / "s" / "x.npz", **a)).n == 200
+
+
+def test_two_trials_with_one_key_are_refused(tmp_path):
+    _write(tmp_path / "a" / "set" / "x.npz", **_arrays())
+    _write(tmp_path / "b" / "set" / "x.npz", **_arrays())
+    with pytest.raises(ValueError, match="two trials have the key 'set/x'"):
+        datasets.load_folder(tmp_path)
+
+
+def test_load_folder_arguments_are_checked(tmp_path):
+    _write(tmp_path / "s" / "x.npz", **_arrays())
+    with pytest.raises(ValueError, match="only_ok must be True or False"):
+        datasets.load_folder(tmp_path, only_ok="no")
+    with pytest.raises(ValueError, match="unreadable must be None or a list"):
+        datasets.load_folder(tmp_path, unreadable=())
+    with pytest.raises(ValueError, match="folder must be a folder path"):
+        datasets.load_folder(None)
+    with pytest.raises(ValueError, match="path must be a file path"):
+        datasets.load_trial(None)

@@ -462,9 +462,9 @@ def test_bad_simulate_input_names_the_argument(args, match):
 
 def test_bad_step_input_names_the_argument():
     a = imu.IMU("ideal", np.random.default_rng(0))
-    with pytest.raises(ValueError, match=r"gyr_true must be 3 real numbers"):
+    with pytest.raises(ValueError, match=r"gyr_true must be 3 finite real numbers"):
         a.step([0.0, 1.0], [0.0, 0.0, G])
-    with pytest.raises(ValueError, match=r"acc_true must be 3 real numbers"):
+    with pytest.raises(ValueError, match=r"acc_true must be 3 finite real numbers"):
         a.step([0.0, 0.0, 0.0], "up")
     a.step([0.0, 0.0, 0.0], [0.0, 0.0, G])
     with pytest.raises(ValueError, match="dt must be given"):

@@ -140,3 +140,22 @@ def test_copy_and_pickle_continue_the_record():
     a = run(s, gyr[2000:], acc[2000:], mag[2000:], None)
     assert_same(a, run(c, gyr[2000:], acc[2000:], mag[2000:], None))
     assert_same(a, run(p, gyr[2000:], acc[2000:], mag[2000:], None))
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_step_refuses_a_bad_row_on_a_step_without_a_sample(compiled):
+    """A NaN on a physics step whose IMU sample is not due is refused on that step, naming the
+    argument (it used to enter the low-pass and fail the next samples as if they were bad);
+    a scalar, a string or a complex row and a dt that is not a number are refused alike."""
+    s = imu.IMU("mpu9250", np.random.default_rng(0), physics_rate_hz=1000.0, compiled=compiled)
+    s.step((0.0, 0.0, 0.0), (0.0, 0.0, G))
+    with pytest.raises(ValueError, match="gyr_true must be 3 finite real numbers"):
+        s.step((math.nan, 0.0, 0.0), (0.0, 0.0, G))
+    for bad in (5.0, "1 2 3", np.array([1j, 0, 0]), np.array([True, False, True])):
+        with pytest.raises(ValueError, match="acc_true must be 3 finite real numbers"):
+            s.step((0.0, 0.0, 0.0), bad)
+    for dt in (np.array([0.001]), "0.001", True):
+        with pytest.raises(ValueError, match="dt must be a number of seconds"):
+            s.step((0.0, 0.0, 0.0), (0.0, 0.0, G), dt=dt)
+    out = [s.step((0.0, 0.0, 0.0), (0, 0, 9.81)) for _ in range(20)]     # ints accepted
+    assert any(o is not None for o in out) and all(np.isfinite(o.acc).all() for o in out if o is not None)

@@ -83,6 +83,26 @@ def test_quat_shape_errors():
         quat.rotate([1, 0, 0, 0], [1, 0])
 
 
+def test_quat_refuses_inputs_that_would_score_a_wrong_number():
+    """A masked array (its mask dropped: 96 deg instead of 2), complex, bool or string
+    quaternions, a column of steps that broadcast to N x N, a zero axis (NaN): each a ValueError
+    naming the argument."""
+    q = random_quats(5)
+    masked = np.ma.masked_array(q, mask=np.zeros_like(q, bool))
+    with pytest.raises(ValueError, match="q_ref is a masked array"):
+        metrics.score(q, masked)
+    for bad in (q + 1j, np.ones((5, 4), bool), q.astype(str)):
+        with pytest.raises(ValueError, match="must hold real numbers"):
+            metrics.score(bad, q)
+    with pytest.raises(ValueError, match=r"dt must be a scalar or have shape \(5,\)"):
+        quat.exp(np.ones((5, 3)), np.full((5, 1), 0.01))
+    assert quat.exp(np.ones(3), np.full(5, 0.01)).shape == (5, 4)      # one rate, five steps
+    with pytest.raises(ValueError, match="axis must be finite and non-zero"):
+        quat.from_axis_angle([0, 0, 0], 1.0)
+    with pytest.raises(ValueError, match="six_axis must be True or False"):
+        metrics.score(q, q, six_axis="False")
+
+
 # --- attitude errors ---------------------------------------------------------------------
 
 @pytest.mark.parametrize("deg", [10.0, -10.0, 90.0])
