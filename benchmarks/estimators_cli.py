@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import fusion
-from fusion import datasets, scenarios
+from fusion import datasets, metrics, scenarios
 from fusion.checks import require
 from benchmarks import compare
 
@@ -100,19 +100,20 @@ def _load_recorded(args):
         trials = datasets.load_folder(data_dir, unreadable=unreadable)
     except ValueError as e:             # (two trials with one key; bad files are in unreadable)
         sys.exit(f"error: {e}")
+    usable = {tr.key: tr.ok and metrics.reference_rows(tr.quat).any() for tr in trials}
     if args.quick:
         keep, count = [], {}
-        for tr in trials:          # non-'ok' trials stay in, to be reported as skipped
-            if not tr.ok or count.get(tr.set, 0) < 2:
-                count[tr.set] = count.get(tr.set, 0) + tr.ok
+        for tr in trials:          # trials that cannot be scored stay in, to be reported as skipped
+            if not usable[tr.key] or count.get(tr.set, 0) < 2:
+                count[tr.set] = count.get(tr.set, 0) + usable[tr.key]
                 keep.append(tr)
         trials = keep
-    scored = [tr.key for tr in trials if tr.ok]
+    scored = [tr.key for tr in trials if usable[tr.key]]
     if args.plot_trial is not None and args.plot_trial not in scored:
         sys.exit(f"error: --plot-trial {args.plot_trial!r} is not a scored trial of {data_dir}"
                  f"{' (--quick keeps 2 per set)' if args.quick else ''}; scored: {', '.join(scored[:8])}"
                  f"{', ...' if len(scored) > 8 else ''}")
-    plot_key = args.plot_trial or next((tr.key for tr in trials if tr.ok and tr.has_mag),
+    plot_key = args.plot_trial or next((tr.key for tr in trials if usable[tr.key] and tr.has_mag),
                                        next(iter(scored), None))
     return data_dir, trials, unreadable, plot_key
 
