@@ -41,6 +41,7 @@ import numpy as np
 
 import fusion
 from fusion import datasets, scenarios
+from fusion.checks import arg_type, integer, number
 from benchmarks import compare, loso, peers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -303,16 +304,24 @@ def parse_args(argv=None):
                     help="output folder (default: %(default)s)")
     ap.add_argument("--data", default=None,
                     help=f"recorded-data folder (default: {datasets.DATA_LOCATION})")
-    ap.add_argument("--max-trials", type=int, default=None, help="at most this many 'ok' trials per set")
-    ap.add_argument("--trial-seconds", type=float, default=None,
-                    help="score only the first S seconds of each trial and seed scenario")
+    ap.add_argument("--max-trials", type=arg_type(integer, low=1), default=None,
+                    help="at most this many 'ok' trials per set (>= 1)")
+    ap.add_argument("--trial-seconds", type=arg_type(number, low=0.0, open_low=True), default=None,
+                    help="score only the first S seconds of each trial and seed scenario (> 0)")
     ap.add_argument("--scenarios", nargs="+", default=None, metavar="NAME",
                     help="only these synthetic / seed scenarios")
-    ap.add_argument("--duration", type=float, default=None,
+    ap.add_argument("--duration", type=arg_type(number, low=0.0, high=1e4, open_low=True), default=None,
                     help="synthetic scenario length in s (default 60, quick 20)")
-    ap.add_argument("--seed", type=int, default=0, help="scenario seed (default: %(default)s)")
+    ap.add_argument("--seed", type=arg_type(integer, low=0), default=0, help="scenario seed (default: %(default)s)")
     ap.add_argument("--no-progress", action="store_true", help="no tqdm bar")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    known = list(scenarios.SCENARIOS) + list(seed_scenario_names())
+    unknown = sorted(set(args.scenarios or ()) - set(known))
+    if unknown:
+        ap.error(f"--scenarios: unknown {unknown}; accepted: {', '.join(known)}")
+    if args.data is not None and not Path(args.data).is_dir():
+        ap.error(f"--data {args.data!r} is not a folder (leave it out for {datasets.DATA_LOCATION})")
+    return args
 
 
 def fmt_target(label, row):
@@ -488,7 +497,7 @@ def main(argv=None):
     args = parse_args(argv)
     t_start = time.perf_counter()
     quick = args.quick
-    duration = args.duration or (20.0 if quick else 60.0)
+    duration = args.duration if args.duration is not None else (20.0 if quick else 60.0)
     max_trials = args.max_trials if args.max_trials is not None else (2 if quick else None)
     trial_seconds = args.trial_seconds if args.trial_seconds is not None else (20.0 if quick else None)
     out = Path(args.out)

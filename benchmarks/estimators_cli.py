@@ -13,13 +13,13 @@ benchmarks.compare (matplotlib is imported only to draw).
 """
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import fusion
 from fusion import datasets, metrics, scenarios
 from fusion.checks import require
+from controllers.policy_io import check_writable
 from benchmarks import compare
 
 ERR_COLS = ["total", "heading", "inclination"]
@@ -33,17 +33,6 @@ def _seed(text):
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
     return v
-
-
-def _writable(out):
-    """Create ``out`` and write a probe file in it: an error message, or None."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test-"):
-            pass
-    except OSError as e:
-        return f"--out {str(out)!r} is not a writable folder ({e.strerror or e})"
-    return None
 
 
 def parse_args(argv=None):
@@ -182,6 +171,9 @@ def main(argv=None):
              for n in arg.split(",") if n]
     if not names:
         sys.exit(f"error: --estimators names no estimator; available: {fusion.available()}")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        sys.exit(f"error: --estimators names {twice} more than once (each would be scored twice)")
     unknown = [n for n in names if n not in fusion.available()]
     if unknown:
         sys.exit(f"error: unknown estimator(s) {unknown}; available: {fusion.available()}")
@@ -191,9 +183,10 @@ def main(argv=None):
                  f"or leave --data out (default: {datasets.DATA_LOCATION})")
     recorded = _load_recorded(args)
     out = Path(args.out)
-    problem = _writable(out)
-    if problem:
-        sys.exit(f"error: {problem}")
+    try:
+        check_writable(out)
+    except ValueError as e:
+        sys.exit(f"error: {e}")
     syn_scores, syn_euler, written = _synthetic(names, args, out)
     agg_rows, skipped, more = _recorded(names, recorded, out)
     written += more

@@ -26,6 +26,7 @@ import numpy as np
 
 import fusion
 from fusion import datasets
+from fusion.checks import arg_type, number
 from benchmarks import compare, peers
 from controllers.evaluation import bootstrap_ci
 
@@ -265,12 +266,18 @@ def main(argv=None):
     ap.add_argument("--set", nargs="*", default=None, metavar="NAME=V",
                     help="fixed parameters besides the grid")
     ap.add_argument("--quick", action="store_true", help="every other trial of each set")
-    ap.add_argument("--seconds", type=float, default=None, help="first S s of each trial")
+    ap.add_argument("--seconds", type=arg_type(number, low=0.0, open_low=True), default=None,
+                    help="first S s of each trial (> 0)")
     ap.add_argument("--categories", action="store_true", help="per motion category rows")
     ap.add_argument("--data", default=None)
     ap.add_argument("--png", default=None, metavar="PATH",
                     help="bar chart of the defaults' ratios to VQF, one marker per cell (no --grid)")
     args = ap.parse_args(argv)
+    if args.png and args.grid:
+        ap.error("--png draws the defaults' ratios: give it without --grid")
+    unknown = [n for n in args.estimator if n not in fusion.available()]
+    if unknown:
+        ap.error(f"unknown estimator(s) {unknown}; accepted: {', '.join(fusion.available())}")
     t0 = time.perf_counter()
     cells = load_cells(args.data, args.quick, args.seconds)
     vqf = vqf_runner()

@@ -12,6 +12,7 @@ import sys
 import time
 
 from benchmarks import compare, papers, papers_report
+from controllers.policy_io import check_writable
 from fusion.checks import require
 
 
@@ -32,9 +33,21 @@ def main(argv=None):
     require("spherebot-papers", "plot")
     if args.seeds is not None and args.seeds < 1:
         sys.exit(f"error: --seeds must be >= 1, got {args.seeds}")
+    twice = sorted({s for s in args.sections if args.sections.count(s) > 1})
+    if twice:
+        sys.exit(f"error: --sections names {twice} more than once")
+    try:
+        check_writable(args.out)
+    except ValueError as e:
+        sys.exit(f"error: {e}")
     t0 = time.perf_counter()
     seeds = range(args.seeds) if args.seeds is not None else None
-    files = papers_report.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
+    try:
+        files = papers_report.reproduce(args.out, sections=args.sections, seeds=seeds, quick=args.quick)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: the files written so far in {args.out} mix this run's and the one "
+              f"before it; run again to have them all from one", file=sys.stderr)
+        return 130
     print(files[0].read_text())
     compare.print_written(files, args.out, time.perf_counter() - t0)
     return 0

@@ -46,6 +46,7 @@ rates in filter-samples/s, the same interleaved rounds.
 """
 import argparse
 import csv
+import io
 import os
 import platform
 import statistics
@@ -58,6 +59,8 @@ import numpy as np
 
 import fusion
 from benchmarks.peers import Data, all_methods, sanity
+from controllers.policy_io import check_writable, write_text
+from fusion.checks import arg_type, number
 
 
 FS = 100.0
@@ -358,16 +361,17 @@ def write_outputs(out, md, csv_header, csv_rows, detail):
     """throughput.md (``md`` under its title), throughput.csv and throughput_detail.csv in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     md_path, csv_path, det_path = out / "throughput.md", out / "throughput.csv", out / "throughput_detail.csv"
-    with open(md_path, "w") as f:
-        f.write("# Estimator throughput (samples/s)\n\n" + md)
-    with open(csv_path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(csv_header)
-        w.writerows(csv_rows)
-    with open(det_path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(detail[0]) if detail else ["method"])
-        w.writeheader()
-        w.writerows(detail)
+    write_text(md_path, "# Estimator throughput (samples/s)\n\n" + md)
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(csv_header)
+    w.writerows(csv_rows)
+    write_text(csv_path, buf.getvalue())
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=list(detail[0]) if detail else ["method"])
+    w.writeheader()
+    w.writerows(detail)
+    write_text(det_path, buf.getvalue())
     print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
 
 
@@ -388,15 +392,26 @@ def parse_args(argv=None):
                     help="fewer samples and repeats (whole script under about a minute)")
     ap.add_argument("--out", default=os.path.join("results", "benchmarks"),
                     help="output folder for throughput.md / throughput.csv (default: %(default)s)")
-    ap.add_argument("--target", type=float, default=None,
+    ap.add_argument("--target", type=arg_type(number, low=0.0, high=60.0, open_low=True), default=None,
                     help="seconds per measurement used to scale N (default 0.3, quick 0.06)")
-    ap.add_argument("--bank-only", action="store_true", help="only the bank section")
+    bank = ap.add_mutually_exclusive_group()
+    bank.add_argument("--bank-only", action="store_true", help="only the bank section (printed; no files)")
     ap.add_argument("--only", default=None,
                     help="comma-separated method names to time (e.g. fusion.ekf,vqf.VQF); default: all")
-    ap.add_argument("--no-bank", action="store_true", help="skip the bank section")
+    bank.add_argument("--no-bank", action="store_true", help="skip the bank section")
     ap.add_argument("--clock", choices=tuple(CLOCKS), default="wall",
                     help="wall time (default) or this thread's CPU time (for a loaded machine)")
     return ap.parse_args(argv)
+
+
+def _check_before_timing(args):
+    """Where the tables go and the --only names, before any timing: an error exits."""
+    try:
+        if not args.bank_only:
+            check_writable(args.out)
+            select_methods(all_methods(lambda *a: None), args.only)
+    except ValueError as e:
+        sys.exit(f"error: {e}")
 
 
 def main(argv=None):
@@ -407,6 +422,7 @@ def main(argv=None):
     n_run, n_upd, repeats, target, n_min, n_sanity = ((50_000, 50_000, 3, 0.06, 200, 1500) if args.quick
                                                       else (200_000, 200_000, 5, 0.3, 500, 3000))
     target = target if args.target is None else args.target
+    _check_before_timing(args)
 
     t_start = time.perf_counter()
     info, vers = machine_info(), versions()

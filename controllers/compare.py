@@ -29,7 +29,6 @@ import math
 import os
 import signal
 import sys
-import tempfile
 import textwrap
 import threading
 import time
@@ -41,7 +40,7 @@ import numpy as np
 
 from fusion.checks import integer, require
 
-from controllers.policy_io import save_figure, write_text
+from controllers.policy_io import check_writable, save_figure, write_text
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
@@ -194,6 +193,15 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
     for m in sorted(missing):
         log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
     return jobs
+
+
+def _check_policies(jobs):
+    """Every policy of ``jobs`` from a --policy-dir read once before the grid starts (a
+    corrupt or unsafe file is a PolicyError, a ValueError, here rather than in the middle of
+    the grid); the package's own are tested with it."""
+    from controllers.rl import load_policy
+    for pdir, name in sorted({(j["policy_dir"], j["policy"]) for j in jobs if j["policy_dir"]}):
+        load_policy(Path(pdir) / name)
 
 
 def cell_key(job, version):
@@ -680,6 +688,10 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     write_text(out / "summary.md", "\n".join(lines))
     if path_rows:
         _plot_paths(path_rows, out / "paths.png")
+    # an earlier run's file that this run does not make would be read as this run's
+    stale = [n for n, made in (("headline.md", head), ("headline.png", not why), ("paths.png", path_rows)) if not made]
+    for name in stale:
+        (out / name).unlink(missing_ok=True)
     log(f"wrote {out}/summary.md, summary.csv, episodes.csv" + (", headline.md" if head else "")
         + ("" if why else ", headline.png")
         + (", paths.png" if path_rows else ""))
@@ -803,18 +815,6 @@ def _list(s):
     return [x.strip() for x in s.split(",") if x.strip()]
 
 
-def _check_writable(out):
-    """Create ``out`` and write a probe file in it, or raise ValueError, before any work."""
-    out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(dir=out, prefix=".write-test-")
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as e:
-        raise ValueError(f"--out {str(out)!r} cannot be written ({e.strerror or e}); choose another folder") from None
-
-
 _DESCRIPTION = (
     "Compare motion control under each attitude estimator: the PID, PPO trained with that estimator "
     "and PPO trained on the true attitude, every cell against the `truth` cell of the same controller "
@@ -867,9 +867,9 @@ def _parser():
                     help=f"the full grid: every estimator, {FULL_EPISODES} episodes per cell "
                          "(about 12 min on 2 cores for the README's 9 estimators; "
                          "use --backend ray on a cluster, and --resume after an interruption)")
-    ap.add_argument("--backend", choices=("local", "ray"), default="local",
+    ap.add_argument("--backend", choices=("local", "ray"), default=None,
                     help="local: a process pool on this machine; ray: Ray tasks (one session per run; the "
-                         "package and policies travel in the runtime_env) (default local)")
+                         "package and policies travel in the runtime_env) (default local; ray with --address)")
     ap.add_argument("--workers", type=int, default=None, metavar="N",
                     help="local processes, or the CPUs of a Ray cluster started here (default: all cores)")
     ap.add_argument("--address", default=None,
@@ -900,6 +900,10 @@ def main(argv=None):
     old = signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         return _main(ap, a, argv)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: the finished cells are kept in {Path(a.out) / CACHE_DIR}; the same command "
+              f"with --resume continues", file=sys.stderr)
+        return 130
     finally:
         signal.signal(signal.SIGTERM, old)
 
@@ -913,7 +917,9 @@ def _main(ap, a, argv):
         QUICK["episodes"] if a.quick else FULL_EPISODES if a.full else 10)
     estimators = a.estimators or (QUICK["estimators"] if a.quick else ",".join(["truth"] + fusion.available()))
     controllers = a.controllers or (QUICK["controllers"] if a.quick else ",".join(CONTROLLERS))
-    backend = "ray" if a.address else a.backend
+    if a.address and a.backend == "local":
+        ap.error("--address joins a Ray cluster: give it with --backend ray (or without --backend)")
+    backend = a.backend or ("ray" if a.address else "local")
     require("spherebot-compare", "sim")
     if any(c.startswith("ppo") for c in _list(controllers)):
         require("spherebot-compare with a ppo controller", "rl")
@@ -926,7 +932,8 @@ def _main(ap, a, argv):
                     episodes, a.seed, policy_dir=a.policy_dir, robot=a.robot)
         if not jobs:
             raise ValueError("no cell to run: every cell of the grid lacks its policy (see above)")
-        _check_writable(a.out)
+        _check_policies(jobs)
+        check_writable(a.out)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -58,6 +58,21 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:
         os.close(fd)
 
 
+def check_writable(out: str | os.PathLike, option: str = "--out") -> None:
+    """Create the folder ``out`` and write a probe file in it, or raise ValueError naming
+    ``option``: a command checks where its results go before any work."""
+    import tempfile
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out, prefix=".write-test-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise ValueError(f"{option} {str(out)!r} cannot be written ({e.strerror or e}); "
+                         f"choose another folder") from None
+
+
 def write_text(path: str | os.PathLike, text: str) -> None:
     """``text`` to ``path`` whole or not at all (``atomic_write``), UTF-8; a character UTF-8
     cannot hold (a surrogate from a file name that is not UTF-8) written as its escape."""

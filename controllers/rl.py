@@ -655,6 +655,49 @@ def _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log):
         raise FileNotFoundError(f"--resume: no checkpoint in {ckpt_dir}; train without --resume first")
 
 
+EVAL_SEED_OFFSET = 10_000       # the evaluation environment's seed: the run's plus this
+# numpy's and gymnasium's seeds are below 2**32; make_vec_env seeds the n_envs environments from seed on
+SEED_MAX = 2**32 - 1 - EVAL_SEED_OFFSET - 256
+IDENTITY_FILE = "run.json"      # in <stem>.run/: what a resumed run must continue with
+
+
+def _identity(p, init_from):
+    """What makes a run the same run (``IDENTITY_FILE``): a resume with any other would mix
+    two trainings under one label."""
+    return {"algo": p.algo, "task": p.task, "estimator": p.estimator, "env_kwargs": p.env_kwargs,
+            "seed": p.seed, "n_envs": p.n_envs, "hyperparams": p.used_hp,
+            "init_from": None if init_from is None else os.fspath(init_from)}
+
+
+def _check_identity(p, init_from):
+    """Before any work: with ``resume``, the run directory's identity against this call's (a
+    difference is a ValueError listing each; ``init_from`` None on a resume means "as before";
+    a run of an older version without the file is not checked)."""
+    if not p.resume:
+        return
+    path = p.run_dir / IDENTITY_FILE
+    try:
+        recorded = json.loads(path.read_text())
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--resume: {path} cannot be read ({e}): it records what the run was") from None
+    now = json.loads(json.dumps(_identity(p, init_from)))     # (as the file holds it: lists, not tuples)
+    if init_from is None:
+        now["init_from"] = recorded.get("init_from")
+    diff = [f"{k}: {recorded.get(k)!r} before, {v!r} now" for k, v in now.items() if recorded.get(k) != v]
+    if diff:
+        raise ValueError(f"--resume: {p.run_dir} is another run ({'; '.join(diff)}); resume it with its own "
+                         f"settings, or train without --resume into another --out")
+
+
+def _record_identity(p, init_from):
+    """``IDENTITY_FILE`` of a new run (a resumed one keeps its own)."""
+    if not p.resume:
+        data = json.dumps(_identity(p, init_from), indent=2).encode()
+        atomic_write(p.run_dir / IDENTITY_FILE, lambda f: f.write(data))
+
+
 def _init_source(init_from, algo, task, trusted, log):
     """(zip, statistics) of the policy ``init_from`` names, checked to be of ``algo``; a warning
     for a file outside the package unless ``trusted``."""
@@ -727,6 +770,7 @@ def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_
                                         default_envs if n_envs is None else n_envs,
                                         eval_freq, checkpoint_freq, eval_episodes)
     choice("vec_env", vec_env, VEC_ENVS)
+    seed = integer("seed", seed, 0, SEED_MAX)
     clone = init_from == TEACHER and not resume
     if clone:
         integer("bc_steps", bc_steps, 1)
@@ -748,7 +792,7 @@ def _run_envs(p):
     """(training venv, evaluation env) of the plan ``p``, unwrapped by VecNormalize."""
     venv = make_vec_env(p.task, p.estimator, p.n_envs, p.seed, p.env_kwargs, monitor_dir=str(p.run_dir / "monitor"),
                         append=p.resume, subprocess=p.vec_env == "subproc", batched=p.vec_env == "batched")
-    return venv, make_vec_env(p.task, p.estimator, 1, p.seed + 10_000, p.env_kwargs, subprocess=False)
+    return venv, make_vec_env(p.task, p.estimator, 1, p.seed + EVAL_SEED_OFFSET, p.env_kwargs, subprocess=False)
 
 
 def _start_model(p, venv, eval_env, init, start_ckpt, progress, log):
@@ -844,12 +888,16 @@ def train(algo: str, task: str, estimator: str, timesteps: int | None = None, se
     torch.set_num_threads(1)
     p = _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_episodes, eval_freq,
               checkpoint_freq, n_envs, init_from, bc_steps, hyperparams_override, vec_env)
+    if resume and overwrite:
+        raise ValueError("resume continues the run in the work directory and overwrite starts it over: give one")
     _prepare_run_dir(p.run_dir, p.ckpt_dir, resume, overwrite, log)
+    _check_identity(p, init_from)
     init = None
     if init_from is not None and init_from != TEACHER and not resume:
         init = _init_source(init_from, algo, task, trusted, log)
     start_ckpt = _readable_start(init, resume, p.ckpt_dir, p.normalize, algo, p.extra, log)
     p.run_dir.mkdir(parents=True, exist_ok=True)
+    _record_identity(p, init_from)
     venv, eval_env = _run_envs(p)
     try:
         venv, eval_env, model, bc_collected = _start_model(p, venv, eval_env, init, start_ckpt, progress, log)

@@ -76,14 +76,15 @@ def _task(env):
     raise ValueError(f"--env must be one of {', '.join(list(ids) + list(rl.TASK_IDS))}, got {env!r}")
 
 
-def _int(lo):
+def _int(lo, hi=None):
     def parse(text):
         try:
             v = int(float(text)) if float(text) == int(float(text)) else None
         except (ValueError, OverflowError):
             v = None
-        if v is None or v < lo:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
+        if v is None or v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}{'' if hi is None else f' and <= {hi}'}, "
+                                             f"got {text!r}")
         return v
     return parse
 
@@ -102,8 +103,8 @@ def parser():
     ap.add_argument("-n", "--n-timesteps", "--timesteps", dest="timesteps", nargs="+", default=None,
                     metavar="N", help="total environment steps, or TASK:N items (one per task of a grid); "
                                       "alias: --timesteps (default: the YAML file's n_timesteps)")
-    ap.add_argument("--seed", type=_int(0), default=[0], nargs="+",
-                    help="random seed, an integer >= 0 (default: 0); several: a grid")
+    ap.add_argument("--seed", type=_int(0, rl.SEED_MAX), default=[0], nargs="+",
+                    help=f"random seed, an integer from 0 to {rl.SEED_MAX} (default: 0); several: a grid")
     ap.add_argument("--n-envs", type=_int(1), default=None, metavar="N",
                     help="parallel environments, >= 1 (default: the YAML file's n_envs)")
     ap.add_argument("--vec-env", choices=rl.VEC_ENVS, default="subproc",

@@ -7,6 +7,7 @@ import importlib.util
 import math
 import numbers
 import sys
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -76,6 +77,26 @@ def integer(name: str, value: Any, low: int | None = None, high: int | None = No
 # not_masked's hint where the value is sensor samples, which on_invalid handles
 SAMPLES_HINT = ("np.ma.filled({name}, np.nan) makes the masked samples invalid ones, which on_invalid then "
                 "refuses or skips")
+
+
+def arg_type(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:
+    """An argparse ``type``: the option's text as a number checked by ``check`` (``number`` or
+    ``integer``) with ``bounds`` (their keywords), so that a command's bad value is argparse's
+    one-line error saying what is accepted, before any work."""
+    import argparse
+
+    def parse(text: str) -> Any:
+        try:
+            v: Any = float(text)
+            if check is integer:
+                v = int(v) if v.is_integer() else text
+        except (ValueError, OverflowError):
+            v = text
+        try:
+            return check("the value", v, **bounds)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+    return parse
 
 
 def not_masked(name: str, value: Any, hint: str = "") -> None:

@@ -17,6 +17,9 @@ def main(argv=None):
     ap.add_argument("--estimators", nargs="+", default=None, help="only the runs with these estimators")
     ap.add_argument("--out", default="docs/training_curves.png", help="the PNG (default: %(default)s)")
     a = ap.parse_args(argv)
+    out = Path(a.out)
+    if out.is_dir() or (out.parent.exists() and not out.parent.is_dir()):
+        ap.error(f"--out {a.out!r} must be a PNG file path in a folder")
     stems = []
     for p in map(Path, a.runs):
         stems += [j.with_suffix("") for j in sorted(p.glob("*.json")) if j.with_suffix(".run").is_dir()] \

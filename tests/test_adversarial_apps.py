@@ -240,7 +240,8 @@ def test_train_bad_options_before_work(tmp_path, kw, name):
 @pytest.mark.parametrize("args, word", [(["--n-envs", "0"], "--n-envs"), (["--n-envs", "-1"], "--n-envs"),
                                         (["--env-kwargs", '{"imu_hz": 0.005}'], "imu_hz"),
                                         (["--env-kwargs", '{"bogus": 1}'], "bogus"),
-                                        (["--hyperparams", "learning_rate=abc"], "learning_rate")])
+                                        (["--hyperparams", "learning_rate=abc"], "learning_rate"),
+                                        (["--seed", "4294967296"], "--seed")])
 def test_train_cli_bad_options(tmp_path, args, word):
     # the flags the script had before (--task, --out), so that the old script parses them too
     r = run([str(ROOT / "scripts" / "train.py"), "--algo", "ppo", "--task", "track", "--estimator", "truth",
@@ -253,6 +254,28 @@ def test_train_cli_bad_options(tmp_path, args, word):
 
 TINY = dict(seed=1, n_envs=1, progress=False, eval_freq=200, checkpoint_freq=200, eval_episodes=1,
             env_kwargs={"episode_s": 1.0}, hyperparams_override={"n_steps": 64, "batch_size": 32, "n_epochs": 1})
+
+
+def test_resume_refuses_another_run(tmp_path):
+    """--resume continued a run trained with another estimator (or environment, algorithm,
+    seed, hyperparameters) and labelled the mix with the new settings; now each difference is
+    named before any work, and resume with overwrite is refused."""
+    from controllers import rl
+    stem = tmp_path / "ppo-track-gyro"
+    rl.train("ppo", "track", "gyro", timesteps=200, out=stem, log=lambda *a: None, **TINY)
+    for change, word in ((dict(estimator="ekf"), "estimator: 'gyro' before, 'ekf' now"),
+                         (dict(env_kwargs={"episode_s": 2.0}), "env_kwargs"),
+                         (dict(seed=2), "seed: 1 before, 2 now"),
+                         (dict(init_from="pid"), "init_from: None before, 'pid' now")):
+        kw = {**TINY, "estimator": "gyro", **change}
+        est = kw.pop("estimator")
+        with pytest.raises(ValueError, match=word):
+            rl.train("ppo", "track", est, timesteps=400, out=stem, resume=True, log=lambda *a: None, **kw)
+    with pytest.raises(ValueError, match="give one"):
+        rl.train("ppo", "track", "gyro", timesteps=400, out=stem, resume=True, overwrite=True,
+                 log=lambda *a: None, **TINY)
+    meta = json.loads((tmp_path / "ppo-track-gyro.json").read_text())
+    assert meta["estimator"] == "gyro" and meta["timesteps"] == 200      # untouched by the refusals
 
 
 def test_resume_falls_back_and_appends_monitor(tmp_path):
@@ -275,3 +298,51 @@ def test_resume_falls_back_and_appends_monitor(tmp_path):
     rows_after = monitor.read_text().splitlines()
     assert rows_after[:len(rows_before)] == rows_before     # the episodes before the interrupt stay
     assert len(rows_after) > len(rows_before) and all(len(r.split(",")) == 3 for r in rows_after[2:])
+
+
+@pytest.mark.parametrize("module, argv, word", [
+    ("benchmarks.accuracy", ["--trial-seconds", "-1"], "--trial-seconds"),
+    ("benchmarks.accuracy", ["--max-trials", "0"], "--max-trials"),
+    ("benchmarks.accuracy", ["--duration", "nan"], "--duration"),
+    ("benchmarks.accuracy", ["--seed", "-3"], "--seed"),
+    ("benchmarks.accuracy", ["--scenarios", "bogus"], "bogus"),
+    ("benchmarks.accuracy", ["--data", "/nonexistent"], "--data"),
+    ("benchmarks.loso", ["ekf", "--seconds", "0"], "--seconds"),
+    ("benchmarks.loso", ["bogus"], "bogus"),
+    ("benchmarks.loso", ["ekf", "--grid", "acc_lowpass=1,2", "--png", "x.png"], "--png"),
+    ("benchmarks.throughput", ["--target", "-1"], "--target"),
+    ("benchmarks.throughput", ["--bank-only", "--no-bank"], "--no-bank"),
+])
+def test_benchmark_options_are_checked_before_any_work(module, argv, word, capsys):
+    """Out-of-range, unknown and contradicting options ran (scoring every trial minus its last
+    second for --trial-seconds -1, empty tables for an unknown scenario, the bank for
+    --bank-only --no-bank) or failed with a traceback after the work; each is argparse's error."""
+    import importlib
+    mod = importlib.import_module(module)
+    with pytest.raises(SystemExit) as e:
+        mod.main(argv)
+    assert e.value.code == 2 and word in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("module, argv, word", [
+    ("benchmarks.throughput", ["--quick", "--only", "bogus"], "--only"),
+    ("benchmarks.papers_cli", ["--sections", "000", "000"], "more than once"),
+    ("benchmarks.estimators_cli", ["--quick", "--estimators", "ekf,ekf"], "more than once"),
+])
+def test_command_errors_name_the_option_without_a_traceback(module, argv, word, tmp_path):
+    import importlib
+    mod = importlib.import_module(module)
+    with pytest.raises(SystemExit) as e:
+        mod.main(argv + ["--out", str(tmp_path / "out")])
+    assert e.value.code not in (0, None) and word in str(e.value.code)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_commands_check_out_before_the_work(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    import importlib
+    for module in ("benchmarks.throughput", "benchmarks.papers_cli"):
+        with pytest.raises(SystemExit) as e:
+            importlib.import_module(module).main(["--quick", "--out", str(blocker)])
+        assert "cannot be written" in str(e.value.code), module

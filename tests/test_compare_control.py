@@ -279,6 +279,19 @@ def test_outputs_are_replaced_whole(tmp_path):
     assert not [p.name for p in out.iterdir() if "tmp" in p.name]       # no temporary left
 
 
+def test_a_rerun_removes_the_files_it_does_not_make(tmp_path):
+    """A rerun into the same folder without truth kept the earlier run's headline.md and
+    headline.png, which then read as this run's."""
+    rows = [dict(task="track", scenario="flat", estimator=e, controller="pid", episode_seed=s, heading_ss=1.0 + s,
+                 speed_ss=0.1, settle_time=1.0, attitude_error=1.0, tilt_error=0.5, heading_est_error=1.0, steps=10)
+            for e in ("truth", "ekf") for s in range(3)]
+    compare.write_outputs(rows, compare.summarise(rows), tmp_path, log=lambda *a: None)
+    assert (tmp_path / "headline.md").is_file() and (tmp_path / "headline.png").is_file()
+    no_truth = [r for r in rows if r["estimator"] != "truth"]
+    compare.write_outputs(no_truth, compare.summarise(no_truth), tmp_path, log=lambda *a: None)
+    assert not (tmp_path / "headline.md").exists() and not (tmp_path / "headline.png").exists()
+
+
 def test_cli_restores_the_callers_sigterm_handler():
     """main() turns SIGTERM into an orderly exit while it runs; called from a program (a
     notebook, a test, a service with its own handler) it puts the caller's handler back."""
@@ -442,3 +455,20 @@ def test_code_version_covers_the_build_and_the_libraries(tmp_path, monkeypatch):
         monkeypatch.setattr(metadata, "version", lambda d, dist=dist: "0.0.1" if d == dist else real(d))
         assert compare.code_version() != v0, dist
     monkeypatch.undo()
+
+
+def test_cli_a_corrupt_policy_is_refused_before_the_grid(tmp_path, capsys, monkeypatch):
+    """A corrupt policy in --policy-dir failed with a traceback in the middle of the grid; it
+    is read before any cell runs. --backend local with --address (which joins Ray) is refused."""
+    from controllers.rl import POLICY_DIR
+    monkeypatch.setattr(compare, "run_grid", lambda *a, **k: pytest.fail("work started"))
+    for f in POLICY_DIR.glob("ppo-track-truth.*"):
+        (tmp_path / f.name).write_bytes(f.read_bytes())
+    (tmp_path / "ppo-track-truth.zip").write_bytes(b"PK\x03\x04 not a zip")
+    assert compare.main(["--tasks", "track", "--scenarios", "flat", "--controllers", "ppo", "--estimators",
+                         "truth", "--policy-dir", str(tmp_path), "--out", str(tmp_path / "out"),
+                         "--no-progress"]) == 2
+    assert "ppo-track-truth" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        compare.main(["--backend", "local", "--address", "auto"])
+    assert e.value.code == 2 and "--address" in capsys.readouterr().err
