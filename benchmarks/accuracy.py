@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 import fusion
-from fusion import datasets, scenarios
+from fusion import datasets, metrics, scenarios
 from fusion.checks import arg_type, integer, number
 from benchmarks import compare, loso, peers
 
@@ -84,13 +84,13 @@ def recorded_items(root, quick, max_trials, trial_seconds, log):
         if not tr.ok:
             skipped.append((tr.key, tr.quality))
             continue
-        if not np.isfinite(tr.quat).all(axis=1).any():
-            skipped.append((tr.key, "no finite reference"))
+        n = None if trial_seconds is None else int(round(trial_seconds * tr.fs))
+        if not metrics.reference_rows(tr.quat[:n]).any():
+            skipped.append((tr.key, "no reference quaternion (finite, non-zero) in the part scored"))
             continue
         if max_trials is not None and count.get(tr.set, 0) >= max_trials:
             continue
         count[tr.set] = count.get(tr.set, 0) + 1
-        n = None if trial_seconds is None else int(round(trial_seconds * tr.fs))
         modes = compare.MODES if tr.has_mag else compare.MODES[1:]
         items.append(Item(tr.set, tr.name, peers.Data.from_trial(tr, n), modes))
     return items, skipped

@@ -665,8 +665,18 @@ def _identity(p, init_from):
     """What makes a run the same run (``IDENTITY_FILE``): a resume with any other would mix
     two trainings under one label."""
     return {"algo": p.algo, "task": p.task, "estimator": p.estimator, "env_kwargs": p.env_kwargs,
-            "seed": p.seed, "n_envs": p.n_envs, "hyperparams": p.used_hp,
-            "init_from": None if init_from is None else os.fspath(init_from)}
+            "seed": p.seed, "n_envs": p.n_envs, "hyperparams": p.used_hp, "init_from": _start_name(init_from)}
+
+
+def _start_name(init_from):
+    """``init_from`` as the identity records it: the start policy's absolute zip path (one
+    file, however it was spelled), "pid", or None."""
+    if init_from is None or init_from == TEACHER:
+        return init_from
+    try:
+        return str(_resolve(init_from)[1].resolve())
+    except PolicyError:
+        return os.fspath(init_from)
 
 
 def _check_identity(p, init_from):
@@ -678,7 +688,7 @@ def _check_identity(p, init_from):
     path = p.run_dir / IDENTITY_FILE
     try:
         recorded = json.loads(path.read_text())
-    except FileNotFoundError:
+    except FileNotFoundError:           # (a run of an older version: this resume records it)
         return
     except (OSError, ValueError) as e:
         raise ValueError(f"--resume: {path} cannot be read ({e}): it records what the run was") from None
@@ -692,8 +702,9 @@ def _check_identity(p, init_from):
 
 
 def _record_identity(p, init_from):
-    """``IDENTITY_FILE`` of a new run (a resumed one keeps its own)."""
-    if not p.resume:
+    """``IDENTITY_FILE`` of a new run (a resumed one keeps its own; one of an older version,
+    without the file, gets it from its first resume)."""
+    if not p.resume or not (p.run_dir / IDENTITY_FILE).is_file():
         data = json.dumps(_identity(p, init_from), indent=2).encode()
         atomic_write(p.run_dir / IDENTITY_FILE, lambda f: f.write(data))
 

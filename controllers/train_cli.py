@@ -157,7 +157,8 @@ def _grid_options(ap):
                     help="grid: jobs at a time (local; default: CPUs / 2, each job runs its environments' "
                          "processes) or the CPUs of a local Ray cluster")
     ap.add_argument("--address", default=None,
-                    help="grid on Ray: join the cluster at this address (e.g. auto) instead of starting one")
+                    help="grid on Ray: join the cluster at this address (e.g. auto) instead of starting one; "
+                         "implies --backend ray")
 
 
 def _timesteps(items, tasks):
@@ -212,6 +213,10 @@ def main(argv=None):
     ap = parser()
     a = ap.parse_args(argv)
     require("spherebot-train", "rl")
+    if a.address and a.backend == "local":
+        ap.error("--address joins a Ray cluster: give it with --backend ray (or without --backend)")
+    if a.address:
+        a.backend = "ray"
     if a.backend == "ray":
         require("spherebot-train --backend ray", "ray")
     try:
@@ -225,6 +230,9 @@ def main(argv=None):
         ap.error(str(e))
     if a.backend is not None or len(tasks) * len(a.estimator) * len(a.seed) > 1:
         return _grid(a, ap, tasks, env_kwargs, override, timesteps, argv)
+    if a.workers is not None:
+        ap.error("--workers sets how many jobs of a grid run at a time: one job has none to share "
+                 "(give --backend local to run it as a grid, or several jobs)")
     if isinstance(timesteps, dict):
         timesteps = timesteps[tasks[0]]
     return _single(a, ap, tasks[0], a.estimator[0], a.seed[0], env_kwargs, override, timesteps, argv)

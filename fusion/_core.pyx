@@ -256,17 +256,30 @@ def _checked_field(name, value, view, check):
 def _check_covariance(name, v, value):
     """v (k² values, row-major) a symmetric positive-semidefinite covariance whose variances
     are at most COV_MAX, or a ValueError: an indefinite P stays indefinite, a huge one
-    overflows. Semidefinite within rounding (eigenvalues >= -1e-10 of its largest entry): the
-    kernels make such a P themselves (a zero bias_init_std's bias block; the ukf's rounding,
-    which its sigma points take), and their own state must load."""
+    overflows. Semidefinite within rounding, judged on the correlations (so that one large
+    variance cannot hide a negative one): the kernels make such a P themselves (a zero
+    bias_init_std's bias block, zero variances with zero rows; the ukf's rounding, an eigenvalue
+    of -1e-17, which its sigma points take), and their own state must load."""
     cdef Py_ssize_t k = int(round(np.sqrt(v.shape[0])))
     P = v.reshape(k, k)
     scale = float(np.abs(P).max())
     if not (np.abs(P - P.T) <= 1e-12 * scale).all():
         raise ValueError(f"state field {name!r} must be a symmetric covariance, got {value!r}")
-    if np.diag(P).max() > COV_MAX:
+    d = np.diag(P)
+    if d.max() > COV_MAX:
         raise ValueError(f"state field {name!r} must have variances <= {COV_MAX:g}, got {value!r}")
-    if np.linalg.eigvalsh(0.5 * (P + P.T)).min() < -1e-10 * scale:
+    if d.min() < 0.0:
+        raise ValueError(f"state field {name!r} must have variances >= 0, got {value!r}")
+    live = d > 0.0
+    if np.abs(P[~live]).max(initial=0.0) > 0.0:       # a zero variance with a non-zero covariance
+        raise ValueError(f"state field {name!r} must be positive semidefinite, got {value!r}")
+    if not live.any():
+        return
+    s = 1.0 / np.sqrt(d[live])
+    C = P[np.ix_(live, live)] * np.outer(s, s)
+    # rounding of the largest entries, seen through the smallest variance
+    tol = 1e-9 + 1e-13 * scale / d[live].min()
+    if np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -tol:
         raise ValueError(f"state field {name!r} must be positive semidefinite, got {value!r}")
 
 

@@ -78,6 +78,8 @@ cdef int _read3(object v, double* out, str msg) except -1:
             out[2] = (<double*>cnp.PyArray_GETPTR1(arr, 2))[0]
             read = True
     if not read:
+        if isinstance(v, np.ma.MaskedArray):
+            raise ValueError(f"{msg} (a masked array's mask would be ignored), got {v!r}")
         x = np.asarray(v)
         if x.shape != (3,) or x.dtype.kind not in "iuf":
             raise ValueError(f"{msg}, got {v!r}")

@@ -86,12 +86,15 @@ def arg_type(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:
     import argparse
 
     def parse(text: str) -> Any:
+        v: Any = text
         try:
-            v: Any = float(text)
-            if check is integer:
-                v = int(v) if v.is_integer() else text
-        except (ValueError, OverflowError):
-            v = text
+            v = int(text) if check is integer else float(text)
+        except ValueError:
+            try:                        # an integer written as 1e3
+                f = float(text)
+                v = int(f) if check is integer and f.is_integer() else f if check is not integer else text
+            except (ValueError, OverflowError):
+                v = text
         try:
             return check("the value", v, **bounds)
         except ValueError as e:

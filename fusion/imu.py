@@ -608,8 +608,13 @@ def _quantiser(spec):
 def _three(v, msg):
     """One step's 3 finite real numbers (a NaN on a step without a sample would enter the
     low-pass and fail a later sample), else ValueError(msg). As ``_imu.pyx``'s ``_read3``."""
+    if isinstance(v, np.ma.MaskedArray):
+        raise ValueError(f"{msg} (a masked array's mask would be ignored), got {v!r}")
     x = np.asarray(v)
-    if x.shape != (3,) or x.dtype.kind not in "iuf" or not np.isfinite(x).all():
+    if x.shape != (3,) or x.dtype.kind not in "iuf":
+        raise ValueError(f"{msg}, got {v!r}")
+    x = x.astype(float)                 # (a longdouble beyond float64 is inf here, as in the kernel)
+    if not np.isfinite(x).all():
         raise ValueError(f"{msg}, got {v!r}")
     return x
 
@@ -1185,9 +1190,7 @@ class IMU:
         calls advance by ``dt`` (s), default 1/physics_rate_hz. Arguments as one row of
         ``simulate``'s (3 numbers each)."""
         if dt is not None:
-            if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, numbers.Real):
-                raise ValueError(f"dt must be a number of seconds or None, got {dt!r}")
-            dt = float(dt)
+            dt = number("dt", dt, unit=" s")
         k = self._kernel
         if k is not None:
             if not k.live:

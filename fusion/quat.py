@@ -154,15 +154,11 @@ def exp(omega: ArrayLike, dt: float | ArrayLike) -> Array:
 
 
 def _per_row(x, name, rows):
-    """``x`` (a scalar, or one value per row of shape ``rows``, or rows of its own for one row)
-    as floats; ValueError where its shape would combine with ``rows`` into a new one (a column
-    ``(N, 1)`` against ``N`` rows would give ``N x N``)."""
+    """``x`` (a scalar, or one value per row of shape ``rows``, or any shape for one row, whose
+    result then has x's shape) as floats; ValueError otherwise (a column ``(N, 1)`` against
+    ``N`` rows would broadcast to ``N x N``)."""
     x = _real(x, name)
-    try:
-        shape = np.broadcast_shapes(x.shape, rows)
-    except ValueError:
-        shape = None
-    if shape not in (x.shape, tuple(rows)):
+    if rows and x.ndim and x.shape != tuple(rows):
         raise ValueError(f"{name} must be a scalar or have shape {tuple(rows)} (one per row), got {x.shape}")
     return x
 

@@ -241,7 +241,9 @@ def test_train_bad_options_before_work(tmp_path, kw, name):
                                         (["--env-kwargs", '{"imu_hz": 0.005}'], "imu_hz"),
                                         (["--env-kwargs", '{"bogus": 1}'], "bogus"),
                                         (["--hyperparams", "learning_rate=abc"], "learning_rate"),
-                                        (["--seed", "4294967296"], "--seed")])
+                                        (["--seed", "4294967296"], "--seed"),
+                                        (["--workers", "2"], "--workers"),
+                                        (["--backend", "local", "--address", "auto"], "--address")])
 def test_train_cli_bad_options(tmp_path, args, word):
     # the flags the script had before (--task, --out), so that the old script parses them too
     r = run([str(ROOT / "scripts" / "train.py"), "--algo", "ppo", "--task", "track", "--estimator", "truth",
@@ -336,6 +338,15 @@ def test_command_errors_name_the_option_without_a_traceback(module, argv, word, 
         mod.main(argv + ["--out", str(tmp_path / "out")])
     assert e.value.code not in (0, None) and word in str(e.value.code)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_arg_type_keeps_large_integers_exact():
+    import argparse
+    from fusion.checks import arg_type, integer
+    parse = arg_type(integer, low=0)
+    assert parse("12345678901234567891") == 12345678901234567891 and parse("1e3") == 1000
+    with pytest.raises(argparse.ArgumentTypeError, match="integer"):
+        parse("1.5")
 
 
 def test_commands_check_out_before_the_work(tmp_path):

@@ -97,6 +97,8 @@ def test_quat_refuses_inputs_that_would_score_a_wrong_number():
     with pytest.raises(ValueError, match=r"dt must be a scalar or have shape \(5,\)"):
         quat.exp(np.ones((5, 3)), np.full((5, 1), 0.01))
     assert quat.exp(np.ones(3), np.full(5, 0.01)).shape == (5, 4)      # one rate, five steps
+    with pytest.raises(ValueError, match=r"dt must be a scalar or have shape \(5,\)"):
+        quat.exp(np.ones((5, 3)), np.full((2, 5), 0.01))
     with pytest.raises(ValueError, match="axis must be finite and non-zero"):
         quat.from_axis_angle([0, 0, 0], 1.0)
     with pytest.raises(ValueError, match="six_axis must be True or False"):

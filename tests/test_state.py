@@ -131,6 +131,14 @@ def _broken(change):
     (_broken(lambda s: s["fields"].update(is_init=1.0)), "'is_init' must hold integers"),
     (_broken(lambda s: s["fields"].update(n_skip_acc=-1)), "'n_skip_acc' must be in"),
     (_broken(lambda s: s.update(fields=[])), "must be dicts"),
+    # a negative variance beside a large one (the tolerance was relative to the largest entry)
+    (_broken(lambda s: s["fields"].update(P=list(np.diag([1e5] + [1e-4] * 5 + [-5e-6]).ravel()))),
+     "'P' must have variances >= 0"),
+    # a correlation above 1 between a large and a small variance: indefinite, by 6e-7
+    (_broken(lambda s: s["fields"].update(P=list((np.diag([1e5, 1e-6] + [1e-4] * 5)
+                                                   + 0.4 * (np.eye(7, k=1) + np.eye(7, k=-1)) * (np.arange(7) < 2)
+                                                   * (np.arange(7) < 2)[:, None]).ravel()))),
+     "'P' must be positive semidefinite"),
 ])
 def test_load_state_rejects_bad_input_and_changes_nothing(state, match):
     est = fusion.make("ekf", 100.0)
