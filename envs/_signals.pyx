@@ -413,7 +413,7 @@ cdef class Loop:
         self._advance(env, n, voltage, target, False)
 
     cdef int _advance(self, env, int n, double voltage, double target, bint fresh) except -1:
-        cdef double v_old, t_old, v, tgt, wd, t, lim, ts = 0.0, tau = 0.0, e, s0, spin, px, py, dx, dy
+        cdef double v_old, t_old, v, tgt, wd, t, lim, sag, ts = 0.0, tau = 0.0, e, s0, spin, px, py, dx, dy
         cdef int i
         cdef Py_ssize_t k
         cdef bint stuck, on
@@ -439,7 +439,8 @@ cdef class Loop:
             if -self.m_deadband < v < self.m_deadband:
                 v = 0.0
             elif self.m_rbat:
-                v *= 1.0 - self.m_rbat * (self.i_prev + self.i_other + self.idle)
+                sag = 1.0 - self.m_rbat * (self.i_prev + self.i_other + self.idle)
+                v *= sag if sag > 0.0 else 0.0
             t = self.m_k_over_r * v - self.m_k2_over_r * wd
             lim = self.m_limit
             if t > lim:
@@ -457,8 +458,9 @@ cdef class Loop:
                 s0 = self.s_stall
                 ts = s0 if ts > s0 else (-s0 if ts < -s0 else ts)
                 self.i_other = self.i_servo * (ts if ts >= 0 else -ts)
-            elif i == self.lat:
-                self.set_steer(self.p, c, b, self.rp, target)
+            elif i == self.lat or (i == 0 and self.lat == self.n_sub):
+                # (a latency of one control period: the last step's target, at this step's start)
+                self.set_steer(self.p, c, b, self.rp, tgt)
             # positional (torque mode reads only the forces): PyBullet parses keywords 0.3 us slower
             self.setm(b, joints, self.torque_mode, ZERO2, ZERO2, (tau, ts), ZERO2, ZERO2, c)
             spin = self.spin

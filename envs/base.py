@@ -79,7 +79,7 @@ def _wrap(a):
 
 def _vector3(name, value, what):
     try:
-        out = tuple(float(v) for v in value)
+        out = () if any(isinstance(v, (bool, np.bool_)) for v in value) else tuple(float(v) for v in value)
     except (TypeError, ValueError):
         out = ()
     if len(out) != 3 or not all(math.isfinite(v) for v in out):
@@ -105,11 +105,13 @@ def _imu_spec(imu, calibrated):
 
 
 def _mag_zone_spec(mag_zones):
-    if mag_zones is None or mag_zones == "random":
+    if mag_zones is None or (isinstance(mag_zones, str) and mag_zones == "random"):
         return mag_zones
     zs = []
     try:
         for z in mag_zones:
+            if any(isinstance(v, (bool, np.bool_)) for v in z):
+                raise ValueError
             x, y, f = (float(v) for v in z)
             if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(f) and 0 < f <= 1e4):
                 raise ValueError
@@ -135,7 +137,7 @@ def parse_action(action: ArrayLike) -> tuple[float, float, bool]:
         a0, a1 = float(action[0]), float(action[1])       # (the common case, without a copy)
     else:
         try:
-            a = np.asarray(action)
+            a = None if isinstance(action, np.ma.MaskedArray) else np.asarray(action)   # (a mask would be dropped)
         except (TypeError, ValueError):
             a = None
         # real numbers only: a cast would drop a complex action's imaginary part and read
@@ -327,6 +329,8 @@ class SphereRobotBase(gym.Env):
             raise ValueError(f"estimator_params must be None or a dict of the estimator's parameters "
                              f"(fusion.make's **params), got {estimator_params!r}")
         self._est_params = dict(estimator_params or {})
+        if not all(isinstance(k, str) for k in self._est_params):
+            raise ValueError(f"estimator_params' keys must be parameter names (str), got {estimator_params!r}")
         owned = [k for k in ESTIMATOR_OWNED if k in self._est_params]
         if owned:
             raise ValueError(f"estimator_params must not set {', '.join(owned)}: the environment sets them "
@@ -780,8 +784,10 @@ class SphereRobotBase(gym.Env):
         if servo is not None:
             ts = servo.torque(tgt, js[1][0], js[1][1])
             motor.i_other = self._i_servo * abs(ts)
-        elif i == lat:
-            set_steer(p, c, b, rp, target)     # the ideal robot's PyBullet position servo
+        elif i == lat or (i == 0 and lat == self._n_sub):
+            # the ideal robot's PyBullet position servo; a latency of one control period: the
+            # last step's target, at this step's start
+            set_steer(p, c, b, rp, tgt)
         p.setJointMotorControlArray(b, _JOINTS, p.TORQUE_CONTROL, forces=(tau, ts), physicsClientId=c)
         spin, roll_c = self._spin, rp.rolling_damping
         if self._patches:
@@ -874,7 +880,11 @@ class SphereRobotBase(gym.Env):
         self._reset_task()
         self._needs_reset = False
         psi = self._heading_est()
-        return self._observation(psi, self._est_bias()), self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
+        info = self._info(dict.fromkeys(self.REWARD_TERMS, 0.0), psi)
+        # the step's keys too, so that a vector env's autoreset step has every key
+        info["out_of_arena"] = info["stuck"] = False
+        self._task_step_info(info, False)
+        return self._observation(psi, self._est_bias()), info
 
     def _checked_options(self, options):
         """reset()'s options as {"start_xy": (2,) floats, "start_yaw": float}, each if given."""

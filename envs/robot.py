@@ -312,8 +312,10 @@ class DCMotor:
         if -self.deadband < voltage < self.deadband:
             voltage = 0.0
         elif self.r_bat:
-            # the pack sags under the previous step's load (explicit: R_bat i << V)
-            voltage *= 1.0 - self.r_bat * (self.i_prev + self.i_other + IDLE_CURRENT)
+            # the pack sags under the previous step's load (explicit: R_bat i << V); a pack
+            # whose resistance drops the whole voltage gives none, never a reversed one
+            sag = 1.0 - self.r_bat * (self.i_prev + self.i_other + IDLE_CURRENT)
+            voltage *= sag if sag > 0.0 else 0.0
         t = self._k_over_r * voltage - self._k2_over_r * speed
         lim = self.limit
         if t > lim:

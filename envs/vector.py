@@ -96,6 +96,7 @@ class SphereBotVectorEnv(VectorEnv):
             e._connect()
         self.envs[0]._world_settings()
         self._floor = self.envs[0]._make_floor()        # one floor for every robot
+        self.closed = False         # (a reset after close reconnects: a later close must disconnect)
 
     def _filter(self, i):
         """No collisions between robot ``i``'s bodies and the other robots' bodies."""

@@ -198,3 +198,17 @@ def test_reset_mask_resets_those_robots_only():
                 venv.reset(options={"reset_mask": bad})
     finally:
         venv.close()
+
+
+def test_close_reset_close_disconnects():
+    """A reset after close reconnected but left gymnasium's closed flag set, so the next close
+    (and __del__) did nothing and the physics client leaked."""
+    import pybullet as p
+    venv = gym.make_vec("SphereBotTrack-v1", num_envs=2, vectorization_mode="vector_entry_point",
+                        estimator="truth")
+    venv.reset(seed=0)
+    venv.close()
+    venv.reset(seed=0)
+    client = venv.unwrapped._client
+    venv.close()
+    assert not p.isConnected(client)

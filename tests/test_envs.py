@@ -480,3 +480,55 @@ def test_bad_reset_options_and_action_types_are_refused():
     _, _, _, _, info = env.step(np.array([2, 0]))      # an integer action is clipped and counted
     assert info["action_clipped"] == 1
     env.close()
+
+
+# --------------------------------------------------------------------------------------
+# found by an adversarial pass over the environments
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_ideal_servo_steers_with_a_latency_of_one_control_period(compiled):
+    """latency_s = 1 / control_hz (accepted) rounded to the step's physics steps, and the ideal
+    robot's position servo was never given its target: the robot never steered."""
+    from envs import SphereBotTrackEnv
+    e = SphereBotTrackEnv(estimator="truth", realism="ideal", robot={"latency_s": 0.02}, compiled=compiled)
+    e.reset(seed=0)
+    for _ in range(50):
+        e.step(np.array([0.5, 1.0]))
+    assert math.degrees(e.true_state()["steer_angle"]) > 25.0
+    e.close()
+
+
+def test_reset_info_has_the_step_keys_and_inputs_are_checked():
+    """The reset info lacked out_of_arena, stuck and goal_reached (a vector env's autoreset
+    step then lacked them); a masked action had its mask dropped; a numpy mag_zones failed in
+    numpy's words; a non-str estimator parameter was a TypeError; bools were numbers."""
+    from envs import SphereBotTrackEnv, SphereBotWaypointsEnv
+    for cls in (SphereBotTrackEnv, SphereBotWaypointsEnv):
+        e = cls(estimator="truth", episode_s=1.0)
+        _, info0 = e.reset(seed=0)
+        _, _, _, _, info1 = e.step(np.zeros(2))
+        assert set(info0) == set(info1)
+        with pytest.raises(ValueError, match="action must be 2 finite real numbers"):
+            e.step(np.ma.masked_array([0.5, 0.3], mask=[True, False]))
+        e.close()
+    SphereBotTrackEnv(estimator="truth", mag_zones=np.array([[1.0, 1.0, 20.0]])).close()
+    for kw, word in ((dict(estimator_params={1: 2}), "estimator_params' keys"),
+                     (dict(earth_field=(True, 30.0, -30.0)), "earth_field"),
+                     (dict(mag_zones=[(1.0, True, 20.0)]), "mag_zones")):
+        with pytest.raises(ValueError, match=word):
+            SphereBotTrackEnv(estimator="ekf", **kw)
+
+
+def test_battery_sag_never_reverses_the_drive():
+    """A pack resistance that drops more than the whole voltage reversed it: action +1 drove
+    the wheel backwards (-1.99 rad/s at 30 ohm)."""
+    from envs import SphereBotTrackEnv
+    e = SphereBotTrackEnv(estimator="truth", robot={"battery_resistance": 30.0}, episode_s=4.0)
+    e.reset(seed=0)
+    speeds = []
+    for _ in range(150):
+        e.step(np.array([1.0, 0.0]))
+        speeds.append(e.true_state()["drive_speed"])
+    # (before: the drive stalled and turned back, min -3e-5 rad/s here; now it keeps turning forward)
+    assert min(speeds) > 0.05, min(speeds)
+    e.close()
