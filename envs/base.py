@@ -122,6 +122,28 @@ def _mag_zone_spec(mag_zones):
     return zs
 
 
+def _x_display_answers() -> bool:
+    """Whether the X server of $DISPLAY accepts a connection (PyBullet's GUI ends the process
+    from C when it does not); True where libX11 cannot be loaded to ask (PyBullet then says)."""
+    import ctypes
+    import ctypes.util
+    name = ctypes.util.find_library("X11")
+    if name is None:
+        return True
+    try:
+        x11 = ctypes.CDLL(name)
+    except OSError:
+        return True
+    x11.XOpenDisplay.restype = ctypes.c_void_p
+    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    d = x11.XOpenDisplay(None)
+    if not d:
+        return False
+    x11.XCloseDisplay(d)
+    return True
+
+
 def heading_of(w: float, x: float, y: float, z: float) -> float:
     """The robot's heading (rad) of the attitude quaternion (w, x, y, z): the rolling direction,
     perpendicular to the axle (body y) in the horizontal plane, atan2(-R01, R11). Unlike the
@@ -397,6 +419,10 @@ class SphereRobotBase(gym.Env):
             if sys.platform.startswith("linux") and headless:
                 raise RuntimeError("render_mode='human' opens PyBullet's window and needs a display "
                                    "(DISPLAY is not set); use render_mode='rgb_array' for headless frames")
+            if sys.platform.startswith("linux") and os.environ.get("DISPLAY") and not _x_display_answers():
+                raise RuntimeError(f"render_mode='human' opens PyBullet's window, and the X display "
+                                   f"{os.environ['DISPLAY']!r} does not answer; use render_mode='rgb_array' "
+                                   f"for headless frames")
             self._client = p.connect(p.GUI)
         else:
             self._client = p.connect(p.DIRECT)

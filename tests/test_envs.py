@@ -2,6 +2,7 @@
 
 Physics checks use imu="ideal" and estimator="truth" (docs/envs/)."""
 import math
+import os
 import subprocess
 import sys
 
@@ -443,6 +444,23 @@ def test_human_render_without_display_fails_clearly(monkeypatch):
     env = SphereRobotEnv(render_mode="human")
     with pytest.raises(RuntimeError, match="needs a display"):
         env.reset(seed=0)
+
+
+def test_human_render_with_a_display_that_does_not_answer_fails_clearly():
+    """DISPLAY set to a server that is not there: PyBullet's GUI ended the interpreter from C
+    (exit 1, no exception); now a RuntimeError, in a subprocess that lives on to say so."""
+    code = ("import sys; sys.platform = 'linux'\n"
+            "from envs.sphere import SphereRobotEnv\n"
+            "env = SphereRobotEnv(render_mode='human')\n"
+            "try:\n    env.reset(seed=0)\nexcept RuntimeError as e:\n    print('refused:', e)\n"
+            "print('alive')\n")
+    env = dict(os.environ, DISPLAY=":97")
+    env.pop("WAYLAND_DISPLAY", None)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert "alive" in r.stdout, (r.returncode, r.stdout, r.stderr[-500:])
+    if "refused" not in r.stdout:
+        pytest.skip("an X server answers on :97, or libX11 is absent")
+    assert "does not answer" in r.stdout
 
 
 @pytest.mark.parametrize("params, words", [
