@@ -10,8 +10,6 @@ README ("Recorded IMU data with a reference orientation") asks. Estimators start
 them: from the first sample (accelerometer, plus magnetometer in 9-axis mode), default
 parameters unless given.
 """
-import csv
-import io
 import math
 from pathlib import Path
 
@@ -20,7 +18,7 @@ import numpy as np
 import fusion
 from fusion import metrics
 from controllers.plots import new_figure   # the one figure helper, re-exported here
-from controllers.policy_io import save_figure as write_figure, write_text
+from controllers.policy_io import csv_text, save_figure as write_figure, write_text
 
 __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_trials", "aggregate",
            "markdown_table", "write_table", "write_report", "print_written", "new_figure", "save_figure", "plot_errors",
@@ -173,13 +171,8 @@ def write_table(rows, stem, columns=None, digits=3, title=None):
     stem.parent.mkdir(parents=True, exist_ok=True)
     columns = list(columns or (rows[0].keys() if rows else []))
     csv_path, md_path = stem.with_suffix(".csv"), stem.with_suffix(".md")
-    buf = io.StringIO(newline="")
-    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow({c: (repr(float(r[c])) if isinstance(r.get(c), (float, np.floating)) else r.get(c, ""))
-                    for c in columns})
-    write_text(csv_path, buf.getvalue())
+    write_text(csv_path, csv_text([{c: (repr(float(r[c])) if isinstance(r.get(c), (float, np.floating))
+                                          else r.get(c, "")) for c in columns} for r in rows], columns))
     write_text(md_path, (f"# {title}\n\n" if title else "") + markdown_table(rows, columns, digits))
     return csv_path, md_path
 

@@ -45,8 +45,6 @@ rates in filter-samples/s, the same interleaved rounds.
                                                             # a few methods (ratios as in the full table)
 """
 import argparse
-import csv
-import io
 import os
 import platform
 import statistics
@@ -59,7 +57,7 @@ import numpy as np
 
 import fusion
 from benchmarks.peers import Data, all_methods, sanity
-from controllers.policy_io import check_writable, write_text
+from controllers.policy_io import check_writable, csv_text, write_text
 from fusion.checks import arg_type, number
 
 
@@ -362,16 +360,8 @@ def write_outputs(out, md, csv_header, csv_rows, detail):
     out.mkdir(parents=True, exist_ok=True)
     md_path, csv_path, det_path = out / "throughput.md", out / "throughput.csv", out / "throughput_detail.csv"
     write_text(md_path, "# Estimator throughput (samples/s)\n\n" + md)
-    buf = io.StringIO(newline="")
-    w = csv.writer(buf)
-    w.writerow(csv_header)
-    w.writerows(csv_rows)
-    write_text(csv_path, buf.getvalue())
-    buf = io.StringIO(newline="")
-    w = csv.DictWriter(buf, fieldnames=list(detail[0]) if detail else ["method"])
-    w.writeheader()
-    w.writerows(detail)
-    write_text(det_path, buf.getvalue())
+    write_text(csv_path, csv_text([dict(zip(csv_header, r)) for r in csv_rows], csv_header))
+    write_text(det_path, csv_text(detail, list(detail[0]) if detail else ["method"]))
     print(f"wrote {md_path}\nwrote {csv_path}\nwrote {det_path}")
 
 

@@ -21,9 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import hashlib
-import io
 import json
 import math
 import os
@@ -40,7 +38,7 @@ import numpy as np
 
 from fusion.checks import integer, require
 
-from controllers.policy_io import check_writable, save_figure, write_text
+from controllers.policy_io import check_writable, csv_text, save_figure, write_text
 from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, SETTLE_BAND_DEG,
                                     SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
@@ -617,14 +615,6 @@ def headline_table(summary):
     return lines
 
 
-def _csv_text(rows, keys):
-    buf = io.StringIO(newline="")
-    w = csv.DictWriter(buf, fieldnames=keys)
-    w.writeheader()
-    w.writerows(rows)
-    return buf.getvalue()
-
-
 def _summary_intro(summary, command, seconds):
     """summary.md's opening lines: the command, how each cell is read, what the episodes detect."""
     ns = sorted({r["episodes"] for r in summary})
@@ -663,11 +653,11 @@ def write_outputs(rows, summary, out_dir, path_rows=None, log=print, command=Non
     first = ("task", "scenario", "estimator", "controller", "episode_seed")
     keys = sorted({k for r in rows for k in r}, key=lambda k: (k not in first, first.index(k) if k in first else 0, k))
     # each file is written whole or not at all (an interrupted write keeps the previous one)
-    write_text(out / "episodes.csv", _csv_text(rows, keys))
+    write_text(out / "episodes.csv", csv_text(rows, keys))
     sfirst = ("task", "scenario", "estimator", "controller", "episodes", "main_metric", "separated")
     skeys = sorted({k for r in summary for k in r},
                    key=lambda k: (k not in sfirst, sfirst.index(k) if k in sfirst else 0, k))
-    write_text(out / "summary.csv", _csv_text(summary, skeys))
+    write_text(out / "summary.csv", csv_text(summary, skeys))
     lines = _summary_intro(summary, command, seconds)
     head = headline_table(summary)
     if head:

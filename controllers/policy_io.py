@@ -73,6 +73,17 @@ def check_writable(out: str | os.PathLike, option: str = "--out") -> None:
                          f"choose another folder") from None
 
 
+def csv_text(rows: Any, columns: list[str]) -> str:
+    """The CSV of ``rows`` (dicts; keys outside ``columns`` ignored), header first: for
+    ``write_text``, so that a table is written whole or not at all."""
+    import csv
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
 def write_text(path: str | os.PathLike, text: str) -> None:
     """``text`` to ``path`` whole or not at all (``atomic_write``), UTF-8; a character UTF-8
     cannot hold (a surrogate from a file name that is not UTF-8) written as its escape."""

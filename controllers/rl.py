@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 from controllers.base import Controller, obs_batch
 from fusion.checks import choice, flag, integer, require_import
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
-                                   save_model, save_normalization, vec_normalize)
+                                   save_model, save_normalization, vec_normalize, write_text)
 
 __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_policy", "PolicyController",
            "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
@@ -643,7 +643,9 @@ def _checked_env_kwargs(task, estimator, env_kwargs):
 
 def _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log):
     """Refuse to mix runs: an earlier run's checkpoints need ``resume`` or ``overwrite`` (which
-    moves the earlier run directory aside); ``resume`` needs a checkpoint."""
+    moves the earlier run directory aside); ``resume`` needs a checkpoint; both together are refused."""
+    if resume and overwrite:
+        raise ValueError("resume continues the run in the work directory and overwrite starts it over: give one")
     if not resume and _latest_checkpoint(ckpt_dir) is not None:
         if not overwrite:
             raise FileExistsError(f"{ckpt_dir} holds checkpoints of an earlier run: --resume to continue it, or "
@@ -705,8 +707,7 @@ def _record_identity(p, init_from):
     """``IDENTITY_FILE`` of a new run (a resumed one keeps its own; one of an older version,
     without the file, gets it from its first resume)."""
     if not p.resume or not (p.run_dir / IDENTITY_FILE).is_file():
-        data = json.dumps(_identity(p, init_from), indent=2).encode()
-        atomic_write(p.run_dir / IDENTITY_FILE, lambda f: f.write(data))
+        write_text(p.run_dir / IDENTITY_FILE, json.dumps(_identity(p, init_from), indent=2))
 
 
 def _init_source(init_from, algo, task, trusted, log):
@@ -899,8 +900,6 @@ def train(algo: str, task: str, estimator: str, timesteps: int | None = None, se
     torch.set_num_threads(1)
     p = _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_episodes, eval_freq,
               checkpoint_freq, n_envs, init_from, bc_steps, hyperparams_override, vec_env)
-    if resume and overwrite:
-        raise ValueError("resume continues the run in the work directory and overwrite starts it over: give one")
     _prepare_run_dir(p.run_dir, p.ckpt_dir, resume, overwrite, log)
     _check_identity(p, init_from)
     init = None

@@ -24,7 +24,7 @@ from gymnasium import spaces
 
 import fusion
 from fusion import imu as fimu
-from fusion.checks import flag, integer, number
+from fusion.checks import finite_vector, flag, integer, number
 from fusion.constants import GRAVITY as G
 
 from envs import _signals
@@ -78,13 +78,7 @@ def _wrap(a):
 
 
 def _vector3(name, value, what):
-    try:
-        out = () if any(isinstance(v, (bool, np.bool_)) for v in value) else tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != 3 or not all(math.isfinite(v) for v in out):
-        raise ValueError(f"{name} must be 3 finite numbers {what}, got {value!r}")
-    return out
+    return tuple(finite_vector(name, value, 3, f"{name} must be 3 finite numbers {what}").tolist())
 
 
 def _multiple(a, b):

@@ -10,6 +10,7 @@ state back before a ``simulate`` call, so the two paths can be mixed as before.
 """
 cimport numpy as cnp
 import numpy as np
+from fusion.checks import finite_vector
 from libc.math cimport exp, sin, floor, rint, isfinite
 
 cnp.import_array()
@@ -58,13 +59,14 @@ cdef double _pairwise(const double* a, Py_ssize_t n) noexcept nogil:
     return _pairwise(a, n2) + _pairwise(a + n2, n - n2)
 
 
-cdef int _read3(object v, double* out, str msg) except -1:
-    """3 finite real numbers as the reference's ``_three`` takes them (a tuple of 3 Python
+cdef int _read3(object v, double* out, str name, str msg) except -1:
+    """3 finite real numbers as the reference's ``checks.finite_vector`` takes them (a tuple of 3 Python
     floats and a float64 array of 3 read directly), else ValueError(msg): a NaN on a step
     without a sample would enter the low-pass and fail a later sample."""
     cdef cnp.ndarray arr
     cdef bint read = False
-    if type(v) is tuple and len(<tuple>v) == 3 and all(type(e) is float for e in <tuple>v):
+    if (type(v) is tuple and len(<tuple>v) == 3 and type((<tuple>v)[0]) is float
+            and type((<tuple>v)[1]) is float and type((<tuple>v)[2]) is float):
         out[0] = (<tuple>v)[0]
         out[1] = (<tuple>v)[1]
         out[2] = (<tuple>v)[2]
@@ -78,15 +80,11 @@ cdef int _read3(object v, double* out, str msg) except -1:
             out[2] = (<double*>cnp.PyArray_GETPTR1(arr, 2))[0]
             read = True
     if not read:
-        if isinstance(v, np.ma.MaskedArray):
-            raise ValueError(f"{msg} (a masked array's mask would be ignored), got {v!r}")
-        x = np.asarray(v)
-        if x.shape != (3,) or x.dtype.kind not in "iuf":
-            raise ValueError(f"{msg}, got {v!r}")
+        x = finite_vector(name, v, 3, msg)         # (the reference's own check)
         out[0] = x[0]
         out[1] = x[1]
         out[2] = x[2]
-    if not (isfinite(out[0]) and isfinite(out[1]) and isfinite(out[2])):
+    elif not (isfinite(out[0]) and isfinite(out[1]) and isfinite(out[2])):
         raise ValueError(f"{msg}, got {v!r}")
     return 0
 
@@ -396,10 +394,10 @@ cdef class StepKernel:
         cdef double a[3]
         cdef double m[3]
         cdef double d = 0.0
-        _read3(gyr_true, g, "gyr_true must be 3 finite real numbers (rad/s)")
-        _read3(acc_true, a, "acc_true must be 3 finite real numbers (m/s^2)")
+        _read3(gyr_true, g, "gyr_true", "gyr_true must be 3 finite real numbers (rad/s)")
+        _read3(acc_true, a, "acc_true", "acc_true must be 3 finite real numbers (m/s^2)")
         if mag_true is not None:
-            _read3(mag_true, m, "mag_true must be 3 finite real numbers or None")
+            _read3(mag_true, m, "mag_true", "mag_true must be 3 finite real numbers or None")
         if dt is not None:
             d = dt
         if not self.step_c(g, a, m if mag_true is not None else NULL, d, dt is not None):

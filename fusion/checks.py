@@ -88,13 +88,11 @@ def arg_type(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:
     def parse(text: str) -> Any:
         v: Any = text
         try:
-            v = int(text) if check is integer else float(text)
-        except ValueError:
-            try:                        # an integer written as 1e3
-                f = float(text)
-                v = int(f) if check is integer and f.is_integer() else f if check is not integer else text
-            except (ValueError, OverflowError):
-                v = text
+            v = float(text)
+            if check is integer:        # exact for a long integer; 1e3 is 1000
+                v = int(text) if text.strip().lstrip("+-").isdigit() else int(v) if v.is_integer() else text
+        except (ValueError, OverflowError):
+            pass
         try:
             return check("the value", v, **bounds)
         except ValueError as e:
@@ -108,6 +106,23 @@ def not_masked(name: str, value: Any, hint: str = "") -> None:
     if isinstance(value, np.ma.MaskedArray):
         raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass a plain array"
                          + (f" ({hint.format(name=name)})" if hint else ""))
+
+
+def finite_vector(name: str, value: Any, n: int, message: str | None = None) -> np.ndarray:
+    """value as n finite floats (shape (n,)), else ValueError(message, default "<name> must be
+    n finite real numbers") with the value: a masked array, complex, bool, strings and a value
+    beyond float64 (a longdouble) are refused, not cast."""
+    msg = message or f"{name} must be {n} finite real numbers"
+    not_masked(name, value)
+    a = np.asarray(value)
+    # (numpy reads (True, 30.0, -30.0) as floats: a bool among numbers is refused here)
+    mixed_bool = isinstance(value, (list, tuple)) and any(isinstance(v, (bool, np.bool_)) for v in value)
+    if a.shape != (n,) or a.dtype.kind not in "iuf" or mixed_bool:
+        raise ValueError(f"{msg}, got {value!r}")
+    a = a.astype(float)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{msg}, got {value!r}")
+    return a
 
 
 def choice(name: str, value: Any, choices: tuple) -> Any:

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from fusion._imu import StepKernel as _StepKernel
-from fusion.checks import flag, integer, number
+from fusion.checks import finite_vector, flag, integer, number
 from fusion.constants import STANDARD_GRAVITY
 
 __all__ = [
@@ -603,20 +603,6 @@ def _quantiser(spec):
     if lim is not None:
         return spec.lsb, lim[0], lim[1], True
     return 0.0, -spec.range, spec.range, math.isfinite(spec.range)
-
-
-def _three(v, msg):
-    """One step's 3 finite real numbers (a NaN on a step without a sample would enter the
-    low-pass and fail a later sample), else ValueError(msg). As ``_imu.pyx``'s ``_read3``."""
-    if isinstance(v, np.ma.MaskedArray):
-        raise ValueError(f"{msg} (a masked array's mask would be ignored), got {v!r}")
-    x = np.asarray(v)
-    if x.shape != (3,) or x.dtype.kind not in "iuf":
-        raise ValueError(f"{msg}, got {v!r}")
-    x = x.astype(float)                 # (a longdouble beyond float64 is inf here, as in the kernel)
-    if not np.isfinite(x).all():
-        raise ValueError(f"{msg}, got {v!r}")
-    return x
 
 
 class IMU:
@@ -1211,11 +1197,13 @@ class IMU:
     def _step_input(self, gyr_true, acc_true, mag_true):
         """One step's true motion, checked, into the scratch row x (9,)."""
         x = self._x
-        x[0:3] = _three(gyr_true, "gyr_true must be 3 finite real numbers (rad/s)")
-        x[3:6] = _three(acc_true, "acc_true must be 3 finite real numbers (m/s^2)")
+        # (each checked on its own step, as _imu.pyx's _read3: a NaN on a step without a sample
+        # would enter the low-pass and fail a later sample)
+        x[0:3] = finite_vector("gyr_true", gyr_true, 3, "gyr_true must be 3 finite real numbers (rad/s)")
+        x[3:6] = finite_vector("acc_true", acc_true, 3, "acc_true must be 3 finite real numbers (m/s^2)")
         has_mag = mag_true is not None
         if has_mag:
-            x[6:9] = _three(mag_true, "mag_true must be 3 finite real numbers or None")
+            x[6:9] = finite_vector("mag_true", mag_true, 3, "mag_true must be 3 finite real numbers or None")
         if self._mag_on is None:
             self._mag_on = has_mag
         elif self._mag_on != has_mag:

@@ -10,6 +10,8 @@ shape (4,) and ``q_rows`` of shape (N, 4).
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.checks import not_masked
+
 Array = NDArray[np.float64]
 
 __all__ = ["as_quat", "mul", "conj", "normalise", "rotate", "rotate_inverse", "to_matrix", "to_rotvec",
@@ -22,9 +24,7 @@ def _real(x, name):
     """``x`` as a float array; ValueError naming ``name`` for a masked array (its mask would be
     dropped: fill the masked rows with NaN, ``x.filled(np.nan)``, to leave them unscored) and for
     values that are not real numbers (complex, bool, strings, objects)."""
-    if isinstance(x, np.ma.MaskedArray):
-        raise ValueError(f"{name} is a masked array, whose mask would be ignored: pass "
-                         f"{name}.filled(np.nan) (NaN rows of a reference are not scored)")
+    not_masked(name, x, "{name}.filled(np.nan): NaN rows of a reference are not scored")
     a = np.asarray(x)
     if a.dtype.kind not in "iuf":
         raise ValueError(f"{name} must hold real numbers (int or float), got dtype {a.dtype}")

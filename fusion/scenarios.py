@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike
 
 from fusion import imu as imu_model
 from fusion import quat
-from fusion.checks import integer, number
+from fusion.checks import finite_vector, integer, number
 from fusion.constants import GRAVITY
 
 __all__ = ["Scenario", "SCENARIOS", "make_scenario", "G", "FIELD",
@@ -171,22 +171,6 @@ def _cumprod_quat(d):
     return p
 
 
-def _vec3(name, v):
-    """v as 3 finite floats, or a ValueError naming it."""
-    a = np.asarray(v)
-    if a.dtype.kind not in "fiu" or a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be 3 finite real numbers, got {v!r}")
-    return a.astype(float)
-
-
-def _pair(name, v):
-    """v as 2 finite floats, or a ValueError naming it."""
-    a = np.asarray(v)
-    if a.dtype.kind not in "fiu" or a.shape != (2,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be 2 finite real numbers, got {v!r}")
-    return float(a[0]), float(a[1])
-
-
 def _checked_motion(name, motion):
     """The preset of scenario ``name`` with make_scenario's ``motion`` overrides, checked."""
     preset = {k: v for k, v in SCENARIOS[name].items() if k != "doc"}
@@ -200,7 +184,7 @@ def _checked_motion(name, motion):
     preset["bursts_per_min"] = number("bursts_per_min", preset["bursts_per_min"], 0.0, 60.0)
     preset["burst_acc"] = number("burst_acc", preset["burst_acc"], 0.0, 1e3, unit=" m/s^2")
     if "freq" in preset:
-        lo, hi = _pair("freq", preset["freq"])
+        lo, hi = map(float, finite_vector("freq", preset["freq"], 2))
         if not 0.0 < lo <= hi <= 1e3:
             raise ValueError(f"freq must be (lo, hi) Hz with 0 < lo <= hi <= 1000, got {preset['freq']!r}")
         preset["freq"] = (lo, hi)
@@ -216,7 +200,7 @@ def _checked_noise(ideal, gyro_bias, **densities):
         if v is not None:
             noise[k] = number(k, v, 0.0, 1e3)
     if gyro_bias is not None:
-        noise["gyro_bias"] = _vec3("gyro_bias", gyro_bias)
+        noise["gyro_bias"] = finite_vector("gyro_bias", gyro_bias, 3)
     return noise
 
 
@@ -243,7 +227,7 @@ def make_scenario(name: str = "mixed", fs: float = 100.0, duration: float = 60.0
     g = number("g", g, 0.0, 1e3, open_low=True, unit=" m/s^2")
     noise = _checked_noise(ideal, gyro_noise=gyro_noise, acc_noise=acc_noise, mag_noise=mag_noise,
                            gyro_bias=gyro_bias)
-    field = _vec3("field", field)
+    field = finite_vector("field", field, 3)
     if not np.any(field):
         raise ValueError("field must not be zero")
 

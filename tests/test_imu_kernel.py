@@ -152,9 +152,11 @@ def test_step_refuses_a_bad_row_on_a_step_without_a_sample(compiled):
     with pytest.raises(ValueError, match="gyr_true must be 3 finite real numbers"):
         s.step((math.nan, 0.0, 0.0), (0.0, 0.0, G))
     for bad in (5.0, "1 2 3", np.array([1j, 0, 0]), np.array([True, False, True]),
-                np.array([np.longdouble("1e400"), 0, 0]), np.ma.masked_array([0.0, 0.0, G], [1, 0, 0])):
+                np.array([np.longdouble("1e400"), 0, 0]), (True, 0.0, 9.81)):
         with pytest.raises(ValueError, match="acc_true must be 3 finite real numbers"):
             s.step((0.0, 0.0, 0.0), bad)
+    with pytest.raises(ValueError, match="acc_true is a masked array"):
+        s.step((0.0, 0.0, 0.0), np.ma.masked_array([0.0, 0.0, G], [1, 0, 0]))
     for dt in (np.array([0.001]), "0.001", True):
         with pytest.raises(ValueError, match="dt must be a real number"):
             s.step((0.0, 0.0, 0.0), (0.0, 0.0, G), dt=dt)
