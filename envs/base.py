@@ -29,7 +29,8 @@ from fusion.constants import GRAVITY as G
 
 from envs import _signals
 from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
-                        SPIN_EPS, STICK_RATE, build_robot, spin_torque, set_drive_friction, set_steer)
+                        SPIN_EPS, STICK_RATE, build_robot, check_explicit_damping, spin_torque, set_drive_friction,
+                        set_steer)
 
 __all__ = ["SphereRobotBase", "ESTIMATORS", "BASE_OBS", "obs_layout"]
 
@@ -252,6 +253,7 @@ class SphereRobotBase(gym.Env):
             raise ValueError(f"realism must be one of {', '.join(map(repr, REALISM))}, got {realism!r}")
         self.realism = realism
         self.robot = RobotParams.from_any(robot, ideal=realism == "ideal")
+        check_explicit_damping(self.robot, self.physics_hz)
         if self.robot.latency_s > 1.0 / self.control_hz + 1e-12:
             raise ValueError(f"robot.latency_s must be in [0, 1 / control_hz = {1.0 / self.control_hz:g}] s, "
                              f"got {self.robot.latency_s!r}")

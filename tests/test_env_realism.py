@@ -209,3 +209,55 @@ def test_drop_matches_the_spring_damper_hand_calculation():
         assert t_full == pytest.approx(t_ref, rel=tol_t), (hz, t_full, t_ref)
         assert fmax == pytest.approx(f_ref, rel=tol_f), (hz, fmax, f_ref)
         assert up == pytest.approx(up_ref, rel=tol_up), (hz, up, up_ref)
+
+
+def test_explicit_damping_matches_the_hand_calculation():
+    """The drive's c dt / I at the defaults and 400 Hz, by hand: c = k² / R + b = 0.925² / 12
+    + 2e-3 = 0.07330 N m s; I the shell (2/3 0.4 0.125² = 4.167e-3) against the frame and the
+    pendulum about the axle (0.35 (0.12² + 0.05²) / 12 + 0.4 (0.08² + 0.04²) / 12 + 0.4 0.075²
+    = 3.010e-3): 1.748e-3 kg m²; c dt / I = 0.1049."""
+    from envs.robot import explicit_damping
+    i_a = 0.35 * (0.12 ** 2 + 0.05 ** 2) / 12 + 0.4 * (0.08 ** 2 + 0.04 ** 2) / 12 + 0.4 * 0.075 ** 2
+    i_b = 2.0 / 3.0 * 0.4 * 0.125 ** 2
+    c = 0.925 ** 2 / 12.0 + 2e-3
+    d = explicit_damping(RobotParams(), 400.0)
+    assert d["drive"] == pytest.approx(c / 400.0 / (i_a * i_b / (i_a + i_b)), rel=1e-12)
+    assert d["drive"] == pytest.approx(0.1049, abs=1e-4)
+    assert explicit_damping(RobotParams(), 100.0)["drive"] == pytest.approx(4 * d["drive"])
+    assert "servo" not in explicit_damping(RobotParams.ideal(), 400.0)      # PyBullet's own servo
+    assert max(explicit_damping(RobotParams(), 100.0).values()) < 1.0      # the defaults at the lowest rate
+
+
+@pytest.mark.parametrize("field, value, term", [("motor_friction", 3.0, "drive"), ("steer_torque", 10.0, "servo"),
+                                                ("motor_resistance", 0.1, "drive"), ("spinning_friction", 0.5, "spin")])
+def test_explicit_damping_a_physics_step_cannot_integrate_is_refused(field, value, term):
+    """Each value is inside its own range, and was accepted: motor_friction 3.0 threw the robot
+    off the floor at 35 m/s, steer_torque 100 at 21 m/s (400 Hz; 10 did not converge). The message names the term and
+    the physics rate that would take it, and that rate does."""
+    import re
+    with pytest.raises(ValueError, match=f"{term} damping") as e:
+        SphereRobotEnv(estimator="truth", robot={field: value})
+    hz = float(re.search(r"at least ([0-9.e+]+) Hz", str(e.value)).group(1))
+    hz = 200.0 * math.ceil(hz * 1.001 / 200.0)     # a multiple of the IMU's and the agent's rates
+    SphereRobotEnv(estimator="truth", robot={field: value}, physics_hz=hz).close()
+
+
+def test_a_stiff_servo_just_inside_the_bound_converges_in_the_step():
+    """steer_torque at 0.95 of the bound at 400 Hz: the robot's fastest speed over 4 s of random
+    actions is the same at 4x the physics rate (docs/envs/robot.md, "Explicit terms": 0.87 /
+    0.88 m/s over 10 s)."""
+    from envs.robot import explicit_damping
+    st = 0.5 * 0.95 / explicit_damping(RobotParams(), 400.0)["servo"]
+
+    def vmax(hz):
+        env = SphereRobotEnv(estimator="truth", imu="ideal", robot={"steer_torque": st}, physics_hz=hz)
+        env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        v = 0.0
+        for _ in range(200):
+            env.step(rng.uniform(-1.0, 1.0, 2))
+            v = max(v, float(np.linalg.norm(env.true_state()["velocity"])))
+        env.close()
+        return v
+    a, b = vmax(400.0), vmax(1600.0)
+    assert a == pytest.approx(b, rel=0.1), (a, b)
