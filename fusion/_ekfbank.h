@@ -700,10 +700,15 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         }
         if (ekb_any(rest)) {
             ekb_v p2[49], q2[4], b2[3], z[3], rn = EKB_LD(EB_RNOISE);
-            /* rest_rate: the run's mean over its time where its sum is pending; else the sample */
-            ekb_v T = ekb_sel(pending, gst, dt);
-            for (i = 0; i < 3; i++)
-                z[i] = ekb_sel(pending, gs[i] / T, g[i]);
+            /* rest_rate: the run's mean over its time (held within BIAS_MAX) where its sum is
+             * pending; else the sample */
+            ekb_v T = ekb_sel(pending, gst, dt), m;
+            for (i = 0; i < 3; i++) {
+                m = gs[i] / T;
+                m = ekb_sel(m > FUSION_BIAS_MAX, ekb_bc(FUSION_BIAS_MAX), m);
+                m = ekb_sel(m < -FUSION_BIAS_MAX, ekb_bc(-FUSION_BIAS_MAX), m);
+                z[i] = ekb_sel(pending, m, g[i]);
+            }
             memcpy(p2, p, sizeof p2);
             memcpy(q2, q, sizeof q2);
             memcpy(b2, b, sizeof b2);

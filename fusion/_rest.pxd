@@ -2,7 +2,8 @@
 # at rest hold (the ekf family, the ukf, cf-ekf through its EKF core); each does its own
 # zero-rate update when rest_detect says so. docs/contributing.md says how a filter takes it.
 
-from libc.math cimport sqrt
+from libc.math cimport sqrt, fmin, fmax
+from fusion._constants cimport BIAS_MAX
 
 
 cdef class RestDetector:
@@ -162,12 +163,15 @@ cdef inline double rest_rate(RestDetector r, const double* gyr, double dt, doubl
     gate's yes), into z; returns the time it averages. The run's first update takes the mean of
     its samples so far (at least r.time s of them): they were still, as only the run's length
     shows, and an update that took the one sample would lose them; after it, the sample
-    itself (dt). (At rest the sample is still, so the sum holds it until taken.)"""
+    itself (dt). (At rest the sample is still, so the sum holds it until taken.) The mean is
+    held within BIAS_MAX: the detector's tolerances bound it far below, but a loaded state's
+    sum and time are checked one by one, and a crafted pair (sum 1e6 rad, time 1 s) pulled the
+    Kalman filters' bias to 7e5 rad/s, a state they could not load again."""
     cdef int i
     if not r.taken:
         r.taken = True
         for i in range(3):
-            z[i] = r.gsum[i] / r.gsum_t
+            z[i] = fmin(fmax(r.gsum[i] / r.gsum_t, -BIAS_MAX), BIAS_MAX)
         return r.gsum_t
     for i in range(3):
         z[i] = gyr[i]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import fusion
+from fusion._core import BIAS_MAX
 from fusion.scenarios import make_scenario
 
 NAMES = fusion.available()
@@ -248,3 +249,25 @@ def test_every_state_a_filter_makes_loads(name, params, six_axis):
     q1 = est.run(sc.gyr[:200], sc.acc[:200], None if six_axis else sc.mag[:200])
     q2 = twin.run(sc.gyr[:200], sc.acc[:200], None if six_axis else sc.mag[:200])
     np.testing.assert_array_equal(q1, q2)
+
+
+@pytest.mark.parametrize("name", ["ekf", "iir-ekf", "aekf", "ukf", "cf-ekf", "mahony", "madgwick", "bank"])
+def test_a_crafted_rest_sum_cannot_pull_the_bias_beyond_bias_max(name):
+    """The still run's gyro sum and its time are loaded one by one, each within its range; a
+    pair whose mean is 1e6 rad/s pulled the Kalman filters' bias to 7e5 rad/s on the next
+    sample at rest, and their state could no longer be loaded. The mean is held within
+    BIAS_MAX (in the scalar kernels and the ekf bank): after a second at rest the bias is
+    within it and the state loads again."""
+    fs, n = 100.0, 20
+    still = (np.zeros((n, 3)), np.tile([0.0, 0.0, 9.81], (n, 1)))
+    est = fusion.make_bank("ekf", fs, 4) if name == "bank" else fusion.make(name, fs)
+    est.run(*(np.repeat(x[:, None], 4, axis=1) if name == "bank" else x for x in still))
+    s = est.state()
+    for f in ([x["fields"] for x in s["filters"]] if name == "bank" else [s["fields"]]):
+        f.update(rest_gsum=[1e6, -1e6, 1e6], rest_gsum_t=1.0, rest_taken=0)
+    est.load_state(s)
+    still = (np.zeros((100, 3)), np.tile([0.0, 0.0, 9.81], (100, 1)))
+    est.run(*(np.repeat(x[:, None], 4, axis=1) if name == "bank" else x for x in still))
+    b = np.asarray(est.bias)
+    assert np.all(np.abs(b) <= BIAS_MAX), b
+    est.load_state(est.state())
