@@ -162,6 +162,8 @@ cdef class AEKF(EKF):
         cdef const double* raw
         cdef double nr
         cdef bint sat
+        cdef bint magd_run = False
+        cdef bint magd_ok = False
         if gyr != NULL and out_of_range(gyr, self.gyro_range_):
             gyr = NULL      # not a measurement: held as a dropped sample (ekf_step)
         sat = gyr != NULL and saturated(gyr, self.gyro_range_)
@@ -231,7 +233,12 @@ cdef class AEKF(EKF):
                 if mag_rej:
                     self.ad.n_mag_rej += 1
                     self.ad.last_code |= DEC_MAG_REJECTED
+        # QUEST takes the magnetometer only where the shared disturbance detector accepts it
+        # too, as the vector updates do (run once a sample: it keeps time)
         if self.use_quest and acc != NULL and mag_tested and not acc_rej and not mag_rej:
+            magd_run = True
+            magd_ok = mag_accepted(self, self.q, mag, gyr, dt)
+        if magd_ok:
             unit3(acc, ah)
             unit3(mag, mh)
             # |u × m̂|²: the horizontal share of the field seen from the predicted attitude
@@ -259,7 +266,7 @@ cdef class AEKF(EKF):
             self._acc_correct(acc, dt / self.reject_factor if acc_rej else dt)
         # the shared disturbance detector as well (fusion/_magdist.pxd): its reference is
         # re-learned, the document's gate's is not
-        if mag_accepted(self, self.q, mag, gyr, dt):
+        if magd_ok if magd_run else mag_accepted(self, self.q, mag, gyr, dt):
             self._mag_correct(mag, dt / self.reject_factor if mag_rej else dt)
         quat_normalise(self.q)
 

@@ -157,8 +157,9 @@ MOTION_RATE = Param("motion_rate", 1.0, "rad/s", 1e-6, 100.0, "rate std over tim
                     "(motion_rate t)², capped at π²; 0: off", allow_zero=True)
 
 MAG_UPDATE = Param("mag_update", "heading", "", doc='"heading": the magnetometer corrects the '
-                   'heading (and the bias along the vertical) only; "vector": the 3-D update as '
-                   '"IIR-EKF, IMU dynamic error suppression" writes it', choices=("heading", "vector"))
+                   'heading (and the bias along the vertical) only; "vector": the whole 3-D field, folded onto '
+                   'north, as the measurement model of "IIR-EKF, IMU dynamic error suppression" '
+                   '(docs/estimators.md)', choices=("heading", "vector"))
 ACC_LOWPASS = Param("acc_lowpass", 1.0, "s", 1e-3, 1e4, "time constant of the accelerometer's "
                     "low-pass in a frame that turns with the gyro alone (VQF's; docs/estimators.md); "
                     "0: off", allow_zero=True)

@@ -135,17 +135,21 @@ class RefAEKF(ref.RefEKF):
         u = rotmat(self.q).T @ UP
         acc_rej = self._acc_test(acc, u, dt) if acc is not None else False
         mag_rej, mag_tested = self._mag_test(mag, raw, u) if mag is not None else (False, False)
-        # 3a. QUEST measurement when the body is quiet
+        # 3a. QUEST measurement when the body is quiet and the shared detector accepts the
+        # field (run once a sample)
+        magd = None
         if (self.measurement == "quest" and acc is not None and mag_tested and not acc_rej
-                and not mag_rej and self._quest_update(acc, mag, u, dt)):
-            self.P = (self.P + self.P.T) / 2
-            return
+                and not mag_rej):
+            magd = self.magd(self.q, mag, gyr, dt)
+            if magd and self._quest_update(acc, mag, u, dt):
+                self.P = (self.P + self.P.T) / 2
+                return
         # 3b. the ekf's vector updates, variances times reject_factor when rejected
         if acc is not None:
             f = self.reject_factor if acc_rej else 1.0
             self._correct(normalise(acc), ref.acc_model, (self.acc_noise / G) ** 2 / dt * f * I3,
                           "tilt" if self.acc_update == "tilt" else "full")
-        if mag is not None and self.magd(self.q, mag, gyr, dt):      # the shared detector
+        if mag is not None and (self.magd(self.q, mag, gyr, dt) if magd is None else magd):   # the shared detector
             z = normalise(mag)
             nx, ny, _ = (rotmat(self.q) @ z).tolist()
             if math.sqrt(nx * nx + ny * ny) >= 1e-9:

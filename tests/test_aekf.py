@@ -65,7 +65,10 @@ def test_kernel_equals_reference(data, measurement, nine_axis, raw):
         assert (d[dist] & 2).mean() > 0.8 and (d[~dist] & 2).mean() < 0.05
     if measurement == "quest" and nine_axis:
         assert est.quest_updates > N // 2
-        assert np.array_equal(d & 4 > 0, (d & 3) == 0)       # QUEST exactly when both accepted
+        # QUEST only when both tests accepted, and then unless the shared disturbance detector
+        # rejects the field (its own tolerances)
+        used, both = d & 4 > 0, (d & 3) == 0
+        assert not (used & ~both).any() and used[both].mean() > 0.95, used[both].mean()
     else:
         assert est.quest_updates == 0
 
@@ -169,6 +172,27 @@ def scipy_wahba(b, r, w):
 
 def same_rotation(p, q):
     return min(np.abs(p - q).max(), np.abs(p + q).max())
+
+
+def test_quest_takes_the_field_only_where_the_shared_detector_accepts_it():
+    """measurement="quest" used every field its own gate accepted, before the shared magnetic
+    disturbance detector (docs/estimators.md: every filter's magnetometer passes it): with the
+    gate opened wide, a magnet fixed to the sensor (fusion.scenarios' "magnet-attached", 20-50
+    s) went into QUEST on every sample. Now none from 21 to 39 s (the detector re-learns a field
+    that stays 20 s), and every sample before and after; the kernel equals the reference."""
+    from fusion.scenarios import failure_scenario
+    sc = failure_scenario("magnet-attached", seed=0)
+    kw = dict(measurement="quest", mag_norm_tol=10.0, mag_dip_tol=90.0)
+    est = fusion.make("aekf", sc.fs, **kw)
+    est.record_decisions()
+    est.run(sc.gyr, sc.acc, sc.mag)
+    r = ra.RefAEKF(sc.fs, **kw)
+    for g, a, m in zip(sc.gyr, sc.acc, sc.mag):
+        r.update(g, a, m)
+    compare_aekf(est, r)
+    quest_used = est.decisions & 4 > 0
+    assert not quest_used[(sc.t >= 21.0) & (sc.t < 39.0)].any()
+    assert quest_used[(sc.t > 5.0) & (sc.t < 20.0)].all() and quest_used[sc.t > 55.0].all()
 
 
 def test_quest_equals_independent_solutions():
