@@ -100,6 +100,7 @@ cdef class Loop:
     cdef bint has_offset, vib, self_field
     cdef double ox, oy, oz, k_phys, ex, ey, ez, mag_steer, mag_current
     cdef double vk[8]
+    cdef double seam_mean                                 # envs.base.SEAM_MEAN
     cdef double[:, ::1] zones
     cdef Py_ssize_t nz
     cdef StepKernel imu
@@ -194,6 +195,7 @@ cdef class Loop:
         self.fix_hz = env.position_fix_hz
         from envs import base
         self.stuck_speed, self.stuck_action, self.stuck_time = base.STUCK_SPEED, base.STUCK_ACTION, base.STUCK_TIME
+        self.seam_mean = base.SEAM_MEAN
         self.obs_lo, self.obs_hi = env._obs_low, env._obs_high
         self.n_obs = self.obs_lo.shape[0]
         self.js_next = None
@@ -403,8 +405,7 @@ cdef class Loop:
             vz += a * cos(ph)
         if a_s:
             u = _pymod(q, TWO_PI) * (1.0 / 0.15)
-            if u < 1.0:
-                vz += a_s * s * s * 0.5 * (1.0 - cos(TWO_PI * u))
+            vz += a_s * s * s * ((0.5 * (1.0 - cos(TWO_PI * u)) if u < 1.0 else 0.0) - self.seam_mean)
         vx_[0], vy_[0], vz_[0] = vx, vy, vz
 
     # -- the physics steps (SphereRobotEnv._advance) ----------------------------------------

@@ -34,6 +34,10 @@ from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, 
 
 __all__ = ["SphereRobotBase", "ESTIMATORS", "BASE_OBS", "obs_layout"]
 
+#: the seam pulse's mean over one revolution of the shell (a raised cosine 0.15 rad wide,
+#: mean 1/2 over its width): 0.15 / (4 pi) of its height
+SEAM_MEAN = 0.15 / (4.0 * math.pi)
+
 #: Earth field (uT, ENU) of the seeds' region (Nanjing, WMM: total 50.6 uT, inclination
 #: 48 deg); declination set to 0 so that magnetic north is the world's +y and the estimated
 #: heading has the same zero as the true one.
@@ -745,7 +749,10 @@ class SphereRobotBase(gym.Env):
         imbalance (a vector rotating in the x-z plane at the motor's speed, gear_ratio x the
         output), its commutation (2x, along z), the output stage's gear mesh (gear_teeth x
         the output, x-z) and the shell's seam (a raised-cosine pulse along z once per
-        revolution, 0.15 rad of shell rotation wide). Tones above 0.4 physics_hz are left out
+        revolution, 0.15 rad of shell rotation wide, less its mean over the revolution,
+        SEAM_MEAN: the shell rises over the seam and comes down again, so the pulse moves no
+        mean acceleration; the bare pulse read 0.009 m/s^2 above g in steady rolling at full
+        drive). Tones above 0.4 physics_hz are left out
         (they would alias in the physics itself). Amplitudes: docs/envs/robot.md."""
         n_m, a_m, a_c, n_g, a_g, a_s, inv_top, lim = self._vib_k
         q, w = self._qd, self._wd_last
@@ -769,8 +776,7 @@ class SphereRobotBase(gym.Env):
             vz += a * math.cos(ph)
         if a_s:
             u = (q % 6.283185307179586) * (1.0 / 0.15)
-            if u < 1.0:
-                vz += a_s * s * s * 0.5 * (1.0 - math.cos(6.283185307179586 * u))
+            vz += a_s * s * s * ((0.5 * (1.0 - math.cos(6.283185307179586 * u)) if u < 1.0 else 0.0) - SEAM_MEAN)
         return vx, vy, vz
 
     def _advance(self, n, voltage, target):

@@ -100,6 +100,30 @@ def run(name, physics_hz, seed=0, imu="ideal"):
             "acc_peak": float(np.abs(an - GRAVITY).max())}
 
 
+#: s: the ends of the 2-s windows whose roll peak to peak rocking_decay fits
+ROCK_WINDOWS = (6, 10, 14, 18, 22)
+
+
+def rocking_decay(physics_hz, realism="real"):
+    """Decay rate (1/s) of the sideways rocking after a hard turn (full drive, full steer from
+    1 to 4 s, then straight): the slope of log(roll peak to peak) over the 2-s windows ending
+    at ROCK_WINDOWS. A rate, not a roll difference in degrees: PyBullet's multibody step adds
+    energy to the rocking in proportion to the step (docs/envs/robot.md, "Rates"), which an
+    absolute tolerance of a few degrees on a decayed roll does not see."""
+    env = _Env(estimator="truth", imu="ideal", physics_hz=physics_hz, episode_s=ROCK_WINDOWS[-1] + 1.0,
+               arena_size=60.0, realism=realism)
+    env.reset(seed=0, options={"start_xy": (0.0, 0.0), "start_yaw": 0.0})
+    rolls = []
+    for k in range(int(ROCK_WINDOWS[-1] * env.control_hz)):
+        env.step(SCENARIOS["hard turn then release"](k / env.control_hz))
+        R = env.true_state()["rotation"]
+        rolls.append(math.degrees(math.asin(max(-1.0, min(1.0, R[2, 1])))))
+    env.close()
+    n = int(env.control_hz)
+    pp = [np.ptp(rolls[(e - 2) * n:e * n]) for e in ROCK_WINDOWS]
+    return float(-np.polyfit(ROCK_WINDOWS, np.log(pp), 1)[0])
+
+
 def compare(name, hz=400.0, factor=4):
     a, b = run(name, hz), run(name, hz * factor)
     peak = None
@@ -122,6 +146,9 @@ def main(hz=400.0):
         f = lambda p: f"{p[0]:.3g} / {p[1]:.3g}"   # noqa: E731
         print(f"| {name} | {c['dpos_m']:.3f} | {c['dheading_deg']:.2f} | {f(c['roll_pp'])} | {f(c['acc_std'])} "
               f"| {f(c['gyr_std'])} | {f(c['acc_peak'])} | {f(c['mpu_peak']) if c['mpu_peak'] else ''} |", flush=True)
+    rates = {h: rocking_decay(h) for h in (hz, 2 * hz, 4 * hz, 8 * hz)}
+    print("rocking decay rate after a hard turn (1/s): "
+          + ", ".join(f"{r:.4f} at {h:g} Hz" for h, r in rates.items()))
 
 
 if __name__ == "__main__":
