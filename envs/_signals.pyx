@@ -98,7 +98,9 @@ cdef class Loop:
     cdef bint patch_on
     # true signals
     cdef bint has_offset, vib, self_field
-    cdef double ox, oy, oz, k_phys, ex, ey, ez, mag_steer, mag_current
+    cdef double ox, oy, oz, k_phys, ex, ey, ez, mag_current
+    cdef double dip[5]                                    # envs.robot.pendulum_dipole
+    cdef double dip_min                                   # envs.robot.DIPOLE_MIN_DISTANCE
     cdef double vk[8]
     cdef double seam_mean                                 # envs.base.SEAM_MEAN
     cdef double[:, ::1] zones
@@ -141,6 +143,26 @@ cdef class Loop:
         from envs.base import NEEDS_RESET       # (step() may come before the first load)
         self.needs_reset = NEEDS_RESET
 
+    def _load_signals(self, env, rp):
+        """load's constants of the sensing: the IMU's place, the fields, the vibration."""
+        from envs.base import SEAM_MEAN
+        from envs.robot import DIPOLE_MIN_DISTANCE
+        self.has_offset = env._has_offset
+        self.ox, self.oy, self.oz = env.imu_offset
+        self.k_phys = env.physics_hz
+        self.ex, self.ey, self.ez = env.earth_field
+        self.vib = env._vib
+        for i in range(8):
+            self.vk[i] = env._vib_k[i]
+        self.seam_mean = SEAM_MEAN
+        self.self_field = env._self_field
+        self.mag_current = rp.mag_current
+        for i in range(5):
+            self.dip[i] = env._dipole[i]
+        self.dip_min = DIPOLE_MIN_DISTANCE
+        self.zones = np.array(env._zones, dtype=np.float64).reshape(-1, 7)
+        self.nz = self.zones.shape[0]
+
     def load(self, env):
         """Constants of the episode (call after the world is built, before the first sense)."""
         import envs.robot as robot
@@ -171,17 +193,7 @@ cdef class Loop:
         self.patches = np.array(env._patches, dtype=np.float64).reshape(-1, 3)
         self.npatch = self.patches.shape[0]
         self.patch_mu, self.lat_mu, self.spin_patch = env.patch_friction, rp.lateral_friction, env._spin_patch
-        self.has_offset = env._has_offset
-        self.ox, self.oy, self.oz = env.imu_offset
-        self.k_phys = env.physics_hz
-        self.ex, self.ey, self.ez = env.earth_field
-        self.vib = env._vib
-        for i in range(8):
-            self.vk[i] = env._vib_k[i]
-        self.self_field = env._self_field
-        self.mag_steer, self.mag_current = rp.mag_steer, rp.mag_current
-        self.zones = np.array(env._zones, dtype=np.float64).reshape(-1, 7)
-        self.nz = self.zones.shape[0]
+        self._load_signals(env, rp)
         imu = env._imu
         self.imu = imu._kernel
         if self.imu is None:
@@ -195,7 +207,6 @@ cdef class Loop:
         self.fix_hz = env.position_fix_hz
         from envs import base
         self.stuck_speed, self.stuck_action, self.stuck_time = base.STUCK_SPEED, base.STUCK_ACTION, base.STUCK_TIME
-        self.seam_mean = base.SEAM_MEAN
         self.obs_lo, self.obs_hi = env._obs_low, env._obs_high
         self.n_obs = self.obs_lo.shape[0]
         self.js_next = None
@@ -278,7 +289,6 @@ cdef class Loop:
         cdef double wx_, wy_, wz_, vx, vy, vz, rx, ry, rz, ax, ay, az, bx, by, bz
         cdef double px, py, pz, dx, dy, dz, d2, d, ux, uy, uz, mr, s, k
         cdef double vbx = 0.0, vby = 0.0, vbz = 0.0
-        cdef double cq, sq
         cdef double qq[4]
         cdef Py_ssize_t i
         cdef double[:, ::1] zn = self.zones
@@ -343,10 +353,10 @@ cdef class Loop:
         self.mag[1] = r01 * bx + r11 * by + r21 * bz
         self.mag[2] = r02 * bx + r12 * by + r22 * bz
         if self.self_field:
-            # SphereRobotEnv._add_self_field
-            cq, sq = cos(self.qs), sin(self.qs)
-            dy, dz = self.mag_steer * sq, self.mag_steer * (1.0 - cq)
+            # SphereRobotEnv._add_self_field (envs.robot.dipole_field)
+            self._dipole_field(&dx, &dy, &dz)
             dy += self.mag_current * self.i_signed
+            self.mag[0] = self.mag[0] + dx
             self.mag[1] = self.mag[1] + dy
             self.mag[2] = self.mag[2] + dz
         if not self.imu.step_c(self.gyr, self.acc, self.mag, 0.0, False):
@@ -380,6 +390,20 @@ cdef class Loop:
         self.gyr_sum_y += self.gyr_last[1]
         self.gyr_n += 1
         return 0
+
+    cdef void _dipole_field(self, double* bx, double* by, double* bz) noexcept:
+        """envs.robot.dipole_field at the steering angle qs."""
+        cdef double s = sin(self.qs), c = cos(self.qs), L = self.dip[1]
+        cdef double dx = self.ox, dy = self.oy - L * s, dz = self.oz + L * c
+        cdef double r = sqrt(dx * dx + dy * dy + dz * dz), ux, uy, uz, um, k
+        if r < self.dip_min:
+            r = self.dip_min
+        ux, uy, uz = dx / r, dy / r, dz / r
+        um = uy * s - uz * c
+        k = self.dip[0] / (r * r * r)
+        bx[0] = k * (3.0 * ux * um) - self.dip[2]
+        by[0] = k * (3.0 * uy * um - s) - self.dip[3]
+        bz[0] = k * (3.0 * uz * um + c) - self.dip[4]
 
     cdef void _vibration(self, double* vx_, double* vy_, double* vz_) noexcept:
         """SphereRobotEnv._vibration."""

@@ -29,8 +29,8 @@ from fusion.constants import GRAVITY as G
 
 from envs import _signals
 from envs.robot import (DRIVE_JOINT, REALISM, SERVO_STALL_CURRENT, STEER_JOINT, DCMotor, RobotParams, Servo,
-                        SPIN_EPS, STICK_RATE, build_robot, check_explicit_damping, spin_torque, set_drive_friction,
-                        set_steer)
+                        SPIN_EPS, STICK_RATE, build_robot, check_explicit_damping, dipole_field, pendulum_dipole,
+                        spin_torque, set_drive_friction, set_steer)
 
 __all__ = ["SphereRobotBase", "ESTIMATORS", "BASE_OBS", "obs_layout"]
 
@@ -384,6 +384,7 @@ class SphereRobotBase(gym.Env):
                        1.0 / self._w_top, 0.8 * math.pi * self.physics_hz)
         self._qd = self._wd_last = self._qs = 0.0
         self._self_field = bool(rp.mag_steer or rp.mag_current)
+        self._dipole = pendulum_dipole(rp, self.imu_offset)
         self._n_sub = int(round(self.physics_hz / self.control_hz))
         self._dt = 1.0 / self.physics_hz
         self._settle_steps = int(round(0.1 * self.physics_hz))
@@ -730,18 +731,14 @@ class SphereRobotBase(gym.Env):
         """(uT, body frame) the robot's own field at the IMU on top of ``mag``: what a
         calibration at rest with the pendulum centred and the motor off leaves. The
         pendulum's field (steel cans of the cells, the servo's magnet; magnitude
-        ``mag_steer`` at the IMU) turns with the steering angle about the frame's x axis,
-        so its change from the calibrated centred value remains; the drive current's field
-        (unshielded leads and the motor's armature; ``mag_current`` uT per A) lies along the
-        axle and changes sign with the current. docs/envs/robot.md."""
-        rp = self.robot
-        q = self._qs
-        bp = rp.mag_steer
-        c, s_ = math.cos(q), math.sin(q)
-        # R_x(q) (0, 0, -bp) - (0, 0, -bp): the pendulum's field hangs below the axle
-        dy, dz = bp * s_, bp * (1.0 - c)
-        dy += rp.mag_current * self._motor.i_signed
-        return (mag[0], mag[1] + dy, mag[2] + dz)
+        ``mag_steer`` at the IMU when centred) is a point dipole at its centre of mass that
+        turns with the steering angle (envs.robot.dipole_field), so its change from the
+        centred value remains; the drive current's field (unshielded leads and the motor's
+        armature; ``mag_current`` uT per A) lies along the axle and changes sign with the
+        current. docs/envs/robot.md."""
+        dx, dy, dz = dipole_field(self._dipole, self.imu_offset, self._qs)
+        dy += self.robot.mag_current * self._motor.i_signed
+        return (mag[0] + dx, mag[1] + dy, mag[2] + dz)
 
     def _vibration(self):
         """(m/s^2, body frame) the drive's vibration at the IMU, phase-locked to the drive

@@ -28,7 +28,7 @@ from typing import Any
 from fusion.checks import integer, number
 from fusion.constants import GRAVITY
 
-__all__ = ["RobotParams", "DCMotor", "Servo", "build_robot", "spin_torque", "explicit_damping", "check_explicit_damping", "EXPLICIT_TERMS", "DRIVE_JOINT", "STEER_JOINT", "REALISM"]
+__all__ = ["RobotParams", "DCMotor", "Servo", "build_robot", "spin_torque", "explicit_damping", "check_explicit_damping", "EXPLICIT_TERMS", "pendulum_dipole", "dipole_field", "DRIVE_JOINT", "STEER_JOINT", "REALISM"]
 
 DRIVE_JOINT = 0
 STEER_JOINT = 1
@@ -501,6 +501,46 @@ def check_explicit_damping(params: RobotParams, physics_hz: float) -> None:
                 f"the robot's {term} damping, {EXPLICIT_TERMS[term]}, is {ratio:.3g} x what a physics step "
                 f"of 1 / {physics_hz:g} Hz integrates (c dt / I must be <= 1; docs/envs/robot.md, "
                 f"\"Explicit terms\"): lower it, or raise physics_hz to at least {physics_hz * ratio:.4g} Hz")
+
+
+#: (m) the pendulum dipole's distance from the IMU is held at least this (a point dipole's
+#: field diverges at it; the zones' dipoles use the same floor)
+DIPOLE_MIN_DISTANCE = 0.01
+
+
+def pendulum_dipole(params: RobotParams, imu_offset: Sequence[float]) -> tuple[float, ...]:
+    """The pendulum's magnetic field as a point dipole at its centre of mass, its moment along
+    the pendulum (away from the axle), turning with it about the frame's x axis; scaled so
+    that its field at the IMU (``imu_offset``, frame axes) with the pendulum centred has the
+    magnitude ``mag_steer``. Returns (k, L, bx0, by0, bz0): k = (mu0 / 4 pi) M in uT m^3, L the
+    pendulum length, b0 that centred field (uT), which a calibration at rest removes
+    (dipole_field)."""
+    L = params.pendulum_length
+    f, r = _dipole_shape(imu_offset, L, 0.0)
+    norm = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+    k = params.mag_steer * r ** 3 / norm
+    return (k, L) + tuple(k * c / r ** 3 for c in f)
+
+
+def _dipole_shape(o: Sequence[float], L: float, steer: float) -> tuple[tuple[float, float, float], float]:
+    """3 u (u . m) - m for a unit moment m along the pendulum at ``steer`` (rad) and u the
+    unit vector from the pendulum's centre of mass to the point o; and that distance."""
+    s, c = math.sin(steer), math.cos(steer)
+    dx, dy, dz = o[0], o[1] - L * s, o[2] + L * c
+    r = max(math.sqrt(dx * dx + dy * dy + dz * dz), DIPOLE_MIN_DISTANCE)
+    ux, uy, uz = dx / r, dy / r, dz / r
+    um = uy * s - uz * c
+    return (3.0 * ux * um, 3.0 * uy * um - s, 3.0 * uz * um + c), r
+
+
+def dipole_field(dipole: tuple[float, ...], imu_offset: Sequence[float], steer: float) -> tuple[float, float, float]:
+    """(uT, frame axes) the change of the pendulum dipole's field at the IMU from its centred
+    value at steering angle ``steer`` (rad): what remains after a calibration with the
+    pendulum centred (pendulum_dipole)."""
+    k, L, bx0, by0, bz0 = dipole
+    f, r = _dipole_shape(imu_offset, L, steer)
+    s = k / (r * r * r)
+    return s * f[0] - bx0, s * f[1] - by0, s * f[2] - bz0
 
 
 def spin_torque(params: RobotParams) -> float:

@@ -61,8 +61,12 @@ def test_deadband_and_stiction_hold_the_robot_at_small_voltage():
 
 
 def test_steering_moves_the_magnetometer_offset():
-    """The pendulum's field turns with the steering: the field at the IMU minus the earth
-    field in the body frame follows R_x(q) (0, 0, -mag_steer) + (0, 0, mag_steer)."""
+    """The pendulum's field is a point dipole at its centre of mass, its moment along the
+    pendulum, turning with the steering: the field at the IMU minus the earth field in the
+    body frame is that dipole's field less its centred value (a calibration with the pendulum
+    centred removes that), the dipole scaled to mag_steer at the IMU when centred. Computed
+    here with vectors; at 30 deg the change is 2.44 uT (a rotation of the field vector, the
+    model before, said 4.1 uT and a z change of the other sign)."""
     rp = RobotParams(mag_current=0.0)
     env = SphereRobotEnv(estimator="truth", imu="ideal", robot=rp)
     env.reset(seed=0)
@@ -73,8 +77,17 @@ def test_steering_moves_the_magnetometer_offset():
     earth = st["rotation"].T @ np.array(env.earth_field)
     q = st["steer_angle"]
     assert q > math.radians(25)
-    expect = rp.mag_steer * np.array([0.0, math.sin(q), 1.0 - math.cos(q)])
+
+    def dipole(angle, moment=1.0):
+        rx = np.array([[1, 0, 0], [0, math.cos(angle), -math.sin(angle)], [0, math.sin(angle), math.cos(angle)]])
+        m = rx @ np.array([0.0, 0.0, -moment])
+        d = np.array(env.imu_offset) - rx @ np.array([0.0, 0.0, -rp.pendulum_length])
+        r = np.linalg.norm(d)
+        return 0.1 * (3 * d * (d @ m) / r ** 2 - m) / r ** 3      # mu0 / 4 pi = 0.1 uT m^3 / (A m^2)
+    moment = rp.mag_steer / np.linalg.norm(dipole(0.0))
+    expect = dipole(q, moment) - dipole(0.0, moment)
     np.testing.assert_allclose(mag - earth, expect, atol=0.01)      # angle read one physics step earlier
+    assert np.linalg.norm(dipole(math.radians(30), moment) - dipole(0.0, moment)) == pytest.approx(2.44, abs=0.01)
     env.close()
 
 
