@@ -11,7 +11,7 @@ settling: only the PID Track case moves, by 7e-4 at most in its observation) and
 (the tilt variance at the end of the low-pass's start: the ekf cases move, by 1e-3 at most in the
 observation) and the seam vibration's zero mean (every real-robot case moves: the
 accelerometer's vertical by 0.009 m/s² at full speed) and the pendulum's field as a dipole
-(the real-robot cases' magnetometer, by up to 1.7 uT at full steering); the "truth"
+(the real-robot cases' magnetometer, by up to 2.0 uT at 30 deg of steering); the "truth"
 case, which no estimator touches, still equalled the pre-split recording bit for bit before the magnetometer weights."""
 import os
 
