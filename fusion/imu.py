@@ -370,6 +370,10 @@ def _rrw(bias_instability, corr_time_s):
     return ALLAN_FLOOR * bias_instability * math.sqrt(3.0 / (10.0 * corr_time_s))
 
 
+# The MTi 10-series datasheet's in-run bias stability (gyro 18 deg/h, accelerometer 40 ug) is,
+# as datasheets quote it, the minimum of the Allan deviation: the coefficient B is that / 0.664
+_MTI_GYRO_BI = 18.0 * DPH / ALLAN_FLOOR
+_MTI_ACC_BI = 40.0 * UG / ALLAN_FLOOR
 _INV_GYRO_BI = 10.0 * DPH       # assumed bias instability of InvenSense consumer gyros
 _INV_ACC_BI = 0.1 * MG          # assumed bias instability of InvenSense consumer accelerometers
 # Noise bandwidths of the register-default DLPF (gyro DLPF_CFG = 0: 250 Hz 3-dB, accelerometer
@@ -377,6 +381,10 @@ _INV_ACC_BI = 0.1 * MG          # assumed bias instability of InvenSense consume
 # 235.0 Hz); the MPU-9250's register map gives the same 3-dB bandwidths and delays, no NBW.
 _INV_GYRO_NBW = 306.6
 _INV_ACC_NBW = 235.0
+# DLPF_CFG = 6 (5 Hz 3-dB) has no NBW in the MPU-6050's documents: a first-order filter's,
+# (pi / 2) x 5 Hz. The register holds point samples of the filtered signal (read at 10 Hz),
+# so the per-sample noise is noise_density sqrt(NBW), aliasing included, as the NBW presets'
+_MPU6050_DLPF6_NBW = 0.5 * math.pi * 5.0
 # Residual scale and cross-axis errors after a user calibration of a consumer MEMS IMU
 # (accelerometer: multi-position fit of gains and non-orthogonality; gyro: rotations against
 # the calibrated accelerometer), after Tedaldi, Pretto and Menegatti, "A robust and easy to
@@ -408,10 +416,12 @@ PRESETS = {
     "mpu6050+mag3110": IMUSpec(
         "mpu6050+mag3110",
         gyro=_invensense_gyro(noise_density=0.005 * DEG, bias_turn_on=20.0 * DEG, bias_turn_on_calibrated=0.8 * DEG,
-                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=5.0),
+                              scale_error=0.03, misalignment=0.02, range=250.0 * DEG, lsb=DEG / 131.0, lpf_hz=5.0,
+                              noise_bw_hz=_MPU6050_DLPF6_NBW),
         acc=_invensense_acc(noise_density=400.0 * UG, bias_turn_on=(50.0 * MG, 50.0 * MG, 80.0 * MG),
                             bias_turn_on_calibrated=(2.5 * MG, 2.5 * MG, 4.3 * MG), scale_error=0.03,
-                            misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=5.0),
+                            misalignment=0.02, range=2.0 * G0, lsb=G0 / 16384.0, lpf_hz=5.0,
+                            noise_bw_hz=_MPU6050_DLPF6_NBW),
         mag=MagSpec(noise_rms=0.25, range=1000.0, lsb=0.1, adc_bits=16, rate_hz=80.0, hard_iron=100.0,
                     soft_iron=0.02, hard_iron_calibrated=1.0, soft_iron_calibrated=0.01),
         rate_hz=10.0, jitter_s=20e-6),
@@ -422,12 +432,12 @@ PRESETS = {
     # strapdown integration inside: "average" sampling.
     "mti10": IMUSpec(
         "mti10",
-        gyro=SensorSpec(noise_density=0.03 * DEG, bias_instability=18.0 * DPH, bias_corr_time_s=1000.0,
-                        bias_random_walk=_rrw(18.0 * DPH, 1000.0), bias_turn_on=0.5 * DEG,
+        gyro=SensorSpec(noise_density=0.03 * DEG, bias_instability=_MTI_GYRO_BI, bias_corr_time_s=1000.0,
+                        bias_random_walk=_rrw(_MTI_GYRO_BI, 1000.0), bias_turn_on=0.5 * DEG,
                         bias_turn_on_calibrated=0.05 * DEG, scale_error=0.001, misalignment=0.1 * DEG,
                         range=450.0 * DEG),
-        acc=SensorSpec(noise_density=80.0 * UG, bias_instability=40.0 * UG, bias_corr_time_s=1000.0,
-                       bias_random_walk=_rrw(40.0 * UG, 1000.0), bias_turn_on=5.0 * MG,
+        acc=SensorSpec(noise_density=80.0 * UG, bias_instability=_MTI_ACC_BI, bias_corr_time_s=1000.0,
+                       bias_random_walk=_rrw(_MTI_ACC_BI, 1000.0), bias_turn_on=5.0 * MG,
                        bias_turn_on_calibrated=0.5 * MG,
                        scale_error=0.001, misalignment=0.1 * DEG, range=20.0 * G0),
         mag=MagSpec(noise_rms=0.05, range=8.0 * GAUSS, lsb=0.025, hard_iron=0.5, soft_iron=0.005,
@@ -585,13 +595,14 @@ def _channel_params(spec, fs):
     gm_c = [s_ * math.sqrt(1.0 - r * r) for s_, r in zip(gm_sig, gm_rho)]
     # White noise: one-sided density noise_density at the output whatever the rate; a low-pass
     # of (equivalent noise) bandwidth B shapes it as an AR(1) with rho = exp(-4 B / fs), the
-    # sampled first-order process whose noise bandwidth is B (docs/imu.md).
+    # sampled first-order process whose noise bandwidth is B (docs/imu.md); given its 3-dB
+    # corner fc alone, B = (pi / 2) fc, rho = exp(-2 pi fc / fs), the signal path's own pole.
     if spec.noise_bw_hz is not None:
         # the datasheet's NBW: the point-sampled first-order process (aliasing included)
         wn_rho = math.exp(-4.0 * spec.noise_bw_hz / fs)
         wn_sig = spec.noise_density * math.sqrt(spec.noise_bw_hz)
     else:
-        wn_rho = math.exp(-4.0 * spec.lpf_hz / fs) if spec.lpf_hz is not None else 0.0
+        wn_rho = math.exp(-2.0 * math.pi * spec.lpf_hz / fs) if spec.lpf_hz is not None else 0.0
         wn_sig = spec.noise_density * math.sqrt(0.5 * fs * (1.0 - wn_rho) / (1.0 + wn_rho))
     return dict(gm_rho=gm_rho, gm_sig=gm_sig, gm_c=gm_c, rw_c=spec.bias_random_walk * math.sqrt(dt),
                 wn_rho=wn_rho, wn_sig=wn_sig, wn_c=wn_sig * math.sqrt(1.0 - wn_rho * wn_rho))
