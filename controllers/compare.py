@@ -39,8 +39,8 @@ import numpy as np
 from fusion.checks import integer, require
 
 from controllers.policy_io import check_writable, csv_text, save_figure, write_text
-from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, SETTLE_BAND_DEG,
-                                    SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
+from controllers.evaluation import (BINARY_METRICS, EPISODE_METRICS, MAIN_METRIC, MIN_BOOT, MIN_TAIL, N_BOOT,
+                                    SETTLE_BAND_DEG, SETTLE_WINDOW_S, interval, newcombe_paired, paired_difference)
 
 __all__ = ["SCENARIOS", "CONTROLLERS", "ROBOTS", "TASKS", "SHOWN", "plan", "run_job", "run_grid", "summarise",
            "write_outputs", "paired_between", "code_version", "cell_key", "ray_session", "runtime_env",
@@ -190,7 +190,36 @@ def plan(tasks, scenarios, estimators, controllers, episodes, seed, policy_dir=N
                                                      realism=ROBOTS[robot])))
     for m in sorted(missing):
         log(f"no policy {m}.zip: its cells are skipped (train it with scripts/train.py)")
+    _warn_estimator_changes(jobs, pdir, log)
     return jobs
+
+
+def _warn_estimator_changes(jobs, pdir, log):
+    """Name the policies of ``jobs`` whose JSON records estimator parameters other than the
+    current ones (trained with another filter than the one their rows evaluate), and those
+    that record none (trained before they were recorded)."""
+    from controllers.rl import estimator_config
+    changed, unrecorded = {}, []
+    for j in jobs:
+        if not j["policy"] or j["policy"] in changed or j["policy"] in unrecorded:
+            continue
+        meta = Path(pdir) / (j["policy"] + ".json")
+        rec = json.loads(meta.read_text()) if meta.is_file() else {}
+        if rec.get("estimator") == "truth" or not estimator_config(rec.get("estimator", j["estimator"])):
+            continue                # no filter, or one without parameters, to have changed
+        if "estimator_params" not in rec:
+            unrecorded.append(j["policy"])
+            continue
+        now = json.loads(json.dumps(estimator_config(rec.get("estimator", j["estimator"]), rec.get("env_kwargs"))))
+        was = rec["estimator_params"]
+        diff = sorted(k for k in set(now) | set(was) if now.get(k) != was.get(k))
+        if diff:
+            changed[j["policy"]] = diff
+    for name, diff in changed.items():
+        log(f"warning: {name} was trained with other estimator parameters than the current ({', '.join(diff)})")
+    if unrecorded:
+        log(f"note: {len(unrecorded)} policies record no estimator parameters (trained before they were "
+            f"recorded): {', '.join(sorted(unrecorded))}")
 
 
 def _check_policies(jobs):
@@ -623,8 +652,9 @@ def _summary_intro(summary, command, seconds):
         lines += [f"Command: `{command}`" + (f" ({seconds:.0f} s)" if seconds is not None else ""), ""]
     lines += [
         "Each cell: mean [95 % interval] over its episodes (the same seeds in every cell), scored on the "
-        "true state. Success: Wilson interval; the other metrics: expanded percentile bootstrap (2,000 "
-        "resamples, seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
+        "true state. Success: Wilson interval; the other metrics: expanded "
+        f"percentile bootstrap (at least {N_BOOT:,} resamples, and enough to leave {MIN_TAIL} beyond each end; "
+        "seeded); IQM = interquartile mean. Δ: the paired difference against the `truth` cell of the same "
         "controller and floor over the same seeds (success: Newcombe's paired interval, in percentage "
         "points; others: paired bootstrap; none from fewer than "
         f"{MIN_BOOT} episodes); `*`: the main metric's difference excludes 0 at the level of its family, "

@@ -25,6 +25,9 @@ sphere_bot_waypoints.md, "Metrics"):
   disturbance such as drive vibration moves, hidden in ``attitude_error`` by the heading;
 - ``heading_est_error`` (deg): rms of the estimated heading's error during the run.
 
+``steps`` (not a metric: in the episode CSV) is the episode's length in control steps: an
+episode that left the arena or got stuck is shorter, and its metrics cover that shorter run.
+
 Statistics (``interval``, ``paired_difference``): success rates with Wilson score intervals
 and paired differences by Newcombe's method 10 for paired proportions; continuous metrics
 with expanded percentile bootstrap intervals (seeded, stratified when strata are given) of the mean
@@ -47,7 +50,7 @@ if TYPE_CHECKING:
 
 __all__ = ["evaluate", "run_episode", "aggregate", "interval", "paired_difference", "wilson",
            "newcombe_paired", "bootstrap_ci", "iqm", "EPISODE_METRICS", "MIN_BOOT", "MAIN_METRIC", "BINARY_METRICS",
-           "SETTLE_WINDOW_S", "SETTLE_BAND_DEG", "MIN_TAIL"]
+           "SETTLE_WINDOW_S", "SETTLE_BAND_DEG", "MIN_TAIL", "N_BOOT"]
 
 EPISODE_METRICS = {
     "track": ("return", "heading_ss", "speed_ss", "settle_time", "heading_rmse", "speed_rmse", "effort",

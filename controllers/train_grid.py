@@ -40,12 +40,43 @@ def grid_jobs(algo, tasks, estimators, seeds, out, timesteps=None, init_from=Non
 
 
 def job_done(job) -> bool:
-    """Whether the job's JSON is written with its final evaluation (when it has one)."""
+    """Whether the job's JSON is written with its final evaluation (when it has one), by a
+    training with this job's settings (settings_differ: a resumed grid with other settings
+    runs the job again, where its run's identity check refuses to mix the two)."""
     try:
         meta = json.loads(Path(job["stem"] + ".json").read_text())
     except (OSError, ValueError):
         return False
-    return isinstance(meta, dict) and (job["final_episodes"] == 0 or "final_evaluation" in meta)
+    return (isinstance(meta, dict) and (job["final_episodes"] == 0 or "final_evaluation" in meta)
+            and (job.get("timesteps") is None or meta.get("timesteps") == job["timesteps"])
+            and not settings_differ(job, meta))
+
+
+def settings_differ(job, meta) -> list[str]:
+    """The settings of ``job`` that its published JSON ``meta`` does not record, of those a
+    resume may not change (a run's identity, as rl's): seed, environment arguments,
+    hyperparameter overrides, the start policy (before, a --resume of a grid with
+    --init-from pid and another learning rate took the earlier run for done). A job with
+    more timesteps is not done, and its run continues to them, as a single run's resume."""
+    out = []
+    if job.get("seed") is not None and meta.get("seed") != job["seed"]:
+        out.append(f"seed {meta.get('seed')!r} recorded, {job['seed']!r} now")
+    if json.loads(json.dumps(job.get("env_kwargs") or {})) != (meta.get("env_kwargs") or {}):
+        out.append(f"env_kwargs {meta.get('env_kwargs')!r} recorded, {job.get('env_kwargs')!r} now")
+    hp = meta.get("hyperparams") or {}
+    for k, v in (job.get("hyperparams_override") or {}).items():
+        if json.loads(json.dumps(v)) != hp.get(k):
+            out.append(f"hyperparameter {k} {hp.get(k)!r} recorded, {v!r} now")
+    init, rec = job.get("init_from"), meta.get("init_from")
+    if init is None or rec is None:
+        same = init is None and rec is None
+    elif init == rl.TEACHER:
+        same = str(rec).startswith(rl.TEACHER)
+    else:
+        same = Path(str(rec)).name.removesuffix(".zip") == Path(str(init)).name.removesuffix(".zip")
+    if not same:
+        out.append(f"init_from {rec!r} recorded, {init!r} now")
+    return out
 
 
 def _started(job):
@@ -177,6 +208,15 @@ def run_train_grid(jobs, backend="local", workers=None, address=None, resume=Fal
     if started and not resume:
         raise FileExistsError(f"{len(started)} jobs of this grid have results or checkpoints already (e.g. "
                               f"{started[0]}): resume=True (--resume) to continue the grid")
+    for j in jobs:
+        try:
+            meta = json.loads(Path(j["stem"] + ".json").read_text())
+        except (OSError, ValueError):
+            continue
+        diff = settings_differ(j, meta) if isinstance(meta, dict) else []
+        if diff:
+            raise ValueError(f"--resume: {j['stem']} was trained with other settings ({'; '.join(diff)}); "
+                             f"resume the grid with its own settings, or train into another --out")
     todo = [j for j in jobs if not job_done(j)]
     log(f"training grid: {len(jobs) - len(todo)} of {len(jobs)} jobs finished already, {len(todo)} to run "
         f"({backend})")

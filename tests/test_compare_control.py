@@ -472,3 +472,27 @@ def test_cli_a_corrupt_policy_is_refused_before_the_grid(tmp_path, capsys, monke
     with pytest.raises(SystemExit) as e:
         compare.main(["--backend", "local", "--address", "auto"])
     assert e.value.code == 2 and "--address" in capsys.readouterr().err
+
+
+def test_plan_names_policies_trained_with_other_estimator_parameters(tmp_path):
+    """A policy's JSON records the estimator parameters it trained with (rl.estimator_config);
+    the comparison names a policy whose record differs from the current defaults (its rows
+    would evaluate a filter it was not trained with) and those that record none."""
+    import json
+    import shutil
+
+    from controllers.rl import POLICY_DIR, estimator_config
+    for name in ("ppo-track-ekf", "ppo-track-mahony"):
+        for suffix in (".zip", ".vecnormalize.npz", ".json"):
+            shutil.copy(POLICY_DIR / (name + suffix), tmp_path / (name + suffix))
+    meta = json.loads((tmp_path / "ppo-track-ekf.json").read_text())
+    meta["estimator_params"] = dict(estimator_config("ekf"), rest_bias_gate=0.0)
+    (tmp_path / "ppo-track-ekf.json").write_text(json.dumps(meta))
+    meta = json.loads((tmp_path / "ppo-track-mahony.json").read_text())
+    meta.pop("estimator_params", None)
+    (tmp_path / "ppo-track-mahony.json").write_text(json.dumps(meta))
+    logs = []
+    compare.plan(["track"], ["flat"], ["ekf", "mahony"], ["ppo"], 2, 0, policy_dir=tmp_path, log=logs.append)
+    assert any("ppo-track-ekf was trained with other estimator parameters" in m and "rest_bias_gate" in m
+               for m in logs), logs
+    assert any("record no estimator parameters" in m and "ppo-track-mahony" in m for m in logs), logs

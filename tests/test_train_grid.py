@@ -45,6 +45,27 @@ def test_local_grid_runs_job_by_job_and_resumes(tmp_path, capsys):
     assert "final_evaluation" in json.loads((tmp_path / "ppo-track-truth-seed1.json").read_text())
 
 
+def test_grid_resume_with_other_settings_is_refused(tmp_path, capsys):
+    """A grid resumed with other settings took the earlier runs for done ("1 of 1 jobs finished
+    already") and kept a policy trained from scratch with another learning rate under a job
+    with --init-from pid; now refused before any work, naming the difference. More timesteps
+    are not a difference: those jobs continue to them, as a single run's resume."""
+    args = TINY + ["-f", str(tmp_path), "--workers", "2"]
+    assert train_cli.main(args) == 0
+    before = _mtimes(tmp_path)
+    assert train_cli.main(args + ["--hyperparams", "learning_rate:1e-3", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "other settings" in err and "learning_rate" in err
+    assert _mtimes(tmp_path) == before
+    job = dict(timesteps=64, seed=0, env_kwargs={"episode_s": 1.0}, init_from=None, final_episodes=1,
+               stem=str(tmp_path / "ppo-track-truth"))
+    meta = json.loads((tmp_path / "ppo-track-truth.json").read_text())
+    assert train_grid.settings_differ(job, meta) == [] and train_grid.job_done(job)
+    assert train_grid.settings_differ(dict(job, init_from="pid"), meta) == ["init_from None recorded, 'pid' now"]
+    longer = dict(job, timesteps=128)
+    assert not train_grid.job_done(longer) and train_grid.settings_differ(longer, meta) == []
+
+
 def test_grid_jobs_and_bad_input(tmp_path):
     jobs = train_grid.grid_jobs("ppo", ["track", "waypoints"], ["ekf"], [0, 2], tmp_path,
                                 timesteps={"track": 60, "waypoints": 50}, init_from="logs/ppo-{task}-truth-seed{seed}")
@@ -90,3 +111,18 @@ def test_bad_timesteps_name_the_option(n, words, tmp_path, capsys):
         train_cli.main(["--algo", "ppo", "--env", "track", "--estimator", "truth", "-n", n, "-f", str(tmp_path)])
     assert words in capsys.readouterr().err          # was: "error: must be an integer >= 1"
     assert not any(tmp_path.iterdir())
+
+
+def test_every_evaluation_of_a_run_is_on_the_same_episodes(tmp_path):
+    """The best model is chosen by comparing evaluations: they must differ by the policy, not
+    by the episodes drawn. With a learning rate of 1e-12 (the policy does not change) and no
+    normalisation, four evaluations gave -61/-46, -71/-39, -54/-98 and -64/-38 (the evaluation
+    environment drew new episodes each time); now the same two returns each time."""
+    import glob
+    args = ["--algo", "ppo", "--env", "track", "--estimator", "truth", "--seed", "0", "-n", "256", "--n-envs", "1",
+            "--eval-freq", "64", "--n-eval-episodes", "2", "--eval-episodes", "0", "--env-kwargs", "episode_s:1.0",
+            "--hyperparams", "n_steps:64", "batch_size:32", "n_epochs:1", "learning_rate:1e-12", "normalize:false",
+            "--no-progress", "--out", str(tmp_path / "run")]
+    assert train_cli.main(args) == 0
+    res = np.load(glob.glob(str(tmp_path / "**" / "evaluations.npz"), recursive=True)[0])["results"]
+    assert len(res) >= 3 and (res == res[0]).all(), res
