@@ -74,6 +74,10 @@ N_BOOT = 2000
 #: N_BOOT resamples rests on 3 of them at each end, and whether it excluded 0 changed with the
 #: bootstrap's seed (22 of 40 seeds starred one cell); bootstrap_ci draws enough for this many
 MIN_TAIL = 100
+#: the most resamples bootstrap_ci draws (in chunks of N_BOOT_CHUNK): a Bonferroni level
+#: expanded at the fewest episodes (MIN_BOOT) would ask for over 10^8 for MIN_TAIL
+N_BOOT_MAX = 200_000
+N_BOOT_CHUNK = 20_000
 #: the fewest values from which a bootstrap interval is given (NaN below): with fewer, the
 #: expanded percentile interval is the data's range, which covers a normal mean 74 % of the
 #: time at 3 values and 88 % at 4 (simulated), and a paired difference's excludes 0 whenever
@@ -305,7 +309,7 @@ def bootstrap_ci(values: Any, stat: Callable[..., Any] = np.mean, strata: Sequen
                  n_boot: int = N_BOOT, seed: int = 0, level: float = 0.95) -> tuple[float, float]:
     """Expanded percentile bootstrap interval (lo, hi) of ``stat`` of ``values`` (1-D) at
     ``level`` (``_expanded_level``) from ``n_boot`` resamples, more where needed to leave
-    MIN_TAIL of them beyond each end, resampling with replacement within each stratum
+    MIN_TAIL of them beyond each end (at most N_BOOT_MAX), resampling with replacement within each stratum
     (``strata``: a label per value; None: one stratum), seeded. ``stat`` takes an
     (n_boot, n) array and ``axis=1``. A percentile interval of a mean or an IQM stays within
     the values' range. Fewer than ``MIN_BOOT`` values: (NaN, NaN)."""
@@ -314,21 +318,24 @@ def bootstrap_ci(values: Any, stat: Callable[..., Any] = np.mean, strata: Sequen
     if n < MIN_BOOT:        # no interval that would claim its level (one value: not [v, v])
         return float("nan"), float("nan")
     level = _expanded_level(n, level)
-    n_boot = max(n_boot, math.ceil(2 * MIN_TAIL / (1.0 - level)))
+    gap = 1.0 - level
+    n_boot = min(N_BOOT_MAX, max(n_boot, math.ceil(2 * MIN_TAIL / gap) if gap > 0 else N_BOOT_MAX))
     rng = np.random.default_rng(seed)
-    if strata is None:
-        idx = rng.integers(0, n, size=(n_boot, n))
-    else:
+    labels = None
+    if strata is not None:
         labels = np.asarray(strata)
         if labels.shape != (n,):
             raise ValueError(f"strata must have one label per value ({n}), got shape {labels.shape}")
-        cols = []
-        for lab in sorted(set(labels.tolist()), key=str):
-            members = np.nonzero(labels == lab)[0]
-            cols.append(members[rng.integers(0, len(members), size=(n_boot, len(members)))])
-        idx = np.concatenate(cols, axis=1)
-    boots = stat(v[idx], axis=1)
-    lo, hi = np.quantile(boots, [(1 - level) / 2, (1 + level) / 2])
+        groups = [np.nonzero(labels == lab)[0] for lab in sorted(set(labels.tolist()), key=str)]
+    boots = []
+    for start in range(0, n_boot, N_BOOT_CHUNK):
+        m = min(N_BOOT_CHUNK, n_boot - start)
+        if labels is None:
+            idx = rng.integers(0, n, size=(m, n))
+        else:
+            idx = np.concatenate([g[rng.integers(0, len(g), size=(m, len(g)))] for g in groups], axis=1)
+        boots.append(stat(v[idx], axis=1))
+    lo, hi = np.quantile(np.concatenate(boots), [(1 - level) / 2, (1 + level) / 2])
     return float(lo), float(hi)
 
 

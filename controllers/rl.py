@@ -872,6 +872,18 @@ def _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log):
     return wall, rate, train_rate, ev.eval_time
 
 
+def _recorded_start(p):
+    """The start of a run resumed from its checkpoint (which is given no ``init_from``), as
+    its identity file recorded it: the start policy's zip name, the PID clone, or None."""
+    try:
+        start = json.loads((p.run_dir / IDENTITY_FILE).read_text()).get("init_from")
+    except (OSError, ValueError):
+        return None
+    if start is None or start == TEACHER:
+        return start if start is None else f"{TEACHER} (behaviour cloning)"
+    return Path(start).name
+
+
 def _publish(p, command, init, start_ckpt, bc_collected, times):
     """Copy the best model (and its statistics) to the stem and write its JSON."""
     wall, rate, train_rate, eval_time = times
@@ -886,7 +898,7 @@ def _publish(p, command, init, start_ckpt, bc_collected, times):
         "env_id": TASK_IDS[p.task], "env_kwargs": p.env_kwargs, "timesteps": p.timesteps,
         "seed": p.seed, "n_envs": p.n_envs, "hyperparams": p.used_hp, "normalize": p.normalize,
         "init_from": (f"{TEACHER} (behaviour cloning, {bc_collected} steps)" if p.clone
-                      else None if init is None else str(Path(init[0]).name)),
+                      else _recorded_start(p) if init is None else str(Path(init[0]).name)),
         "wall_time_s": round(wall, 1), "steps_per_s": round(rate, 1), "training_steps_per_s": round(train_rate, 1),
         "eval_time_s": round(eval_time, 1)})
 

@@ -64,7 +64,10 @@ def settings_differ(job, meta) -> list[str]:
     if json.loads(json.dumps(job.get("env_kwargs") or {})) != (meta.get("env_kwargs") or {}):
         out.append(f"env_kwargs {meta.get('env_kwargs')!r} recorded, {job.get('env_kwargs')!r} now")
     hp = meta.get("hyperparams") or {}
+    cloned = str(meta.get("init_from") or "").startswith(rl.TEACHER)
     for k, v in (job.get("hyperparams_override") or {}).items():
+        if cloned and k == "learning_starts":       # (a SAC clone records the 0 it sets)
+            continue
         if json.loads(json.dumps(v)) != hp.get(k):
             out.append(f"hyperparameter {k} {hp.get(k)!r} recorded, {v!r} now")
     init, rec = job.get("init_from"), meta.get("init_from")
@@ -106,6 +109,11 @@ def run_train_job(job, log=None) -> dict:
             kw["trusted"] = True        # the driver read it under its own trust setting
         stem = Path(tmp) / Path(job["stem"]).name
         _train_and_evaluate(job, stem, init, False, kw, log)
+        if job.get("init_files"):       # the JSON names the start the driver sent, not its copy
+            meta_path = Path(str(stem) + ".json")
+            meta = json.loads(meta_path.read_text())
+            meta["init_from"] = Path(str(job["init_from"])).name.removesuffix(".zip") + ".zip"
+            meta_path.write_text(json.dumps(meta, indent=2))
         return {"stem": job["stem"], "files": _job_files(stem)}
 
 

@@ -396,9 +396,12 @@ cdef class Loop:
         cdef double s = sin(self.qs), c = cos(self.qs), L = self.dip[1]
         cdef double dx = self.ox, dy = self.oy - L * s, dz = self.oz + L * c
         cdef double r = sqrt(dx * dx + dy * dy + dz * dz), ux, uy, uz, um, k
+        if r > 0.0:
+            ux, uy, uz = dx / r, dy / r, dz / r
+        else:
+            ux, uy, uz = 0.0, 0.0, 1.0
         if r < self.dip_min:
             r = self.dip_min
-        ux, uy, uz = dx / r, dy / r, dz / r
         um = uy * s - uz * c
         k = self.dip[0] / (r * r * r)
         bx[0] = k * (3.0 * ux * um) - self.dip[2]

@@ -471,8 +471,8 @@ def explicit_damping(params: RobotParams, physics_hz: float) -> dict[str, float]
     clips it (the robot left the floor at 35 m/s with ``motor_friction`` 3.0 at 400 Hz,
     and at 21 m/s with ``steer_torque`` 100). I is the smallest inertia the torque can act
     on: the relative rotation of the shell alone against the frame and pendulum (drive; the
-    shell off the floor), of the pendulum against the frame and shell (servo), the shell
-    alone (the floor's losses). The servo's stiffness k enters as k dt² / (2 I): a
+    shell off the floor, the pendulum steered to its end stop), of the pendulum against the
+    frame and shell (servo), the shell alone (the floor's losses). The servo's stiffness k enters as k dt² / (2 I): a
     semi-implicit step of I x'' = -k x - c x' is stable when 2 c dt / I + k dt² / I < 4, and
     a sum of 1 keeps half of that. The ideal robot's servo (``steer_band`` 0) is PyBullet's
     and is not listed."""
@@ -481,7 +481,9 @@ def explicit_damping(params: RobotParams, physics_hz: float) -> dict[str, float]
     ml2 = params.pendulum_mass * params.pendulum_length ** 2
     ish = params.shell_inertia
     c_drive = params.motor_k ** 2 / params.motor_resistance + params.motor_friction
-    out = {"drive": c_drive * dt / _reduced(fi[1] + pi_[1] + ml2, ish)}
+    # the pendulum steered to its end stop is nearer the axle: m (L cos(steer))^2 about it
+    ml2_steered = ml2 * math.cos(params.steer_max + params.steer_stop) ** 2
+    out = {"drive": c_drive * dt / _reduced(fi[1] + pi_[1] + ml2_steered, ish)}
     if params.steer_band > 0:
         kd = params.steer_torque / params.steer_speed
         kp = params.steer_torque / params.steer_band
@@ -527,10 +529,12 @@ def _dipole_shape(o: Sequence[float], L: float, steer: float) -> tuple[tuple[flo
     unit vector from the pendulum's centre of mass to the point o; and that distance."""
     s, c = math.sin(steer), math.cos(steer)
     dx, dy, dz = o[0], o[1] - L * s, o[2] + L * c
-    r = max(math.sqrt(dx * dx + dy * dy + dz * dz), DIPOLE_MIN_DISTANCE)
-    ux, uy, uz = dx / r, dy / r, dz / r
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    # u a unit vector whatever the distance (straight up from the pendulum at 0); only the
+    # 1 / r^3 is held at DIPOLE_MIN_DISTANCE
+    ux, uy, uz = (dx / d, dy / d, dz / d) if d > 0.0 else (0.0, 0.0, 1.0)
     um = uy * s - uz * c
-    return (3.0 * ux * um, 3.0 * uy * um - s, 3.0 * uz * um + c), r
+    return (3.0 * ux * um, 3.0 * uy * um - s, 3.0 * uz * um + c), max(d, DIPOLE_MIN_DISTANCE)
 
 
 def dipole_field(dipole: tuple[float, ...], imu_offset: Sequence[float], steer: float) -> tuple[float, float, float]:

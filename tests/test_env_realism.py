@@ -227,15 +227,17 @@ def test_drop_matches_the_spring_damper_hand_calculation():
 def test_explicit_damping_matches_the_hand_calculation():
     """The drive's c dt / I at the defaults and 400 Hz, by hand: c = k² / R + b = 0.925² / 12
     + 2e-3 = 0.07330 N m s; I the shell (2/3 0.4 0.125² = 4.167e-3) against the frame and the
-    pendulum about the axle (0.35 (0.12² + 0.05²) / 12 + 0.4 (0.08² + 0.04²) / 12 + 0.4 0.075²
-    = 3.010e-3): 1.748e-3 kg m²; c dt / I = 0.1049."""
+    pendulum about the axle, the pendulum steered to its end stop (30 + 5 deg), where its
+    centre is L cos 35° from the axle (0.35 (0.12² + 0.05²) / 12 + 0.4 (0.08² + 0.04²) / 12
+    + 0.4 (0.075 cos 35°)² = 2.270e-3): 1.470e-3 kg m²; c dt / I = 0.1247."""
     from envs.robot import explicit_damping
-    i_a = 0.35 * (0.12 ** 2 + 0.05 ** 2) / 12 + 0.4 * (0.08 ** 2 + 0.04 ** 2) / 12 + 0.4 * 0.075 ** 2
+    i_a = (0.35 * (0.12 ** 2 + 0.05 ** 2) / 12 + 0.4 * (0.08 ** 2 + 0.04 ** 2) / 12
+           + 0.4 * (0.075 * math.cos(math.radians(35.0))) ** 2)
     i_b = 2.0 / 3.0 * 0.4 * 0.125 ** 2
     c = 0.925 ** 2 / 12.0 + 2e-3
     d = explicit_damping(RobotParams(), 400.0)
     assert d["drive"] == pytest.approx(c / 400.0 / (i_a * i_b / (i_a + i_b)), rel=1e-12)
-    assert d["drive"] == pytest.approx(0.1049, abs=1e-4)
+    assert d["drive"] == pytest.approx(0.1247, abs=1e-4)
     assert explicit_damping(RobotParams(), 100.0)["drive"] == pytest.approx(4 * d["drive"])
     assert "servo" not in explicit_damping(RobotParams.ideal(), 400.0)      # PyBullet's own servo
     assert max(explicit_damping(RobotParams(), 100.0).values()) < 1.0      # the defaults at the lowest rate

@@ -126,3 +126,20 @@ def test_every_evaluation_of_a_run_is_on_the_same_episodes(tmp_path):
     assert train_cli.main(args) == 0
     res = np.load(glob.glob(str(tmp_path / "**" / "evaluations.npz"), recursive=True)[0])["results"]
     assert len(res) >= 3 and (res == res[0]).all(), res
+
+
+def test_a_grid_continued_to_more_steps_resumes_again(tmp_path, capsys):
+    """A job continued from its checkpoint (more timesteps) is given no start policy, and its
+    JSON recorded init_from None: the next --resume of the grid then refused it as "trained
+    with other settings (init_from None recorded, 'pid' now)". The continued run records the
+    start its identity file holds."""
+    args = TINY + ["-f", str(tmp_path), "--workers", "1", "--init-from", "pid", "--bc-steps", "64"]
+    assert train_cli.main(args) == 0
+    i = args.index("-n")
+    longer = args[:i] + ["-n", "128"] + args[i + 2:] + ["--resume"]
+    assert train_cli.main(longer) == 0
+    meta = json.loads((tmp_path / "ppo-track-truth.json").read_text())
+    assert meta["timesteps"] == 128 and str(meta["init_from"]).startswith("pid")
+    capsys.readouterr()
+    assert train_cli.main(longer) == 0
+    assert "2 of 2 jobs finished already" in capsys.readouterr().out
