@@ -205,12 +205,12 @@ def _warn_estimator_changes(jobs, pdir, log):
             continue
         meta = Path(pdir) / (j["policy"] + ".json")
         rec = json.loads(meta.read_text()) if meta.is_file() else {}
-        if rec.get("estimator") == "truth" or not estimator_config(rec.get("estimator", j["estimator"])):
-            continue                # no filter, or one without parameters, to have changed
+        now = json.loads(json.dumps(estimator_config(rec.get("estimator", j["estimator"]), rec.get("env_kwargs"))))
+        if not now:
+            continue                # truth, or a filter without parameters: nothing to have changed
         if "estimator_params" not in rec:
             unrecorded.append(j["policy"])
             continue
-        now = json.loads(json.dumps(estimator_config(rec.get("estimator", j["estimator"]), rec.get("env_kwargs"))))
         was = rec["estimator_params"]
         diff = sorted(k for k in set(now) | set(was) if now.get(k) != was.get(k))
         if diff:

@@ -856,14 +856,15 @@ def _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log):
     there is a best model; returns (wall s, steps/s, training steps/s, evaluation s)."""
     from stable_baselines3.common.callbacks import CallbackList
     saver = _RunFiles(model, p.run_dir, p.ckpt_dir, p.normalize)
-    ckpt, ev = _callbacks(saver, eval_env, p.eval_freq, p.checkpoint_freq, p.eval_episodes, p.seed + EVAL_SEED_OFFSET)
+    eval_seed = p.seed + EVAL_SEED_OFFSET      # the evaluation environment's (_run_envs)
+    ckpt, ev = _callbacks(saver, eval_env, p.eval_freq, p.checkpoint_freq, p.eval_episodes, eval_seed)
     best_json = p.run_dir / "best.json"
     if start_ckpt is not None and best_json.is_file() and (p.run_dir / "best_model.zip").is_file():
         ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
     if start_ckpt is not None:
         _resume_evaluations(ev, p.run_dir, model.num_timesteps)
     if p.clone or init is not None:
-        eval_env.seed(p.seed + EVAL_SEED_OFFSET)       # the episodes TimedEval evaluates on
+        eval_env.seed(eval_seed)       # the episodes TimedEval evaluates on
         _evaluate_start(saver, venv, eval_env, ev, p.eval_episodes, log)
     wall, rate, train_rate = _learn(saver, p.timesteps, CallbackList([ckpt, ev]), ev,
                                     start_ckpt is None and init is None, progress, p.n_envs, log)

@@ -39,15 +39,21 @@ def grid_jobs(algo, tasks, estimators, seeds, out, timesteps=None, init_from=Non
     return jobs
 
 
-def job_done(job) -> bool:
-    """Whether the job's JSON is written with its final evaluation (when it has one), by a
-    training with this job's settings (settings_differ: a resumed grid with other settings
-    runs the job again, where its run's identity check refuses to mix the two)."""
+def _published(job):
+    """The job's published JSON as a dict, or None (not written, unreadable)."""
     try:
         meta = json.loads(Path(job["stem"] + ".json").read_text())
     except (OSError, ValueError):
-        return False
-    return (isinstance(meta, dict) and (job["final_episodes"] == 0 or "final_evaluation" in meta)
+        return None
+    return meta if isinstance(meta, dict) else None
+
+
+def job_done(job, meta=None) -> bool:
+    """Whether the job's JSON (``meta``, read if not given) is written with its final
+    evaluation (when it has one), by a training to this job's timesteps with its settings
+    (settings_differ; run_train_grid refuses a job whose settings differ before any work)."""
+    meta = _published(job) if meta is None else meta
+    return (meta is not None and (job["final_episodes"] == 0 or "final_evaluation" in meta)
             and (job.get("timesteps") is None or meta.get("timesteps") == job["timesteps"])
             and not settings_differ(job, meta))
 
@@ -216,16 +222,13 @@ def run_train_grid(jobs, backend="local", workers=None, address=None, resume=Fal
     if started and not resume:
         raise FileExistsError(f"{len(started)} jobs of this grid have results or checkpoints already (e.g. "
                               f"{started[0]}): resume=True (--resume) to continue the grid")
-    for j in jobs:
-        try:
-            meta = json.loads(Path(j["stem"] + ".json").read_text())
-        except (OSError, ValueError):
-            continue
-        diff = settings_differ(j, meta) if isinstance(meta, dict) else []
+    metas = [_published(j) for j in jobs]
+    for j, meta in zip(jobs, metas):
+        diff = settings_differ(j, meta) if meta is not None else []
         if diff:
             raise ValueError(f"--resume: {j['stem']} was trained with other settings ({'; '.join(diff)}); "
                              f"resume the grid with its own settings, or train into another --out")
-    todo = [j for j in jobs if not job_done(j)]
+    todo = [j for j, meta in zip(jobs, metas) if meta is None or not job_done(j, meta)]
     log(f"training grid: {len(jobs) - len(todo)} of {len(jobs)} jobs finished already, {len(todo)} to run "
         f"({backend})")
 

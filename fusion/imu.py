@@ -713,13 +713,17 @@ class IMU:
         seed = rng.integers(0, 2 ** 63 - 1, size=4, dtype=np.int64)
         ss = np.random.SeedSequence([int(s) for s in seed])
         main, vib, records = ss.spawn(3)
-        self._gen = np.random.Generator(np.random.PCG64(main))
-        self._gen_vib = np.random.Generator(np.random.PCG64(vib))
+        self._generators(main, vib)
         # a reset without rng after the first record draws from generators of its own,
         # spawned per record: what the record before consumed (batch peeks whole noise
         # blocks beyond its end, streaming does not) cannot change the next one's draws
         self._records = records
         self._fresh = True
+
+    def _generators(self, main, vib):
+        """The noise and vibration generators from their seed sequences."""
+        self._gen = np.random.Generator(np.random.PCG64(main))
+        self._gen_vib = np.random.Generator(np.random.PCG64(vib))
 
     def _peek(self, n):
         """The next n noise rows (n, ncols) without consuming them."""
@@ -742,9 +746,7 @@ class IMU:
                 raise ValueError(f"rng must be a numpy.random.Generator or None, got {type(rng).__name__}")
             self._seed(rng)
         elif not self._fresh:
-            main, vib = self._records.spawn(1)[0].spawn(2)
-            self._gen = np.random.Generator(np.random.PCG64(main))
-            self._gen_vib = np.random.Generator(np.random.PCG64(vib))
+            self._generators(*self._records.spawn(1)[0].spawn(2))
         self._fresh = False
         if self._kernel is not None:
             self._kernel.live = False       # reloaded from the state below at the next step
