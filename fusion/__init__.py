@@ -15,6 +15,7 @@ from fusion._core import Estimator
 from fusion._gyro import Gyro
 from fusion._mahony import Mahony
 from fusion._ekf import EKF, IIREKF
+from fusion._ekflp import EKFLP
 from fusion._madgwick import Madgwick
 from fusion._ukf import UKF
 from fusion._cfekf import CFEKF
@@ -24,9 +25,9 @@ from fusion._prefilter import Butterworth, SlidingMean
 from fusion.bank import Bank, make_bank
 
 __all__ = ["__version__", "Param", "make", "make_bank", "available", "Bank", "Estimator", "Gyro", "Mahony", "EKF",
-           "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF", "Triad", "Butterworth", "SlidingMean"]
+           "EKFLP", "IIREKF", "Madgwick", "UKF", "CFEKF", "AEKF", "Triad", "Butterworth", "SlidingMean"]
 
-_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, IIREKF, Madgwick, UKF, CFEKF, AEKF, Triad)}
+_REGISTRY = {cls.name: cls for cls in (Gyro, Mahony, EKF, EKFLP, IIREKF, Madgwick, UKF, CFEKF, AEKF, Triad)}
 
 
 def available() -> list[str]:

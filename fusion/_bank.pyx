@@ -21,7 +21,7 @@ from fusion._ekf import EKF as _EKF
 import numpy as np
 cimport numpy as cnp
 
-from fusion._core cimport Estimator, output_q, quat_out
+from fusion._core cimport Estimator, quat_out
 from fusion._core import DT_MAX, DT_MIN, FINITE_RULE, VALID_RULE, check_dt
 from fusion.checks import not_masked, SAMPLES_HINT
 from fusion._qmath cimport vec3_valid, vec3_finite
@@ -525,6 +525,6 @@ cdef class BankCore:
         cdef double[:, ::1] o = out
         cdef Py_ssize_t i
         for i in range(self.count):
-            output_q(<Estimator>self.p[i], &o[i, 0])
+            (<Estimator>self.p[i])._output_q(&o[i, 0])
         return out
 

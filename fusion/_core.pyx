@@ -439,7 +439,7 @@ cdef class Estimator:
             if stop_invalid and not sample_valid(g + 3 * i, a + 3 * i, mi):
                 return i
             self._process(g + 3 * i, a + 3 * i, mi, d[i] if d != NULL else dt)
-            output_q(self, o + 4 * i)
+            self._output_q(o + 4 * i)      # virtual: a kernel may report other than q (ekf-lp)
         return n
 
     # --- public interface ---------------------------------------------------------------

@@ -751,7 +751,91 @@ class RefEKF(RestAndMagCounts, RefEstimator):
         self.P = (self.P + self.P.T) / 2                                 # 5.
 
 
-REFERENCES = {"gyro": RefGyro, "mahony": RefMahony, "ekf": RefEKF}
+def butterworth2(tau, fs):
+    """Second-order Butterworth low-pass, cutoff sqrt(2) / (2 pi tau) Hz, by the bilinear
+    transform with the cutoff prewarped: (b, a) of H(z), a[0] = 1, from the analog
+    prototype w² / (s² + sqrt(2) w s + w²) with s = k (1 - 1/z) / (1 + 1/z)."""
+    w = math.sqrt(2.0) / tau                    # rad/s
+    k = w / math.tan(w / (2.0 * fs))            # prewarped: the cutoff maps onto itself
+    one_minus, one_plus = np.array([1.0, -1.0]), np.array([1.0, 1.0])
+    num = w * w * np.polymul(one_plus, one_plus)
+    den = (k * k * np.polymul(one_minus, one_minus) + math.sqrt(2.0) * w * k * np.polymul(one_minus, one_plus)
+           + w * w * np.polymul(one_plus, one_plus))
+    return num / den[0], den / den[0]
+
+
+def incl_corrected(q, y):
+    """q turned about a horizontal axis (on the left) so that its body-frame vertical points
+    along y: the shortest rotation of u = R(q) y / |y| onto e_z; q where u points down."""
+    u = rotmat(q) @ (y / np.linalg.norm(y))
+    axis = np.cross(u, [0.0, 0.0, 1.0])
+    s, c = np.linalg.norm(axis), u[2]
+    if c <= -1.0 + 2e-12 or np.linalg.norm(y) == 0.0:
+        return q
+    if s == 0.0:
+        return q.copy()
+    ang = math.atan2(s, c)
+    turn = np.concatenate([[math.cos(ang / 2)], math.sin(ang / 2) * axis / s])
+    return normalise(qmul(turn, q))
+
+
+class RefEKFLP(RefEKF):
+    """ekf-lp: RefEKF, reporting the inclination of the accelerometer low-passed in the frame
+    il_qg (the gyro minus the filter's bias, integrated from the low-pass's first sample):
+    the running mean of the samples until their steps sum to incl_lowpass, then a
+    second-order Butterworth (butterworth2) started at rest on that mean."""
+    PARAMS = dict(RefEKF.PARAMS, incl_lowpass=3.0)
+
+    def _reset_state(self):
+        super()._reset_state()
+        self.il_started = False
+        self.il_qg = IDENTITY.copy()
+        self.il_y = None        # the low-passed accelerometer, in the frame il_qg
+        self.il_t = 0.0
+        self.il_z = None        # the Butterworth's states (transposed direct form II); None: the start
+
+    def _step(self, gyr, acc, mag, dt):
+        super()._step(gyr, acc, mag, dt)
+        g = measured_gyr(gyr, self.gyro_range)
+        if g is None or is_saturated(g, self.gyro_range) or dt > 2.0 / self.fs:
+            self.il_started = False
+        elif self.il_started:
+            self.il_qg = normalise(phi(g - self.b, dt) @ self.il_qg)
+        if acc is None:
+            return
+        if not self.il_started:
+            self.il_started, self.il_qg, self.il_z = True, IDENTITY.copy(), None
+            self.il_y, self.il_t = acc.astype(float), dt
+        else:
+            x = rotmat(self.il_qg) @ acc
+            if self.il_z is None:
+                self.il_t += dt
+                self.il_y = self.il_y + dt / self.il_t * (x - self.il_y)
+            else:
+                b, a = butterworth2(self.incl_lowpass, self.fs)
+                z0, z1 = self.il_z
+                y = b[0] * x + z0
+                self.il_z = (b[1] * x - a[1] * y + z1, b[2] * x - a[2] * y)
+                self.il_y = y
+                return
+        if self.il_t >= self.incl_lowpass * (1 - 1e-9):     # the start ends: steady state on the mean
+            b, a = butterworth2(self.incl_lowpass, self.fs)
+            self.il_t = self.incl_lowpass
+            self.il_z = (self.il_y * (1 - b[0]), self.il_y * (b[2] - a[2]))
+
+    @property
+    def quaternion(self):
+        q = self.q
+        if self.il_started:
+            q = incl_corrected(q, rotmat(self.il_qg).T @ self.il_y)
+        return self._out(q)
+
+    def update(self, gyr, acc, mag=None, dt=None):
+        super().update(gyr, acc, mag, dt)
+        return self.quaternion
+
+
+REFERENCES = {"gyro": RefGyro, "mahony": RefMahony, "ekf": RefEKF, "ekf-lp": RefEKFLP}
 
 
 def make(name, fs, frame="ENU", on_invalid="raise", **params):

@@ -12,7 +12,7 @@ import pytest
 import fusion
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(fusion.__file__)))    # this fusion's tree
-KALMAN = ["ekf", "iir-ekf", "aekf", "ukf"]
+KALMAN = ["ekf", "ekf-lp", "iir-ekf", "aekf", "ukf"]
 
 
 # what every script starts with: the imports, the refusal message, noisy samples
@@ -201,7 +201,7 @@ def test_unconfigured_estimators_raise():
     run_script("""
         import pytest
         classes = [type(fusion.make(n, 100.0)) for n in fusion.available()]
-        assert len(classes) == 9      # with triad
+        assert len(classes) == 10     # with triad
         g, a, m = np.zeros(3), np.array([0.0, 0.0, 9.81]), np.array([0.0, 20.0, -40.0])
         for cls in classes:
             Mine = type("Mine", (cls,), {"__init__": lambda self, fs: None})

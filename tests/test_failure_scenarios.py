@@ -21,7 +21,7 @@ import fusion
 from fusion import scenarios
 from benchmarks import compare
 
-NAMES = ("ekf", "iir-ekf", "aekf", "ukf", "mahony", "madgwick", "cf-ekf")
+NAMES = ("ekf", "ekf-lp", "iir-ekf", "aekf", "ukf", "mahony", "madgwick", "cf-ekf")
 TOTAL_9, INCL = 4.0, 2.5
 TOTAL_9_GYRO_HEADING = 4.89
 

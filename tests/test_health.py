@@ -13,7 +13,7 @@ FIELD = np.array([0.0, 0.4, -0.3])
 
 
 def test_the_filters_with_a_covariance():
-    assert FILTERS == ["ekf", "iir-ekf", "ukf", "cf-ekf", "aekf"]
+    assert FILTERS == ["ekf", "ekf-lp", "iir-ekf", "ukf", "cf-ekf", "aekf"]
 
 
 def noisy(n, seed, rate=0.5, acc_scale=1.0):

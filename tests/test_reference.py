@@ -20,10 +20,10 @@ N_SHORT = 2_000     # dt / NED / skip variants (the reference is slow: ~0.1-0.4 
 CASES = [("gyro", {}), ("mahony", {}), ("mahony", {"kp": 2.0, "ki": 0.1}), ("ekf", {}),
          ("ekf", {"gyro_noise": 0.003, "bias_noise": 1e-3, "acc_noise": 0.3, "mag_noise": 0.1,
                   "q_init_std": 0.2, "bias_init_std": 0.05}), ("ekf", {"mag_update": "heading"}),
-         ("ekf", {"acc_lowpass": 0.5})]
+         ("ekf", {"acc_lowpass": 0.5}), ("ekf-lp", {}), ("ekf-lp", {"incl_lowpass": 0.5, "acc_lowpass": 0.0})]
 CASE_IDS = [name + ("-" + "-".join(f"{k}={v}" for k, v in p.items()) if p else "-defaults")
             for name, p in CASES]
-NAMES = ["gyro", "mahony", "ekf"]
+NAMES = ["gyro", "mahony", "ekf", "ekf-lp"]
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,169 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""`ekf-lp`: the `ekf`'s gyro bias and heading, with the inclination of the accelerometer
+low-passed in a frame that turns with the bias-corrected gyro alone by a second-order
+Butterworth, the inclination filter of VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
+estimation with bias estimation and magnetic disturbance rejection", 2023) (docs/estimators.md)."""
+from libc.math cimport tan, sqrt, M_PI, M_SQRT2
+from libc.string cimport memset
+
+from fusion._core cimport quat_out
+from fusion._core import check_fs, struct_fields, TIMER
+from fusion._ekf cimport EKF
+from fusion.params import Param, table
+from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \
+    norm3, saturated, out_of_range
+
+
+cdef struct InclLowpass:
+    double y[3]         # the low-passed accelerometer (body frame): the running mean during the start
+    double s0[3]        # the Butterworth's two states (transposed direct form II), body frame
+    double s1[3]
+    double t            # s of samples in the running mean, held at incl_lowpass once it settles
+    bint started        # y holds a sample
+
+
+cdef inline void turn3(const double* dq, double* v) noexcept nogil:
+    cdef double t[3]
+    rot_to_body(dq, v, t)
+    v[0] = t[0]
+    v[1] = t[1]
+    v[2] = t[2]
+
+
+cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) noexcept nogil:
+    """One sample of the inclination low-pass. The gyro frame is lost (a restart from the next
+    accelerometer sample, as acc_lowpass's) where the gyro did not measure the step: no
+    sample, one out of range or saturated, or a gap of more than two nominal periods.
+    Otherwise the states turn into this sample's body frame by the bias-corrected gyro's turn
+    (the filter run in the gyro frame, written in the body frame: fusion/_acclp.pxd), then the
+    sample enters: the running mean of the samples so far until they span incl_lowpass, then
+    the Butterworth started at rest on that mean (VQF's start)."""
+    cdef InclLowpass* s = &e.il
+    cdef double dq[4]
+    cdef double c, sn, wx, wy, wz, x
+    cdef int i
+    if (gyr == NULL or out_of_range(gyr, e.gyro_range_) or saturated(gyr, e.gyro_range_)
+            or dt > 2.0 * e.dt_nominal):
+        s.started = False
+    elif s.started:
+        wx = gyr[0] - e.s.b[0]
+        wy = gyr[1] - e.s.b[1]
+        wz = gyr[2] - e.s.b[2]
+        half_angle_terms(wx, wy, wz, dt, &c, &sn)
+        dq[0] = c
+        dq[1] = wx * sn
+        dq[2] = wy * sn
+        dq[3] = wz * sn
+        turn3(dq, s.y)
+        if s.t >= e.incl_lowpass:
+            turn3(dq, s.s0)
+            turn3(dq, s.s1)
+    if acc == NULL:
+        return
+    if not s.started:
+        memset(s, 0, sizeof(InclLowpass))
+        s.y[0], s.y[1], s.y[2] = acc[0], acc[1], acc[2]
+        s.t = dt
+        s.started = True
+    elif s.t < e.incl_lowpass:
+        s.t += dt
+        for i in range(3):
+            s.y[i] += dt / s.t * (acc[i] - s.y[i])
+    else:
+        for i in range(3):
+            x = acc[i]
+            s.y[i] = e.b0 * x + s.s0[i]
+            s.s0[i] = e.b1 * x - e.a1 * s.y[i] + s.s1[i]
+            s.s1[i] = e.b2 * x - e.a2 * s.y[i]
+        return
+    # the start ends (the steps summed may fall short of a whole multiple by round-off): the
+    # Butterworth's steady state on the mean
+    if s.t >= e.incl_lowpass * (1.0 - 1e-9):
+        s.t = e.incl_lowpass
+        for i in range(3):
+            s.s0[i] = s.y[i] * (1.0 - e.b0)
+            s.s1[i] = s.y[i] * (e.b2 - e.a2)
+
+
+cdef inline void incl_output(const double* q, const double* y, double* out) noexcept nogil:
+    """q turned about a horizontal axis so that its body-frame vertical is y's direction (VQF's
+    inclination correction; the heading about the new vertical kept): c ⊗ q with c the
+    shortest turn of u = R(q) y / |y| onto the vertical. q itself where u points down (no
+    shortest turn) or y is zero."""
+    cdef double u[3]
+    cdef double c[4]
+    cdef double n = norm3(y)
+    cdef double w
+    out[0], out[1], out[2], out[3] = q[0], q[1], q[2], q[3]
+    if not n > 0.0:
+        return
+    rot_to_nav(q, y, u)
+    w = (u[2] / n + 1.0) * 0.5
+    if not w > 1e-12:
+        return
+    w = sqrt(w)
+    c[0] = w
+    c[1] = 0.5 * u[1] / n / w
+    c[2] = -0.5 * u[0] / n / w
+    c[3] = 0.0
+    quat_mul(c, q, out)
+    quat_normalise(out)
+
+
+cdef class EKFLP(EKF):
+    """The `ekf` (its gyro bias, heading, rest and magnetic disturbance handling) reporting the
+    inclination of the accelerometer low-passed in the gyro frame by a second-order
+    Butterworth of time constant incl_lowpass (VQF's inclination filter, with the `ekf`'s
+    bias in place of VQF's). The filter's own state, and so its bias and heading, are the
+    `ekf`'s: the low-pass only changes what is reported."""
+    name = "ekf-lp"
+    PARAMS = table(*EKF.PARAMS.values(),
+                   Param("incl_lowpass", 3.0, "s", 1e-3, 1e4, "time constant of the reported "
+                         "inclination's second-order Butterworth (VQF's tauAcc convention: cutoff "
+                         "√2 / (2π incl_lowpass) Hz; 3 s is VQF's published default, not fitted here); "
+                         "at least 1.1 sample periods (not given: 1.1 / fs where that is longer)"))
+    cdef InclLowpass il
+    cdef readonly double incl_lowpass
+    cdef double b0, b1, b2, a1, a2
+
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        cdef double C, D, tau
+        if self.busy:       # as Estimator.__init__: the coefficients change before it runs
+            raise RuntimeError("estimator in use by another thread")
+        fs = check_fs(fs)
+        tau = self._take_params(params)["incl_lowpass"]
+        if "incl_lowpass" not in params:    # the default at a rate too low for it (below 0.37 Hz)
+            tau = max(tau, 1.1 / fs)
+        if tau < 1.1 / fs:      # the cutoff below a third of fs, where the bilinear map holds
+            raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
+                             f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
+        self.incl_lowpass = tau
+        # second-order Butterworth by the bilinear transform, the cutoff prewarped
+        C = tan(M_PI * (M_SQRT2 / (2.0 * M_PI * tau)) / fs)
+        D = C * C + M_SQRT2 * C + 1.0
+        self.b0 = C * C / D
+        self.b1 = 2.0 * self.b0
+        self.b2 = self.b0
+        self.a1 = 2.0 * (C * C - 1.0) / D
+        self.a2 = (1.0 - M_SQRT2 * C + C * C) / D
+        EKF.__init__(self, fs, frame, on_invalid, **params)
+
+    cdef list _state_fields(self):
+        return EKF._state_fields(self) + struct_fields(<InclLowpass[:1]>&self.il, {"t": TIMER}, "incl_")
+
+    cdef void _reset_state(self) noexcept nogil:
+        EKF._reset_state(self)
+        memset(&self.il, 0, sizeof(InclLowpass))
+
+    cdef void _step(self, const double* gyr, const double* acc, const double* mag,
+                    double dt) noexcept nogil:
+        EKF._step(self, gyr, acc, mag, dt)
+        incl_step(self, gyr, acc, dt)
+
+    cdef void _output_q(self, double* out) noexcept nogil:
+        cdef double q[4]
+        if self.il.started:
+            incl_output(self.q, self.il.y, q)
+            quat_out(q, self.ned, out)
+        else:
+            quat_out(self.q, self.ned, out)

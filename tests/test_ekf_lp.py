@@ -1,0 +1,81 @@
+"""`ekf-lp` (docs/estimators.md): the `ekf` inside, unchanged; VQF's inclination filter on what
+it reports. Checked against the peer it takes its inclination filter from (VQF, with the bias
+held at zero on both sides) and against the plain `ekf` (the low-pass feeds nothing back).
+The numpy reference of tests/reference.py is compared in tests/test_reference.py."""
+import numpy as np
+import pytest
+
+import fusion
+from fusion import quat
+
+FS = 100.0
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def moving(n=3000, seed=0, fs=FS):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    gyr = np.c_[np.sin(0.7 * t), 0.5 * np.cos(1.3 * t), 0.3 * np.sin(0.4 * t + 1)] + 0.01 * rng.standard_normal((n, 3))
+    # gravity in the body frame of the gyro's own attitude, plus a shaking linear acceleration
+    q = fusion.make("gyro", fs).run(gyr, np.tile([0.0, 0.0, 9.81], (n, 1)))
+    acc = quat.rotate_inverse(q, np.array([0.0, 0.0, 9.81])) + 0.5 * rng.standard_normal((n, 3))
+    mag = quat.rotate_inverse(q, np.array([0.0, 20.0, -40.0]))
+    return gyr, acc, mag
+
+
+@pytest.mark.parametrize("tau", [3.0, 0.5])
+def test_inclination_is_vqfs_with_the_bias_held_at_zero(tau):
+    """VQF's 6-D inclination is its Butterworth-low-passed accelerometer in the gyro frame;
+    with both biases held at zero the two must agree through the start, the hand-over to the
+    Butterworth (at incl_lowpass s) and after, to round-off."""
+    vqf = pytest.importorskip("vqf")
+    gyr, acc, _ = moving()
+    est = fusion.make("ekf-lp", FS, bias_init_std=0.0, bias_noise=0.0, rest_time=0.0, incl_lowpass=tau)
+    up = quat.rotate_inverse(est.run(gyr, acc), UP)
+    v = vqf.VQF(1.0 / FS, tauAcc=tau, motionBiasEstEnabled=False, restBiasEstEnabled=False)
+    up_vqf = quat.rotate_inverse(np.asarray(v.updateBatch(gyr, acc)["quat6D"]), UP)
+    assert np.abs(up - up_vqf).max() < 1e-9
+
+
+def test_the_ekf_inside_is_unchanged():
+    """Bias, covariance and the next sample's step are the `ekf`'s, bit for bit; only the
+    reported attitude differs, and by an inclination (a turn about a horizontal axis)."""
+    gyr, acc, mag = moving(seed=1)
+    lp, ekf = fusion.make("ekf-lp", FS), fusion.make("ekf", FS)
+    q_lp, q_ekf = lp.run(gyr, acc, mag), ekf.run(gyr, acc, mag)
+    assert np.array_equal(lp.bias, ekf.bias) and np.array_equal(lp.covariance, ekf.covariance)
+    assert np.array_equal(lp.state()["fields"]["q"], ekf.state()["fields"]["q"])
+    turn = quat.mul(q_lp, quat.conj(q_ekf))         # c with q_lp = c ⊗ q_ekf: no vertical part
+    assert np.abs(turn[:, 3]).max() < 1e-12
+    assert 0.05 < np.degrees(quat.angle(q_lp, q_ekf)).max() < 10.0
+
+
+def test_a_lost_gyro_restarts_the_low_pass():
+    """A step the gyro did not measure (here a NaN sample, skipped) restarts the running mean
+    from the next accelerometer sample; a gap of more than two periods too."""
+    gyr, acc, _ = moving(n=600, seed=2)
+    est = fusion.make("ekf-lp", FS, on_invalid="skip")
+    est.run(gyr[:400], acc[:400])
+    assert est.state()["fields"]["incl_t"] == 3.0       # settled (400 samples > 3 s)
+    est.update(np.full(3, np.nan), acc[400])
+    assert est.state()["fields"]["incl_t"] == pytest.approx(0.01)
+    est.update(gyr[401], acc[401])
+    assert est.state()["fields"]["incl_t"] == pytest.approx(0.02)
+    est.update(gyr[402], acc[402], dt=0.05)
+    assert est.state()["fields"]["incl_t"] == pytest.approx(0.05)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, 1e5, np.nan, "3", 0.0105])
+def test_bad_incl_lowpass_is_a_value_error(bad):
+    with pytest.raises(ValueError, match="incl_lowpass"):
+        fusion.make("ekf-lp", FS, incl_lowpass=bad)
+    fusion.make("ekf-lp", FS, incl_lowpass=0.0111)     # just over 1.1 sample periods: accepted
+
+
+def test_the_default_at_a_rate_too_low_for_it():
+    """Not given, incl_lowpass is 3 s or 1.1 sample periods where that is longer (below
+    0.37 Hz), as iir-ekf's cutoff is lowered; given, a too-short one is refused."""
+    assert fusion.make("ekf-lp", 100.0).incl_lowpass == 3.0
+    assert fusion.make("ekf-lp", 0.01).incl_lowpass == pytest.approx(110.0)
+    with pytest.raises(ValueError, match="incl_lowpass must be at least 1.1 sample periods"):
+        fusion.make("ekf-lp", 0.01, incl_lowpass=3.0)
