@@ -827,7 +827,7 @@ def _plot_paths(path_rows, path):
 # ----------------------------------------------------------------------------------------
 # command line
 
-QUICK = dict(episodes=3, estimators="truth,ekf,mahony,gyro", controllers="pid,ppo")
+QUICK = dict(episodes=3, estimators="truth,ekf-lp,ekf,mahony,gyro", controllers="pid,ppo")
 FULL_EPISODES = 30
 
 
