@@ -36,8 +36,9 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
     sample, one out of range or saturated, or a gap of more than two nominal periods.
     Otherwise the states turn into this sample's body frame by the bias-corrected gyro's turn
     (the filter run in the gyro frame, written in the body frame: fusion/_acclp.pxd), then the
-    sample enters: the running mean of the samples so far until they span incl_lowpass, then
-    the Butterworth started at rest on that mean (VQF's start)."""
+    sample enters: the running mean of the samples so far (the first weighs one nominal
+    period, the others their dt) until they span incl_lowpass, then the Butterworth started
+    at rest on that mean (VQF's start, which counts samples of the nominal period)."""
     cdef InclLowpass* s = &e.il
     cdef double dq[4]
     cdef double c, sn, wx, wy, wz, x
@@ -63,7 +64,7 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
     if not s.started:
         memset(s, 0, sizeof(InclLowpass))
         s.y[0], s.y[1], s.y[2] = acc[0], acc[1], acc[2]
-        s.t = dt
+        s.t = e.dt_nominal      # one sample's weight, also after a gap (its dt spans the gap)
         s.started = True
     elif s.t < e.incl_lowpass:
         s.t += dt
@@ -137,8 +138,10 @@ cdef class EKFLP(EKF):
         if tau < 1.1 / fs:      # the cutoff below a third of fs, where the bilinear map holds
             raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
                              f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
-        self.incl_lowpass = tau
+        EKF.__init__(self, fs, frame, on_invalid, **params)
+        # after the base's checks, so that a refused re-__init__ leaves these as they were:
         # second-order Butterworth by the bilinear transform, the cutoff prewarped
+        self.incl_lowpass = tau
         C = tan(M_PI * (M_SQRT2 / (2.0 * M_PI * tau)) / fs)
         D = C * C + M_SQRT2 * C + 1.0
         self.b0 = C * C / D
@@ -146,7 +149,6 @@ cdef class EKFLP(EKF):
         self.b2 = self.b0
         self.a1 = 2.0 * (C * C - 1.0) / D
         self.a2 = (1.0 - M_SQRT2 * C + C * C) / D
-        EKF.__init__(self, fs, frame, on_invalid, **params)
 
     cdef list _state_fields(self):
         return EKF._state_fields(self) + struct_fields(<InclLowpass[:1]>&self.il, {"t": TIMER}, "incl_")

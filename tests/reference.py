@@ -782,8 +782,9 @@ def incl_corrected(q, y):
 class RefEKFLP(RefEKF):
     """ekf-lp: RefEKF, reporting the inclination of the accelerometer low-passed in the frame
     il_qg (the gyro minus the filter's bias, integrated from the low-pass's first sample):
-    the running mean of the samples until their steps sum to incl_lowpass, then a
-    second-order Butterworth (butterworth2) started at rest on that mean."""
+    the running mean of the samples (the first weighing 1 / fs, the others their dt) until
+    their weights sum to incl_lowpass, then a second-order Butterworth (butterworth2) started
+    at rest on that mean."""
     PARAMS = dict(RefEKF.PARAMS, incl_lowpass=3.0)
 
     def _reset_state(self):
@@ -805,7 +806,7 @@ class RefEKFLP(RefEKF):
             return
         if not self.il_started:
             self.il_started, self.il_qg, self.il_z = True, IDENTITY.copy(), None
-            self.il_y, self.il_t = acc.astype(float), dt
+            self.il_y, self.il_t = acc.astype(float), 1.0 / self.fs     # one sample's weight
         else:
             x = rotmat(self.il_qg) @ acc
             if self.il_z is None:
