@@ -3,7 +3,7 @@
 low-passed in a frame that turns with the bias-corrected gyro alone by a second-order
 Butterworth, the inclination filter of VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
 estimation with bias estimation and magnetic disturbance rejection", 2023) (docs/estimators.md)."""
-from libc.math cimport tan, sqrt, M_PI, M_SQRT2
+from libc.math cimport tan, sqrt, M_SQRT2
 from libc.string cimport memset
 
 from fusion._core cimport quat_out
@@ -28,6 +28,22 @@ cdef inline void turn3(const double* dq, double* v) noexcept nogil:
     v[0] = t[0]
     v[1] = t[1]
     v[2] = t[2]
+
+
+cdef void butterworth_coefficients(EKFLP e, double dt) noexcept nogil:
+    """The second-order Butterworth's coefficients (b0, b1 = 2 b0, b2 = b0; a1, a2; a0 = 1) for
+    a step dt, by the bilinear transform with the cutoff √2 / (2π incl_lowpass) prewarped:
+    the filter's time constant is incl_lowpass in time, whatever the samples' spacing (VQF
+    designs it once, at its fixed sample time). Computed again only when dt changes."""
+    cdef double C, D
+    if dt == e.coef_dt:
+        return
+    C = tan(dt / (M_SQRT2 * e.incl_lowpass))     # tan(π fc dt), fc = √2 / (2π incl_lowpass)
+    D = C * C + M_SQRT2 * C + 1.0
+    e.b0 = C * C / D
+    e.a1 = 2.0 * (C * C - 1.0) / D
+    e.a2 = (1.0 - M_SQRT2 * C + C * C) / D
+    e.coef_dt = dt
 
 
 cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) noexcept nogil:
@@ -71,19 +87,21 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
         for i in range(3):
             s.y[i] += dt / s.t * (acc[i] - s.y[i])
     else:
+        butterworth_coefficients(e, dt)
         for i in range(3):
             x = acc[i]
             s.y[i] = e.b0 * x + s.s0[i]
-            s.s0[i] = e.b1 * x - e.a1 * s.y[i] + s.s1[i]
-            s.s1[i] = e.b2 * x - e.a2 * s.y[i]
+            s.s0[i] = 2.0 * e.b0 * x - e.a1 * s.y[i] + s.s1[i]
+            s.s1[i] = e.b0 * x - e.a2 * s.y[i]
         return
     # the start ends (the steps summed may fall short of a whole multiple by round-off): the
     # Butterworth's steady state on the mean
     if s.t >= e.incl_lowpass * (1.0 - 1e-9):
         s.t = e.incl_lowpass
+        butterworth_coefficients(e, dt)
         for i in range(3):
             s.s0[i] = s.y[i] * (1.0 - e.b0)
-            s.s1[i] = s.y[i] * (e.b2 - e.a2)
+            s.s1[i] = s.y[i] * (e.b0 - e.a2)
 
 
 cdef inline void incl_output(const double* q, const double* y, double* out) noexcept nogil:
@@ -125,10 +143,10 @@ cdef class EKFLP(EKF):
                          "at least 1.1 sample periods (not given: 1.1 / fs where that is longer)"))
     cdef InclLowpass il
     cdef readonly double incl_lowpass
-    cdef double b0, b1, b2, a1, a2
+    cdef double b0, a1, a2, coef_dt   # the Butterworth's coefficients for the step coef_dt
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        cdef double C, D, tau
+        cdef double tau
         if self.busy:       # as Estimator.__init__: the coefficients change before it runs
             raise RuntimeError("estimator in use by another thread")
         fs = check_fs(fs)
@@ -139,16 +157,9 @@ cdef class EKFLP(EKF):
             raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
                              f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
         EKF.__init__(self, fs, frame, on_invalid, **params)
-        # after the base's checks, so that a refused re-__init__ leaves these as they were:
-        # second-order Butterworth by the bilinear transform, the cutoff prewarped
+        # after the base's checks, so that a refused re-__init__ leaves it as it was
         self.incl_lowpass = tau
-        C = tan(M_PI * (M_SQRT2 / (2.0 * M_PI * tau)) / fs)
-        D = C * C + M_SQRT2 * C + 1.0
-        self.b0 = C * C / D
-        self.b1 = 2.0 * self.b0
-        self.b2 = self.b0
-        self.a1 = 2.0 * (C * C - 1.0) / D
-        self.a2 = (1.0 - M_SQRT2 * C + C * C) / D
+        self.coef_dt = 0.0          # no coefficients yet (a step is > 0)
 
     cdef list _state_fields(self):
         return EKF._state_fields(self) + struct_fields(<InclLowpass[:1]>&self.il, {"t": TIMER}, "incl_")

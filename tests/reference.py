@@ -783,8 +783,8 @@ class RefEKFLP(RefEKF):
     """ekf-lp: RefEKF, reporting the inclination of the accelerometer low-passed in the frame
     il_qg (the gyro minus the filter's bias, integrated from the low-pass's first sample):
     the running mean of the samples (the first weighing 1 / fs, the others their dt) until
-    their weights sum to incl_lowpass, then a second-order Butterworth (butterworth2) started
-    at rest on that mean."""
+    their weights sum to incl_lowpass, then a second-order Butterworth (butterworth2, designed
+    for each sample's step) started at rest on that mean."""
     PARAMS = dict(RefEKF.PARAMS, incl_lowpass=3.0)
 
     def _reset_state(self):
@@ -813,14 +813,14 @@ class RefEKFLP(RefEKF):
                 self.il_t += dt
                 self.il_y = self.il_y + dt / self.il_t * (x - self.il_y)
             else:
-                b, a = butterworth2(self.incl_lowpass, self.fs)
+                b, a = butterworth2(self.incl_lowpass, 1.0 / dt)
                 z0, z1 = self.il_z
                 y = b[0] * x + z0
                 self.il_z = (b[1] * x - a[1] * y + z1, b[2] * x - a[2] * y)
                 self.il_y = y
                 return
         if self.il_t >= self.incl_lowpass * (1 - 1e-9):     # the start ends: steady state on the mean
-            b, a = butterworth2(self.incl_lowpass, self.fs)
+            b, a = butterworth2(self.incl_lowpass, 1.0 / dt)
             self.il_t = self.incl_lowpass
             self.il_z = (self.il_y * (1 - b[0]), self.il_y * (b[2] - a[2]))
 
