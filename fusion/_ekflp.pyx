@@ -9,6 +9,8 @@ from libc.string cimport memset
 from fusion._core cimport quat_out
 from fusion._core import check_fs, struct_fields, TIMER
 from fusion._ekf cimport EKF
+from fusion._acclp cimport acc_lowpass_lost
+from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step
 from fusion.params import Param, table
 from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \
     norm3, saturated, out_of_range
@@ -31,19 +33,13 @@ cdef inline void turn3(const double* dq, double* v) noexcept nogil:
 
 
 cdef void butterworth_coefficients(EKFLP e, double dt) noexcept nogil:
-    """The second-order Butterworth's coefficients (b0, b1 = 2 b0, b2 = b0; a1, a2; a0 = 1) for
-    a step dt, by the bilinear transform with the cutoff √2 / (2π incl_lowpass) prewarped:
-    the filter's time constant is incl_lowpass in time, whatever the samples' spacing (VQF
-    designs it once, at its fixed sample time). Computed again only when dt changes."""
-    cdef double C, D
-    if dt == e.coef_dt:
-        return
-    C = tan(dt / (M_SQRT2 * e.incl_lowpass))     # tan(π fc dt), fc = √2 / (2π incl_lowpass)
-    D = C * C + M_SQRT2 * C + 1.0
-    e.b0 = C * C / D
-    e.a1 = 2.0 * (C * C - 1.0) / D
-    e.a2 = (1.0 - M_SQRT2 * C + C * C) / D
-    e.coef_dt = dt
+    """The Butterworth's coefficients for a step dt (fusion/_prefilter.pxd), the cutoff
+    √2 / (2π incl_lowpass): its time constant is incl_lowpass in time, whatever the samples'
+    spacing (VQF designs it once, at its fixed sample time). Computed again only when dt
+    changes."""
+    if dt != e.coef_dt:
+        butterworth2_design(tan(dt / (M_SQRT2 * e.incl_lowpass)), &e.c)     # tan(π fc dt)
+        e.coef_dt = dt
 
 
 cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) noexcept nogil:
@@ -57,10 +53,12 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
     at rest on that mean (VQF's start, which counts samples of the nominal period)."""
     cdef InclLowpass* s = &e.il
     cdef double dq[4]
-    cdef double c, sn, wx, wy, wz, x
+    cdef double c, sn, wx, wy, wz
     cdef int i
-    if (gyr == NULL or out_of_range(gyr, e.gyro_range_) or saturated(gyr, e.gyro_range_)
-            or dt > 2.0 * e.dt_nominal):
+    cdef bint settled = s.t >= e.incl_lowpass
+    if gyr != NULL and out_of_range(gyr, e.gyro_range_):
+        gyr = NULL      # not a measurement, as the ekf takes it
+    if acc_lowpass_lost(gyr, gyr != NULL and saturated(gyr, e.gyro_range_), dt, e.dt_nominal):
         s.started = False
     elif s.started:
         wx = gyr[0] - e.s.b[0]
@@ -71,10 +69,11 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
         dq[1] = wx * sn
         dq[2] = wy * sn
         dq[3] = wz * sn
-        turn3(dq, s.y)
-        if s.t >= e.incl_lowpass:
+        if settled:
             turn3(dq, s.s0)
             turn3(dq, s.s1)
+        if not settled or acc == NULL:      # (settled, a sample overwrites y below)
+            turn3(dq, s.y)
     if acc == NULL:
         return
     if not s.started:
@@ -89,10 +88,7 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
     else:
         butterworth_coefficients(e, dt)
         for i in range(3):
-            x = acc[i]
-            s.y[i] = e.b0 * x + s.s0[i]
-            s.s0[i] = 2.0 * e.b0 * x - e.a1 * s.y[i] + s.s1[i]
-            s.s1[i] = e.b0 * x - e.a2 * s.y[i]
+            s.y[i] = biquad_step(&e.c, acc[i], &s.s0[i], &s.s1[i])
         return
     # the start ends (the steps summed may fall short of a whole multiple by round-off): the
     # Butterworth's steady state on the mean
@@ -100,8 +96,7 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
         s.t = e.incl_lowpass
         butterworth_coefficients(e, dt)
         for i in range(3):
-            s.s0[i] = s.y[i] * (1.0 - e.b0)
-            s.s1[i] = s.y[i] * (e.b0 - e.a2)
+            biquad_prime(&e.c, s.y[i], &s.s0[i], &s.s1[i])
 
 
 cdef inline void incl_output(const double* q, const double* y, double* out) noexcept nogil:
@@ -143,7 +138,8 @@ cdef class EKFLP(EKF):
                          "at least 1.1 sample periods (not given: 1.1 / fs where that is longer)"))
     cdef InclLowpass il
     cdef readonly double incl_lowpass
-    cdef double b0, a1, a2, coef_dt   # the Butterworth's coefficients for the step coef_dt
+    cdef Biquad c                   # the Butterworth's coefficients for the step coef_dt
+    cdef double coef_dt
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         cdef double tau

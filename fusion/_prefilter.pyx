@@ -3,7 +3,7 @@
 ("IIR-EKF, IMU dynamic error suppression") and a sliding-window mean ("Attitude-angle solution
 for a mobile robot"), each on one 3-axis sensor stream."""
 import numpy as np
-from libc.math cimport tan, sqrt, M_PI
+from libc.math cimport tan, M_PI
 from libc.stdlib cimport calloc, free
 
 from fusion._core cimport Prefilter
@@ -69,20 +69,13 @@ cdef class Butterworth(Prefilter):
             raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
                              f"got {cutoff_hz!r}")
         self.cutoff_hz = c
-        cdef double w = tan(M_PI * c / self.fs)      # pre-warped, divided by 2 fs
-        cdef double r = sqrt(2.0)
-        cdef double n = 1.0 / (1.0 + r * w + w * w)
-        self.b0 = w * w * n
-        self.b1 = 2.0 * self.b0
-        self.b2 = self.b0
-        self.a1 = 2.0 * (w * w - 1.0) * n
-        self.a2 = (1.0 - r * w + w * w) * n
+        butterworth2_design(tan(M_PI * c / self.fs), &self.c)
         self.clear()
 
     @property
     def coefficients(self):
         """(b, a) as scipy.signal uses them."""
-        return (np.array([self.b0, self.b1, self.b2]), np.array([1.0, self.a1, self.a2]))
+        return (np.array([self.c.b0, self.c.b1, self.c.b2]), np.array([1.0, self.c.a1, self.c.a2]))
 
     cdef void clear(self) noexcept nogil:
         self.primed = False
@@ -93,18 +86,12 @@ cdef class Butterworth(Prefilter):
 
     cdef void apply(self, double* v) noexcept nogil:
         cdef int k
-        cdef double x, y
         if not self.primed:
             for k in range(3):
-                self.z2[k] = (self.b2 - self.a2) * v[k]
-                self.z1[k] = (self.b1 - self.a1) * v[k] + self.z2[k]
+                biquad_prime(&self.c, v[k], &self.z1[k], &self.z2[k])
             self.primed = True
-        for k in range(3):     # direct form II transposed
-            x = v[k]
-            y = self.b0 * x + self.z1[k]
-            self.z1[k] = self.b1 * x - self.a1 * y + self.z2[k]
-            self.z2[k] = self.b2 * x - self.a2 * y
-            v[k] = y
+        for k in range(3):
+            v[k] = biquad_step(&self.c, v[k], &self.z1[k], &self.z2[k])
 
     def reset(self):
         _reset(self)

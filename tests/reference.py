@@ -767,12 +767,12 @@ def butterworth2(tau, fs):
 def incl_corrected(q, y):
     """q turned about a horizontal axis (on the left) so that its body-frame vertical points
     along y: the shortest rotation of u = R(q) y / |y| onto e_z; q where u points down."""
+    if np.linalg.norm(y) == 0.0:
+        return q.copy()
     u = rotmat(q) @ (y / np.linalg.norm(y))
     axis = np.cross(u, [0.0, 0.0, 1.0])
     s, c = np.linalg.norm(axis), u[2]
-    if c <= -1.0 + 2e-12 or np.linalg.norm(y) == 0.0:
-        return q
-    if s == 0.0:
+    if c <= -1.0 + 2e-12 or s == 0.0:
         return q.copy()
     ang = math.atan2(s, c)
     turn = np.concatenate([[math.cos(ang / 2)], math.sin(ang / 2) * axis / s])
