@@ -3,7 +3,7 @@
 low-passed in a frame that turns with the bias-corrected gyro alone by a second-order
 Butterworth, the inclination filter of VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
 estimation with bias estimation and magnetic disturbance rejection", 2023) (docs/estimators.md)."""
-from libc.math cimport tan, sqrt, M_SQRT2
+from libc.math cimport tan, sqrt, atan2, sin, cos, M_SQRT2
 from libc.string cimport memset
 
 from fusion._core cimport quat_out
@@ -99,15 +99,15 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
             biquad_prime(&e.c, s.y[i], &s.s0[i], &s.s1[i])
 
 
-cdef inline void incl_output(const double* q, const double* y, double* out) noexcept nogil:
-    """q turned about a horizontal axis so that its body-frame vertical is y's direction (VQF's
+cdef inline void incl_output(const double* q, const double* y, double frac, double* out) noexcept nogil:
+    """q turned about a horizontal axis towards y's direction as its body-frame vertical (VQF's
     inclination correction; the heading about the new vertical kept): c ⊗ q with c the
-    shortest turn of u = R(q) y / |y| onto the vertical. q itself where u points down (no
-    shortest turn) or y is zero."""
+    shortest turn of u = R(q) y / |y| onto the vertical, its angle scaled by frac (0 to 1:
+    the part of the turn made). q itself where u points down (no shortest turn) or y is zero."""
     cdef double u[3]
     cdef double c[4]
     cdef double n = norm3(y)
-    cdef double w
+    cdef double w, h, k
     out[0], out[1], out[2], out[3] = q[0], q[1], q[2], q[3]
     if not n > 0.0:
         return
@@ -120,6 +120,13 @@ cdef inline void incl_output(const double* q, const double* y, double* out) noex
     c[1] = 0.5 * u[1] / n / w
     c[2] = -0.5 * u[0] / n / w
     c[3] = 0.0
+    if frac < 1.0:
+        h = atan2(sqrt(c[1] * c[1] + c[2] * c[2]), w)       # half the turn's angle
+        if h > 0.0:
+            k = sin(frac * h) / sin(h)
+            c[0] = cos(frac * h)
+            c[1] *= k
+            c[2] *= k
     quat_mul(c, q, out)
     quat_normalise(out)
 
@@ -170,9 +177,13 @@ cdef class EKFLP(EKF):
         incl_step(self, gyr, acc, dt)
 
     cdef void _output_q(self, double* out) noexcept nogil:
+        """During the low-pass's start the reported inclination moves from the `ekf`'s to the
+        running mean's in proportion to the part of incl_lowpass the mean spans: a mean of a
+        few samples is not yet the low-pass's average (VQF reports it from the first sample,
+        which assumes a sensor at rest)."""
         cdef double q[4]
         if self.il.started:
-            incl_output(self.q, self.il.y, q)
+            incl_output(self.q, self.il.y, self.il.t / self.incl_lowpass, q)
             quat_out(q, self.ned, out)
         else:
             quat_out(self.q, self.ned, out)

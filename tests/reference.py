@@ -764,9 +764,10 @@ def butterworth2(tau, fs):
     return num / den[0], den / den[0]
 
 
-def incl_corrected(q, y):
+def incl_corrected(q, y, frac=1.0):
     """q turned about a horizontal axis (on the left) so that its body-frame vertical points
-    along y: the shortest rotation of u = R(q) y / |y| onto e_z; q where u points down."""
+    along y: the shortest rotation of u = R(q) y / |y| onto e_z, the fraction frac of its
+    angle; q where u points down."""
     if np.linalg.norm(y) == 0.0:
         return q.copy()
     u = rotmat(q) @ (y / np.linalg.norm(y))
@@ -774,7 +775,7 @@ def incl_corrected(q, y):
     s, c = np.linalg.norm(axis), u[2]
     if c <= -1.0 + 2e-12 or s == 0.0:
         return q.copy()
-    ang = math.atan2(s, c)
+    ang = frac * math.atan2(s, c)
     turn = np.concatenate([[math.cos(ang / 2)], math.sin(ang / 2) * axis / s])
     return normalise(qmul(turn, q))
 
@@ -784,7 +785,9 @@ class RefEKFLP(RefEKF):
     il_qg (the gyro minus the filter's bias, integrated from the low-pass's first sample):
     the running mean of the samples (the first weighing 1 / fs, the others their dt) until
     their weights sum to incl_lowpass, then a second-order Butterworth (butterworth2, designed
-    for each sample's step) started at rest on that mean."""
+    for each sample's step) started at rest on that mean. During the running mean the
+    reported inclination turns the fraction (weights' sum) / incl_lowpass of the way from the
+    filter's to the mean's."""
     PARAMS = dict(RefEKF.PARAMS, incl_lowpass=3.0)
 
     def _reset_state(self):
@@ -828,7 +831,7 @@ class RefEKFLP(RefEKF):
     def quaternion(self):
         q = self.q
         if self.il_started:
-            q = incl_corrected(q, rotmat(self.il_qg).T @ self.il_y)
+            q = incl_corrected(q, rotmat(self.il_qg).T @ self.il_y, min(self.il_t / self.incl_lowpass, 1.0))
         return self._out(q)
 
     def update(self, gyr, acc, mag=None, dt=None):

@@ -23,18 +23,50 @@ def moving(n=3000, seed=0, fs=FS):
     return gyr, acc, mag
 
 
+def low_passed_up(est, gyr, acc):
+    """The low-pass's vertical (its unit vector, body frame) after each sample."""
+    up = []
+    for g, a in zip(gyr, acc):
+        est.update(g, a)
+        y = np.asarray(est.state()["fields"]["incl_y"])
+        up.append(y / np.linalg.norm(y))
+    return np.array(up)
+
+
 @pytest.mark.parametrize("tau", [3.0, 0.5])
 def test_inclination_is_vqfs_with_the_bias_held_at_zero(tau):
     """VQF's 6-D inclination is its Butterworth-low-passed accelerometer in the gyro frame;
-    with both biases held at zero the two must agree through the start, the hand-over to the
-    Butterworth (at incl_lowpass s) and after, to round-off."""
+    with both biases held at zero the low-pass must agree with it through the start, the
+    hand-over to the Butterworth (at incl_lowpass s) and after, to round-off; and from the
+    hand-over on, so must the reported inclination."""
     vqf = pytest.importorskip("vqf")
     gyr, acc, _ = moving()
-    est = fusion.make("ekf-lp", FS, bias_init_std=0.0, bias_noise=0.0, rest_time=0.0, incl_lowpass=tau)
-    up = quat.rotate_inverse(est.run(gyr, acc), UP)
+    params = dict(bias_init_std=0.0, bias_noise=0.0, rest_time=0.0, incl_lowpass=tau)
     v = vqf.VQF(1.0 / FS, tauAcc=tau, motionBiasEstEnabled=False, restBiasEstEnabled=False)
     up_vqf = quat.rotate_inverse(np.asarray(v.updateBatch(gyr, acc)["quat6D"]), UP)
-    assert np.abs(up - up_vqf).max() < 1e-9
+    assert np.abs(low_passed_up(fusion.make("ekf-lp", FS, **params), gyr, acc) - up_vqf).max() < 1e-9
+    up = quat.rotate_inverse(fusion.make("ekf-lp", FS, **params).run(gyr, acc), UP)
+    settled = np.arange(len(gyr)) >= round(tau * FS) - 1
+    assert np.abs(up - up_vqf)[settled].max() < 1e-9
+
+
+def test_the_start_turns_from_the_ekfs_inclination_to_the_mean():
+    """During the running mean the reported vertical lies on the arc from the `ekf`'s to the
+    mean's, at the part (time the mean spans) / incl_lowpass of its angle: the first sample
+    reports the `ekf`'s attitude, and the turn grows to the whole at the hand-over."""
+    gyr, acc, _ = moving(n=400, seed=3)
+    lp, ekf = fusion.make("ekf-lp", FS), fusion.make("ekf", FS)
+    mean_up = low_passed_up(lp, gyr, acc)
+    lp.reset()
+    up_lp = quat.rotate_inverse(lp.run(gyr, acc), UP)
+    q_ekf = ekf.run(gyr, acc)
+    up_ekf = quat.rotate_inverse(q_ekf, UP)
+    # the mean's vertical in the ekf's attitude: its angle from the ekf's vertical, and the output's
+    full = np.arccos(np.clip(np.sum(up_ekf * mean_up, 1), -1.0, 1.0))
+    part = np.arccos(np.clip(np.sum(up_ekf * up_lp, 1), -1.0, 1.0))
+    frac = np.minimum((np.arange(len(gyr)) + 1) / FS / 3.0, 1.0)
+    assert full[100:].max() > np.radians(0.5)       # the two differ: the test can tell
+    np.testing.assert_allclose(part, frac * full, atol=1e-9)
 
 
 def test_the_ekf_inside_is_unchanged():
