@@ -11,7 +11,7 @@ from libc.string cimport memset
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
 from fusion._aided cimport mag_accepted
-from fusion._core import check_fs, struct_fields, TIMER, VALUE_MAX
+from fusion._core import struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
 from fusion._qmath cimport quat_normalise, xi_matrix, up_in_body, unit3, norm3, quat_measurement_update, saturated, out_of_range
@@ -105,6 +105,7 @@ cdef class AEKF(EKF):
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         own = set(self.PARAMS) - set(EKF.PARAMS)
+        fs = self._check_init(fs, frame, on_invalid)
         p = self._take_params(params)       # checked (EKF.__init__ takes the ekf's part)
         self.acc_norm_tol = p["acc_norm_tol"]
         self.acc_pred_tol = p["acc_pred_tol"]
@@ -122,8 +123,7 @@ cdef class AEKF(EKF):
         self.learn_dip = self.mag_dip is None
         self.norm_given = 0.0 if self.learn_norm else self.mag_norm
         self.dip_given = 0.0 if self.learn_dip else self.mag_dip
-        fs_ = check_fs(fs)
-        self.n_learn = (max(1, int(round(self.learn_time * fs_)))
+        self.n_learn = (max(1, int(round(self.learn_time * fs)))
                         if (self.learn_norm or self.learn_dip) else 0)
         EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
 

@@ -161,8 +161,8 @@ cdef class CFEKF(Estimator):
                                                             "acc_lowpass", "magd")
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range taken
+        p = self._take_params(params)       # checked before the base takes anything
+        Estimator.__init__(self, fs, frame, on_invalid, p)
         # the EKF core: cf-ekf's noise, recovery and rest detection; its accelerometer
         # low-pass and magnetic detection off (the complementary filter takes those sensors).
         # A saturated gyro (tested on the raw samples: _process) restarts the complementary

@@ -344,32 +344,42 @@ cdef class Estimator:
     #: Registry name (subclasses fill it in).
     name = None
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise"):
-        if self.busy:       # re-configuring under another thread's run would free its prefilters
-            raise RuntimeError("estimator in use by another thread")
-        self.fs = check_fs(fs)
-        self.dt_nominal = 1.0 / self.fs
-        choice("frame", frame, FRAMES)
-        choice("on_invalid", on_invalid, ON_INVALID)
+    def __init__(self, fs, frame="ENU", on_invalid="raise", p=None):
+        """The base's part: fs, frame, on_invalid, and of the checked parameters p
+        (_take_params) the saturation range, in the estimators that declare it. A subclass
+        checks everything it takes (_check_init, _take_params, its own checks) before it
+        calls this, so that a refused __init__ (a second one, on a configured estimator)
+        changes nothing."""
+        fs = self._check_init(fs, frame, on_invalid)
+        self.fs = fs
+        self.dt_nominal = 1.0 / fs
         self.ned = frame == "NED"
         self.skip_invalid = on_invalid == "skip"
+        if p is not None and "gyro_range" in p:
+            self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
+
+    def _check_init(self, fs, frame, on_invalid):
+        """__init__'s own arguments checked, and the estimator not in use (re-configuring under
+        another thread's run would free its prefilters); fs as a float."""
+        if self.busy:
+            raise RuntimeError("estimator in use by another thread")
+        fs = check_fs(fs)
+        choice("frame", frame, FRAMES)
+        choice("on_invalid", on_invalid, ON_INVALID)
+        return fs
 
     def _take_params(self, params):
         """The parameters: each given one checked by its Param, the defaults for the rest.
         Unknown names, and bad values, are a ValueError naming them and what is accepted.
-        The part the base class holds (the saturation range) takes its value here, in the
-        estimators that declare it; a component the kernel holds (rest detection:
-        fusion._rest; magnetic disturbance detection: fusion._magdist) is built by the
-        kernel from the values returned."""
+        Nothing is taken here: the base's part by __init__, a component the kernel holds
+        (rest detection: fusion._rest; magnetic disturbance detection: fusion._magdist) built
+        by the kernel from the values returned."""
         unknown = sorted(set(params) - set(self.PARAMS))
         if unknown:
             accepted = ", ".join(sorted(self.PARAMS)) or "none"
             raise ValueError(f"unknown parameter(s) {', '.join(unknown)} for estimator "
                              f"{self.name!r}; accepted: {accepted}")
-        p = {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
-        if "gyro_range" in p:
-            self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
-        return p
+        return {k: d.check(params[k]) if k in params else d.default for k, d in self.PARAMS.items()}
 
     # --- kernel hooks -------------------------------------------------------------------
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,

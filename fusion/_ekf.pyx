@@ -12,7 +12,7 @@ from fusion._kalman cimport KalmanFilter
 from fusion._kalman import STATE_CHECKS
 from fusion._core cimport Estimator, run_fast, batch_loop
 from fusion._prefilter cimport Butterworth
-from fusion._core import check_fs, struct_fields
+from fusion._core import struct_fields
 from fusion.params import Param, table, REST, MAGDIST, GYRO_RANGE, MOTION_RATE, MAG_UPDATE, ACC_LOWPASS
 from fusion._qmath cimport (sym3_adjugate, phi_matrix, xi_matrix, quat_normalise, up_in_body,
                             jac_up_in_body, unit3, unobserved_variance, saturated, out_of_range)
@@ -379,8 +379,8 @@ cdef class EKF(KalmanFilter):
         *REST, *MAGDIST)
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid)
-        p = self._take_params(params)       # checked; gyro_range taken
+        p = self._take_params(params)       # checked before the base takes anything
+        Estimator.__init__(self, fs, frame, on_invalid, p)
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
@@ -471,14 +471,12 @@ cdef class IIREKF(EKF):
                    Param("filter_mag", False, "", doc="the magnetometer through the same low-pass"))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        if self.busy:       # as Estimator.__init__: the prefilter is replaced before it runs
-            raise RuntimeError("estimator in use by another thread")
-        fs = check_fs(fs)
+        fs = self._check_init(fs, frame, on_invalid)       # before the prefilter is replaced
         p = self._take_params(params)
         cutoff = p["cutoff_hz"] if "cutoff_hz" in params else min(p["cutoff_hz"], 0.45 * fs)
-        self.pre_acc = Butterworth(fs, cutoff)
-        if p["filter_mag"]:
-            self.pre_mag = Butterworth(fs, cutoff)
+        pre_acc = Butterworth(fs, cutoff)
+        pre_mag = Butterworth(fs, cutoff) if p["filter_mag"] else None
+        self.pre_acc, self.pre_mag = pre_acc, pre_mag
         EKF.__init__(self, fs, frame, on_invalid, **params)
 
     @property

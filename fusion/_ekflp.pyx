@@ -7,7 +7,7 @@ from libc.math cimport tan, sqrt, atan2, sin, cos, M_SQRT2
 from libc.string cimport memset
 
 from fusion._core cimport quat_out
-from fusion._core import check_fs, struct_fields, TIMER
+from fusion._core import struct_fields, TIMER
 from fusion._ekf cimport EKF
 from fusion._acclp cimport acc_lowpass_lost
 from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step
@@ -150,9 +150,7 @@ cdef class EKFLP(EKF):
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
         cdef double tau
-        if self.busy:       # as Estimator.__init__: the coefficients change before it runs
-            raise RuntimeError("estimator in use by another thread")
-        fs = check_fs(fs)
+        fs = self._check_init(fs, frame, on_invalid)
         tau = self._take_params(params)["incl_lowpass"]
         if "incl_lowpass" not in params:    # the default at a rate too low for it (below 0.37 Hz)
             tau = max(tau, 1.1 / fs)

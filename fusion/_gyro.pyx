@@ -22,8 +22,7 @@ cdef class Gyro(Estimator):
     PARAMS = {}     # no parameters
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid)
-        self._take_params(params)
+        Estimator.__init__(self, fs, frame, on_invalid, self._take_params(params))
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

@@ -5,7 +5,6 @@ accelerometer's and magnetometer's noise and disturbance."""
 from fusion._core cimport Estimator
 from fusion._prefilter cimport Butterworth
 from fusion._qmath cimport quat_from_acc_mag
-from fusion._core import check_fs
 from fusion.params import Param, table
 
 
@@ -20,13 +19,12 @@ cdef class Triad(Estimator):
               "the accelerometer and magnetometer, below fs / 2; None: raw samples", open_low=True))
 
     def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        if self.busy:       # as Estimator.__init__: the prefilters are replaced before it runs
-            raise RuntimeError("estimator in use by another thread")
-        fs = check_fs(fs)
+        fs = self._check_init(fs, frame, on_invalid)       # before the prefilters are replaced
         p = self._take_params(params)
-        self.pre_acc = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
-        self.pre_mag = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
-        Estimator.__init__(self, fs, frame, on_invalid)
+        pre_acc = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
+        pre_mag = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
+        self.pre_acc, self.pre_mag = pre_acc, pre_mag
+        Estimator.__init__(self, fs, frame, on_invalid, p)
         self.configured = True     # before reset(), which refuses an unconfigured object
         self.reset()
 

@@ -157,6 +157,28 @@ def test_subclasses(cls, how, what, param):
 
 # --- byte order and alignment -----------------------------------------------------------
 
+@pytest.mark.parametrize("name", NAMES)
+def test_a_refused_reinit_changes_nothing(name):
+    """A second __init__ that is refused leaves the estimator as it was, whatever it would have
+    changed: every argument is checked before any is taken. Refused here: a bad frame or
+    on_invalid, an unknown parameter, and a bad value beside good new ones (a new fs and
+    saturation range, which a bad frame or value once let through)."""
+    gyr, acc, mag = motion(300, 7)
+    est, same = fusion.make(name, 100.0), fusion.make(name, 100.0)
+    cls = type(est)
+    new = {"gyro_range": 1.0} if "gyro_range" in cls.PARAMS else {}
+    bad = [dict(frame="bogus"), dict(on_invalid="bogus"), dict(no_such_parameter=1.0)]
+    bad += [{k: -1e30} for k, p in cls.PARAMS.items()
+            if p.low is not None and p.choices is None and not isinstance(p.default, bool)][:2]
+    if name == "iir-ekf":
+        bad.append(dict(cutoff_hz=40.0))        # above fs / 2 at the new fs: refused by its design
+    for b in bad:
+        with pytest.raises(ValueError):
+            cls.__init__(est, 50.0, **dict(new, **b))
+    assert est.fs == 100.0
+    np.testing.assert_array_equal(est.run(gyr, acc, mag), same.run(gyr, acc, mag))
+
+
 def converted(v, kind):
     """v (3,) float64 in another byte order / type / alignment / stride."""
     if kind == "unaligned":
