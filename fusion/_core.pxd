@@ -149,7 +149,3 @@ cdef inline void quat_out(const double* q, bint ned, double* out) noexcept nogil
         quat_mul(c, q, out)
     else:
         out[0] = q[0]; out[1] = q[1]; out[2] = q[2]; out[3] = q[3]
-
-cdef inline void output_q(Estimator e, double* out) noexcept nogil:
-    """Estimator._output_q, inlined."""
-    quat_out(e.q, e.ned, out)

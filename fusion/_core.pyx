@@ -14,7 +14,7 @@ from fusion._qmath cimport (vec3_valid, vec3_finite, quat_from_acc_mag, quat_mul
 cnp.import_array()
 
 # ENU -> NED: x_ned = y_enu, y_ned = x_enu, z_ned = -z_enu (180 deg about (1, 1, 0)/sqrt 2);
-# c = [0, √½, √½, 0] (output_q in _core.pxd), its conjugate for q0 given in NED.
+# c = [0, √½, √½, 0] (quat_out in _core.pxd), its conjugate for q0 given in NED.
 cdef double C_NED_CONJ[4]
 C_NED_CONJ[:] = [0.0, -SQRT_HALF, -SQRT_HALF, 0.0]
 
@@ -437,7 +437,7 @@ cdef class Estimator:
                 ("n_skip_mag", <long long[:1]>&self.n_skip_mag, COUNT)]
 
     cdef void _output_q(self, double* out) noexcept nogil:
-        output_q(self, out)
+        quat_out(self.q, self.ned, out)
 
     cdef Py_ssize_t _run_batch(self, const double* g, const double* a, const double* m,
                                const double* d, double dt, double* o, Py_ssize_t n,
