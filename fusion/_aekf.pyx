@@ -103,10 +103,10 @@ cdef class AEKF(EKF):
         Param("quest_mag_weight", 0.01, "1", 0.0, 1.0, "the magnetometer's Wahba weight (the "
               "accelerometer's is 1 - quest_mag_weight)", open_low=True, open_high=True))
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
         own = set(self.PARAMS) - set(EKF.PARAMS)
         fs = self._check_init(fs, frame, on_invalid)
-        p = self._take_params(params)       # checked (EKF.__init__ takes the ekf's part)
+        p = self._take_params(params)       # checked (EKF._configure takes the ekf's part)
         self.acc_norm_tol = p["acc_norm_tol"]
         self.acc_pred_tol = p["acc_pred_tol"]
         self.acc_pred_timeout = p["acc_pred_timeout"]
@@ -125,7 +125,7 @@ cdef class AEKF(EKF):
         self.dip_given = 0.0 if self.learn_dip else self.mag_dip
         self.n_learn = (max(1, int(round(self.learn_time * fs)))
                         if (self.learn_norm or self.learn_dip) else 0)
-        EKF.__init__(self, fs, frame, on_invalid, **{k: v for k, v in params.items() if k not in own})
+        EKF._configure(self, fs, frame, on_invalid, {k: v for k, v in params.items() if k not in own})
 
     def __dealloc__(self):
         free(self.log)

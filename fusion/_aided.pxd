@@ -15,7 +15,7 @@ cdef class AidedFilter(Estimator):
     cdef readonly double acc_lowpass  # s, 0: off (fusion/_acclp.pxd)
     cdef AccLowpass acc_lp
     cdef bint mag_heading             # mag_update="heading": the magnetometer turns the heading only
-    # the last line of a subclass's __init__: the parts from the checked parameters
+    # the last line of a subclass's _configure: the parts from the checked parameters
     # (Estimator._take_params), then the object configured and reset
     cdef int configure(self, dict p) except -1
 

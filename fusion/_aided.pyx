@@ -15,7 +15,7 @@ cdef class AidedFilter(Estimator):
     """Base of the filters that hold a rest detector (`est.rest`), a magnetic disturbance
     detector (`est.magd`) and an accelerometer low-pass (`acc_lowpass`): a subclass declares
     their parameters (fusion.params REST or REST_PULL, MAGDIST, MAG_UPDATE, ACC_LOWPASS where
-    it has it), ends its __init__ with configure(p), and extends _state_fields /
+    it has it), ends its _configure with configure(p), and extends _state_fields /
     _reset_state, which hold the parts', from this class's (docs/contributing.md)."""
     # the rest and disturbance parameters and counts, read from the detectors (fusion._rest,
     # fusion._magdist); rest_noise (REST_PROPERTIES[5]) only where there is a zero-rate
@@ -29,8 +29,8 @@ cdef class AidedFilter(Estimator):
         self.magd = MagDetector(p)
         self.acc_lowpass = p["acc_lowpass"]
         self.mag_heading = p["mag_update"] == "heading"
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configured = True
+        self._reset(None)
         return 0
 
     cdef list _state_fields(self):

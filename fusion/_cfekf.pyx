@@ -160,9 +160,10 @@ cdef class CFEKF(Estimator):
     kp, ki, mag_weight, mag_update, acc_lowpass, magd = _of("cf", "kp", "ki", "mag_weight", "mag_update",
                                                             "acc_lowpass", "magd")
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
+        fs = self._check_init(fs, frame, on_invalid)
         p = self._take_params(params)       # checked before the base takes anything
-        Estimator.__init__(self, fs, frame, on_invalid, p)
+        self._take_base(fs, frame, on_invalid, p)
         # the EKF core: cf-ekf's noise, recovery and rest detection; its accelerometer
         # low-pass and magnetic detection off (the complementary filter takes those sensors).
         # A saturated gyro (tested on the raw samples: _process) restarts the complementary
@@ -189,8 +190,8 @@ cdef class CFEKF(Estimator):
                           mag_update=p["mag_update"],
                           acc_lowpass=p["acc_lowpass"], rest_time=0.0,
                           **{d.name: p[d.name] for d in MAGDIST})
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self.configured = True
+        self._reset(None)
 
     cdef list _state_fields(self):
         # the core's b, P, recovery timer and rest detector under the ekf's names (its

@@ -32,9 +32,9 @@ cdef class Estimator:
     cdef long long n_skip_gyr, n_skip_acc, n_skip_mag
     # optional prefilters an estimator composes (None: raw samples), applied to valid samples
     cdef Prefilter pre_gyr, pre_acc, pre_mag
-    # set by the kernel's __init__ once configured: a subclass that skips it is refused
+    # set by the kernel's _configure: a subclass whose __init__ skips the base's is refused
     cdef bint configured
-    # a run / reset / state / load_state in progress (docs/estimators.md, "Threads")
+    # an __init__ / run / reset / state / load_state in progress (docs/estimators.md, "Threads")
     cdef bint busy
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,

@@ -293,6 +293,10 @@ cdef int _ready(Estimator e) except -1:
     if not e.configured:
         raise RuntimeError(f"{type(e).__name__} object was not configured: call the class's "
                            f"__init__ (a subclass's __init__ must call super().__init__) or use fusion.make")
+    return _not_in_use(e)
+
+
+cdef int _not_in_use(Estimator e) except -1:
     if e.busy or _pre_busy(e.pre_gyr) or _pre_busy(e.pre_acc) or _pre_busy(e.pre_mag):
         raise RuntimeError("estimator in use by another thread")
     return 0
@@ -344,25 +348,40 @@ cdef class Estimator:
     #: Registry name (subclasses fill it in).
     name = None
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", p=None):
-        """The base's part: fs, frame, on_invalid, and of the checked parameters p
-        (_take_params) the saturation range, in the estimators that declare it. A subclass
-        checks everything it takes (_check_init, _take_params, its own checks) before it
-        calls this, so that a refused __init__ (a second one, on a configured estimator)
-        changes nothing."""
-        fs = self._check_init(fs, frame, on_invalid)
+    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+        """Configure the estimator (fusion.make calls this; a second call re-configures it):
+        fs in Hz, frame, on_invalid, and the class's PARAMS as keywords. The object is held
+        for the whole call as a run holds it (docs/estimators.md, "Threads"): a call from
+        another thread is refused meanwhile, and this is refused while one is in progress.
+        The kernel's _configure checks every argument before it takes any, so that a refused
+        __init__ changes nothing."""
+        _not_in_use(self)       # test and set with the GIL held and no Python code between
+        self.busy = True
+        try:
+            self._configure(fs, frame, on_invalid, params)
+        finally:
+            self.busy = False
+
+    def _configure(self, fs, frame, on_invalid, params):
+        """A kernel's configuration (overridden by each; docs/contributing.md): check
+        everything (_check_init, _take_params, its own checks), then take it, the base's part
+        with _take_base, set `configured`, and end with self._reset(None)."""
+        self._take_base(self._check_init(fs, frame, on_invalid), frame, on_invalid,
+                        self._take_params(params))
+
+    def _take_base(self, fs, frame, on_invalid, p):
+        """The base's part, all checked before (_check_init's fs): fs, frame, on_invalid, and of
+        the checked parameters p (_take_params) the saturation range, in the estimators that
+        declare it."""
         self.fs = fs
         self.dt_nominal = 1.0 / fs
         self.ned = frame == "NED"
         self.skip_invalid = on_invalid == "skip"
-        if p is not None and "gyro_range" in p:
+        if "gyro_range" in p:
             self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
 
     def _check_init(self, fs, frame, on_invalid):
-        """__init__'s own arguments checked, and the estimator not in use (re-configuring under
-        another thread's run would free its prefilters); fs as a float."""
-        if self.busy:
-            raise RuntimeError("estimator in use by another thread")
+        """__init__'s own arguments checked; fs as a float."""
         fs = check_fs(fs)
         choice("frame", frame, FRAMES)
         choice("on_invalid", on_invalid, ON_INVALID)

@@ -378,9 +378,10 @@ cdef class EKF(KalmanFilter):
               "acceleration taken for gravity cannot turn the heading", choices=("tilt", "vector")),
         *REST, *MAGDIST)
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
+        fs = self._check_init(fs, frame, on_invalid)
         p = self._take_params(params)       # checked before the base takes anything
-        Estimator.__init__(self, fs, frame, on_invalid, p)
+        self._take_base(fs, frame, on_invalid, p)
         self.mag_gain = GAIN_HEADING if p["mag_update"] == "heading" else GAIN_FULL
         self.acc_gain = GAIN_TILT if p["acc_update"] == "tilt" else GAIN_FULL
         self.own_step = type(self) is EKF   # a subclass steps its own way: no inlined loop
@@ -466,18 +467,18 @@ cdef class IIREKF(EKF):
     lowered to 0.45 fs when the sample rate is too low for it."""
     name = "iir-ekf"
     PARAMS = table(*EKF.PARAMS.values(),
-                   Param("cutoff_hz", 40.0, "Hz", 0.0, None, "the Butterworth's cutoff, below fs / 2; "
+                   Param("cutoff_hz", 40.0, "Hz", 0.0, None, "the Butterworth's cutoff, from 1e-7 fs to below fs / 2; "
                          "not given: min(40, 0.45 fs)", open_low=True),
                    Param("filter_mag", False, "", doc="the magnetometer through the same low-pass"))
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
         fs = self._check_init(fs, frame, on_invalid)       # before the prefilter is replaced
         p = self._take_params(params)
         cutoff = p["cutoff_hz"] if "cutoff_hz" in params else min(p["cutoff_hz"], 0.45 * fs)
         pre_acc = Butterworth(fs, cutoff)
         pre_mag = Butterworth(fs, cutoff) if p["filter_mag"] else None
         self.pre_acc, self.pre_mag = pre_acc, pre_mag
-        EKF.__init__(self, fs, frame, on_invalid, **params)
+        EKF._configure(self, fs, frame, on_invalid, params)
 
     @property
     def cutoff_hz(self):

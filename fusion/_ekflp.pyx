@@ -3,7 +3,7 @@
 low-passed in a frame that turns with the bias-corrected gyro alone by a second-order
 Butterworth, the inclination filter of VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
 estimation with bias estimation and magnetic disturbance rejection", 2023) (docs/estimators.md)."""
-from libc.math cimport tan, sqrt, atan2, sin, cos, M_SQRT2
+from libc.math cimport tan, sqrt, atan2, sin, cos, M_SQRT2, M_PI
 from libc.string cimport memset
 
 from fusion._core cimport quat_out
@@ -11,6 +11,7 @@ from fusion._core import struct_fields, TIMER
 from fusion._ekf cimport EKF
 from fusion._acclp cimport acc_lowpass_lost
 from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step
+from fusion._prefilter import CUTOFF_MIN
 from fusion.params import Param, table
 from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \
     norm3, saturated, out_of_range
@@ -142,22 +143,30 @@ cdef class EKFLP(EKF):
                    Param("incl_lowpass", 3.0, "s", 1e-3, 1e4, "time constant of the reported "
                          "inclination's second-order Butterworth (VQF's tauAcc convention: cutoff "
                          "√2 / (2π incl_lowpass) Hz; 3 s is VQF's published default, not fitted here); "
-                         "at least 1.1 sample periods (not given: 1.1 / fs where that is longer)"))
+                         "at least 1.1 sample periods and at most 2.25e6 / fs s (cutoff 1e-7 fs); not given: "
+                         "held within those"))
     cdef InclLowpass il
     cdef readonly double incl_lowpass
     cdef Biquad c                   # the Butterworth's coefficients for the step coef_dt
     cdef double coef_dt
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
         cdef double tau
         fs = self._check_init(fs, frame, on_invalid)
         tau = self._take_params(params)["incl_lowpass"]
-        if "incl_lowpass" not in params:    # the default at a rate too low for it (below 0.37 Hz)
-            tau = max(tau, 1.1 / fs)
-        if tau < 1.1 / fs:      # the cutoff below a third of fs, where the bilinear map holds
+        # the cutoff √2 / (2π tau) between CUTOFF_MIN fs (fusion._prefilter) and a third of fs,
+        # where the bilinear map holds
+        tau_max = M_SQRT2 / (2.0 * M_PI * CUTOFF_MIN * fs)
+        if "incl_lowpass" not in params:    # the default at a rate too low (below 0.37 Hz) or too high for it
+            tau = min(max(tau, 1.1 / fs), tau_max)
+        if tau < 1.1 / fs:
             raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
                              f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
-        EKF.__init__(self, fs, frame, on_invalid, **params)
+        if tau > tau_max:
+            raise ValueError(f"incl_lowpass must be at most {tau_max:.4g} s at fs={fs:g} Hz (its cutoff "
+                             f"at least {CUTOFF_MIN:g} fs: below it the Butterworth's rounding moves "
+                             f"its poles), got {tau!r}")
+        EKF._configure(self, fs, frame, on_invalid, params)
         # after the base's checks, so that a refused re-__init__ leaves it as it was
         self.incl_lowpass = tau
         self.coef_dt = 0.0          # no coefficients yet (a step is > 0)

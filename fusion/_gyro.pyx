@@ -21,10 +21,11 @@ cdef class Gyro(Estimator):
     name = "gyro"
     PARAMS = {}     # no parameters
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
-        Estimator.__init__(self, fs, frame, on_invalid, self._take_params(params))
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+    def _configure(self, fs, frame, on_invalid, params):
+        self._take_base(self._check_init(fs, frame, on_invalid), frame, on_invalid,
+                        self._take_params(params))
+        self.configured = True
+        self._reset(None)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:

@@ -22,7 +22,7 @@ NOISE_PROPERTIES = tuple(_of_kalman(n) for n in NOISE)
 
 cdef class KalmanFilter(AidedFilter):
     """Base of the Kalman filters: a subclass declares the parameters (NOISE's, fusion.params
-    REST, MAGDIST, MAG_UPDATE, ACC_LOWPASS where it has it) and ends its __init__ with
+    REST, MAGDIST, MAG_UPDATE, ACC_LOWPASS where it has it) and ends its _configure with
     configure(p) (the noise struct, then AidedFilter's parts)."""
     gyro_noise, bias_noise, acc_noise, mag_noise, q_init_std, bias_init_std, motion_rate = NOISE_PROPERTIES
     rest_noise = REST_PROPERTIES[5]     # the zero-rate update's noise (its rest detector's)

@@ -286,9 +286,10 @@ cdef class Mahony(AidedFilter):
         *REST_PULL)
     rest_tau = REST_TAU_PROPERTY        # REST_PULL's, read from its rest detector
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
+        fs = self._check_init(fs, frame, on_invalid)
         p = self._take_params(params)       # checked before the base takes anything
-        AidedFilter.__init__(self, fs, frame, on_invalid, p)
+        self._take_base(fs, frame, on_invalid, p)
         self.kp = p["kp"]
         self.ki = p["ki"]
         self.mag_weight = p["mag_weight"]

@@ -13,6 +13,10 @@ from fusion.checks import number, integer
 
 
 WINDOW_MAX = 100_000     # samples (1000 s at 100 Hz, 0.1 s at 1 MHz; 2.4 MB a stream)
+# lowest Butterworth cutoff, as a part of fs: 1 + a1 + a2 = 4 w^2 / (1 + sqrt(2) w + w^2), w =
+# tan(pi fc / fs), is the DC gain's denominator, and the rounding of a1 and a2 (1e-16) sets its
+# error: 2.5e-4 of the gain here; at 5e-9 fs it is negative (a pole above 1: unstable)
+CUTOFF_MIN = 1e-7
 
 
 cdef int _claim(Prefilter f) except -1:
@@ -58,7 +62,8 @@ def _reset(Prefilter f):
 cdef class Butterworth(Prefilter):
     """Second-order Butterworth low-pass by the bilinear transform with pre-warping
     ("IIR-EKF, IMU dynamic error suppression"): analogue prototype 1 / (s^2 + sqrt(2) s + 1) at
-    w_a = 2 fs tan(pi fc / fs).
+    w_a = 2 fs tan(pi fc / fs), cutoff_hz from 1e-7 fs (CUTOFF_MIN, where the coefficients'
+    rounding still holds) to below fs / 2.
     The state starts at steady state on the first sample (no start-up transient), as
     scipy.signal.lfilter with zi = lfilter_zi(b, a) * x[0]."""
 
@@ -68,6 +73,9 @@ cdef class Butterworth(Prefilter):
         if c >= 0.5 * self.fs:
             raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
                              f"got {cutoff_hz!r}")
+        if c < CUTOFF_MIN * self.fs:
+            raise ValueError(f"cutoff_hz must be at least {CUTOFF_MIN:g} fs = {CUTOFF_MIN * self.fs:.3g} Hz "
+                             f"(below it the coefficients' rounding moves the poles), got {cutoff_hz!r}")
         self.cutoff_hz = c
         butterworth2_design(tan(M_PI * c / self.fs), &self.c)
         self.clear()

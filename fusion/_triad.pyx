@@ -16,17 +16,17 @@ cdef class Triad(Estimator):
     name = "triad"
     PARAMS = table(
         Param("cutoff_hz", None, "Hz", 0.0, None, "cutoff of the Butterworth low-pass in front of "
-              "the accelerometer and magnetometer, below fs / 2; None: raw samples", open_low=True))
+              "the accelerometer and magnetometer, from 1e-7 fs to below fs / 2; None: raw samples", open_low=True))
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
         fs = self._check_init(fs, frame, on_invalid)       # before the prefilters are replaced
         p = self._take_params(params)
         pre_acc = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
         pre_mag = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
         self.pre_acc, self.pre_mag = pre_acc, pre_mag
-        Estimator.__init__(self, fs, frame, on_invalid, p)
-        self.configured = True     # before reset(), which refuses an unconfigured object
-        self.reset()
+        self._take_base(fs, frame, on_invalid, p)
+        self.configured = True
+        self._reset(None)
 
     cdef void _step(self, const double* gyr, const double* acc, const double* mag,
                     double dt) noexcept nogil:

@@ -111,9 +111,10 @@ cdef class UKF(KalmanFilter):
                    _EKF.PARAMS["bias_noise"].but(allow_zero=False),
                    _EKF.PARAMS["bias_init_std"].but(allow_zero=False))
 
-    def __init__(self, fs, frame="ENU", on_invalid="raise", **params):
+    def _configure(self, fs, frame, on_invalid, params):
+        fs = self._check_init(fs, frame, on_invalid)
         p = self._take_params(params)       # checked before the base takes anything
-        Estimator.__init__(self, fs, frame, on_invalid, p)
+        self._take_base(fs, frame, on_invalid, p)
         self.configure(p)                   # noise, rest and disturbance detectors, low-pass; reset
 
     cdef list _state_fields(self):

@@ -124,6 +124,16 @@ def test_the_default_at_a_rate_too_low_for_it():
         fusion.make("ekf-lp", 0.01, incl_lowpass=3.0)
 
 
+def test_incl_lowpass_has_a_ceiling_where_the_butterworth_holds():
+    """Its cutoff √2 / (2π incl_lowpass) must be at least 1e-7 fs (fusion._prefilter's floor),
+    so incl_lowpass at most 2.25e6 / fs; not given, the default is held below it (fs above
+    750 kHz); given, a longer one is refused."""
+    assert fusion.make("ekf-lp", 1e6).incl_lowpass == pytest.approx(np.sqrt(2) / (2e-7 * np.pi * 1e6))
+    fusion.make("ekf-lp", 1e3, incl_lowpass=2250.0)
+    with pytest.raises(ValueError, match="incl_lowpass must be at most 2251 s"):
+        fusion.make("ekf-lp", 1e3, incl_lowpass=2260.0)
+
+
 def test_a_refused_reinit_changes_nothing():
     """A second __init__ refused by the base's checks (here the frame) leaves incl_lowpass and
     the coefficients as they were."""

@@ -56,6 +56,19 @@ def test_butterworth_cutoff_must_be_below_nyquist(fc):
         fusion.make("iir-ekf", 200.0, cutoff_hz=fc)
 
 
+def test_butterworth_cutoff_has_a_floor_where_its_rounding_holds():
+    """Below 1e-7 fs the coefficients' rounding (1e-16) is comparable with 1 + a1 + a2, the DC
+    gain's denominator (at 1e-8 fs it was off by 2 %, at 5e-9 fs negative: a pole above 1), so
+    such a cutoff is refused; at the floor the DC gain holds to 1e-3 (2.5e-4 expected)."""
+    from fusion._prefilter import CUTOFF_MIN
+    for est in ("iir-ekf", "triad"):
+        with pytest.raises(ValueError, match="cutoff_hz must be at least 1e-07 fs"):
+            fusion.make(est, 200.0, cutoff_hz=0.5e-7 * 200.0)
+    b, a = fusion.Butterworth(1.0, CUTOFF_MIN).coefficients
+    assert abs(b.sum() / a.sum() - 1.0) < 1e-3
+    assert np.all(np.abs(np.roots(a)) < 1.0)
+
+
 def test_iir_ekf_default_cutoff_follows_the_sample_rate():
     assert fusion.make("iir-ekf", 200.0).cutoff_hz == 40.0
     assert fusion.make("iir-ekf", 50.0).cutoff_hz == pytest.approx(22.5)
