@@ -22,7 +22,8 @@ of the data folder's README ("Recorded IMU data with a reference orientation").
 
 Scoring (benchmarks.compare.score_mode): RMSE in degrees of the total, heading and inclination
 errors; in 6-axis mode after removing one constant heading offset per run. Per set and mode
-the mean RMSE over its trials (or scenarios).
+the mean RMSE over its trials (or scenarios). In a cell whose reference heading is not north
+(``compare.INCLINATION_ONLY``: diodem 9-axis) only the inclination is scored, and ranked.
 
 Before scoring, every method runs an ideal (noise-free, bias-free) ``slow`` scenario; a peer
 whose inclination RMSE (both modes) or 9-axis heading RMSE over the second half exceeds the
@@ -172,7 +173,7 @@ def run_all(jobs, progress=True):
             log(f"skip {item.set}/{item.name} {mode} {m.name}: {type(e).__name__}: {e}")
         else:
             rows.append(dict(set=item.set, item=item.name, mode=mode, method=m.name, group=m.group,
-                             n=item.data.n, **s,
+                             n=item.data.n, **compare.inclination_only(item.set, mode, s),
                              heading_offset=float("nan") if offset is None else offset))
         if bar is not None:
             bar.update()
@@ -184,22 +185,29 @@ def run_all(jobs, progress=True):
 # ---------------------------------------------------------------------------------------------
 # tables
 
+def ranked_by(row):
+    """The error a row's cell is ranked by: total, or inclination in an INCLINATION_ONLY cell."""
+    return "inclination" if (row["set"], row["mode"]) in compare.INCLINATION_ONLY else "total"
+
+
 def add_ratio(rows, by):
-    """Each row's total over the best (lowest total) peer of its group (``by`` keys), in the
-    column "÷ best peer"; returns ``{group: (best ours row, best peer row)}``."""
+    """Each row's error (ranked_by) over the best (lowest) peer's of its group (``by`` keys,
+    which hold set and mode), in the column "÷ best peer", and over VQF's in "÷ VQF"; returns
+    ``{group: (best ours row, best peer row)}``."""
     groups = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in by), []).append(r)
     best = {}
     for key, rs in groups.items():
+        k = ranked_by(rs[0])
         ours = [r for r in rs if r["group"] == "ours"]
         prs = [r for r in rs if r["group"] == "peer"]
-        bo = min(ours, key=lambda r: r["total"]) if ours else None
-        bp = min(prs, key=lambda r: r["total"]) if prs else None
+        bo = min(ours, key=lambda r: r[k]) if ours else None
+        bp = min(prs, key=lambda r: r[k]) if prs else None
         vqf = [r for r in rs if r["method"] == VQF]
         for r in rs:
-            r["÷ best peer"] = r["total"] / bp["total"] if bp else float("nan")
-            r["÷ VQF"] = r["total"] / vqf[0]["total"] if vqf else float("nan")
+            r["÷ best peer"] = r[k] / bp[k] if bp else float("nan")
+            r["÷ VQF"] = r[k] / vqf[0][k] if vqf else float("nan")
         best[key] = (bo, bp)
     return best
 
@@ -212,7 +220,7 @@ def overall_rows(best):
         row.update({f"ours_{k}": bo[k] if bo else float("nan") for k in ERRORS})
         row["best_peer"] = bp["method"] if bp else ""
         row.update({f"peer_{k}": bp[k] if bp else float("nan") for k in ERRORS})
-        row["ours / best peer"] = bo["total"] / bp["total"] if bo and bp else float("nan")
+        row["ours / best peer"] = bo["÷ best peer"] if bo and bp else float("nan")
         out.append(row)
     return out
 
@@ -260,8 +268,9 @@ def seed_verdicts(rows, names):
 # figure
 
 def bar_chart(agg, path, title):
-    """One panel per (set, mode): mean total RMSE of every method, ours and peers in two
-    colours, log axis (the gyro-only rows are orders of magnitude above the rest)."""
+    """One panel per (set, mode): mean total RMSE (inclination in an INCLINATION_ONLY cell) of
+    every method, ours and peers in two colours, log axis (the gyro-only rows are orders of
+    magnitude above the rest)."""
     groups = {}
     for r in agg:
         groups.setdefault((r["set"], r["mode"]), []).append(r)
@@ -271,9 +280,10 @@ def bar_chart(agg, path, title):
     fig = compare.new_figure(figsize=(15, height * nrow))
     axes = fig.subplots(nrow, ncol, squeeze=False)
     for ax, ((set_, mode), rs) in zip(axes.flat, groups.items()):
-        rs = sorted(rs, key=lambda r: r["total"])
+        k = ranked_by(rs[0])
+        rs = sorted(rs, key=lambda r: r[k])
         y = np.arange(len(rs))
-        vals = np.array([r["total"] for r in rs])
+        vals = np.array([r[k] for r in rs])
         colours = ["tab:blue" if r["group"] == "ours" else "tab:orange" for r in rs]
         ax.barh(y, vals, color=colours)
         ax.set_yticks(y, [r["method"] for r in rs], fontsize=8)
@@ -283,7 +293,7 @@ def bar_chart(agg, path, title):
         for yi, v in zip(y, vals):
             ax.text(v * 1.08, yi, f"{v:.2f}", va="center", fontsize=7)
         ax.set_title(f"{set_}, {mode} (n={rs[0]['n_trials']})", fontsize=10)
-        ax.set_xlabel("mean total RMSE (deg, log)", fontsize=8)
+        ax.set_xlabel(f"mean {k} RMSE (deg, log)", fontsize=8)
         ax.grid(True, axis="x", which="both", alpha=0.3)
     for ax in list(axes.flat)[len(groups):]:
         ax.set_visible(False)
@@ -430,8 +440,9 @@ def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows,
     if verdicts:
         written += compare.write_table(verdicts, out / "accuracy_seed_verdicts", list(verdicts[0].keys()),
                                        title="Seed estimators vs gyro and mahony (total RMSE, deg)")
-    png = bar_chart(agg, out / "accuracy.png",
-                    "Mean total RMSE per set and mode (6-axis: one heading offset per run removed)") if agg else None
+    only = ", ".join(f"{s} {m}" for s, m in sorted(compare.INCLINATION_ONLY))
+    png = bar_chart(agg, out / "accuracy.png", "Mean total RMSE per set and mode (6-axis: one heading "
+                    f"offset per run removed; {only}: inclination)") if agg else None
     return written + ([png] if png else [])
 
 
@@ -478,7 +489,8 @@ def _report(out, settings, overall_md, target_txt, verdict_txt, feeding, ideal_r
     report = ["# Estimator accuracy: ours and peers, same run\n",
               f"Settings: {settings}; errors in degrees; 6-axis: one constant heading offset per run removed. "
               "Mean RMSE over the trials / scenarios of each set. 'ours / best peer' = best of ours / best peer "
-              "(total).\n",
+              "(total; inclination in " + ", ".join(f"{s} {m}" for s, m in sorted(compare.INCLINATION_ONLY))
+              + ", whose reference heading is not north: its total and heading are not scored).\n",
               "## Overall\n", overall_md,
               "## Targets\n", "```\n" + target_txt + "\n```\n",
               "## Seed estimators vs gyro and mahony (total RMSE)\n", "```\n" + verdict_txt + "\n```\n",

@@ -26,6 +26,18 @@ __all__ = ["MODES", "run_estimator", "score_mode", "compare_scenario", "compare_
 
 MODES = ("9-axis", "6-axis")
 ERRORS = ("total", "heading", "inclination")
+# (set, mode) cells whose reference heading is not magnetic north (the data folder's README:
+# diodem's indoor field is strongly disturbed, its earth frame's y one IMU's mean field): only
+# their inclination is scored; their total and heading are NaN (inclination_only)
+INCLINATION_ONLY = {("diodem", "9-axis")}
+
+
+def inclination_only(set_, mode, scores):
+    """``scores`` (RMSE per error) as scored in the cell (set_, mode): total and heading NaN in
+    an INCLINATION_ONLY cell, whose heading reference is not north."""
+    if (set_, mode) not in INCLINATION_ONLY:
+        return scores
+    return {k: (v if k == "inclination" else float("nan")) for k, v in scores.items()}
 
 # the data folder's README ("Recorded IMU data with a reference orientation"): VQF (online, default
 # parameters) on all 'ok' trials, degrees
@@ -89,9 +101,10 @@ def compare_trials(names, trials, params=None, log=print, progress=True, keep_cu
     (``log`` says why).
 
     Returns ``(rows, skipped, curves)``: one row per trial, mode and estimator (set, trial,
-    mode, estimator, n, total, heading, inclination, heading_offset), the skipped
-    ``(trial key, reason)`` pairs, and ``curves[trial key][mode][estimator] = (t, total error)``
-    for the trial keys in ``keep_curves``.
+    mode, estimator, n, total, heading, inclination, heading_offset; total and heading NaN in
+    an INCLINATION_ONLY cell), the skipped ``(trial key, reason)`` pairs, and
+    ``curves[trial key][mode][estimator] = (t, total error)`` for the trial keys in
+    ``keep_curves`` (not in INCLINATION_ONLY cells).
     """
     params = params or {}
     rows, skipped, curves = [], [], {}
@@ -117,6 +130,7 @@ def compare_trials(names, trials, params=None, log=print, progress=True, keep_cu
             q = run_estimator(name, tr.fs, tr.gyr, tr.acc, tr.mag if mode == "9-axis" else None,
                               dt=tr.dt, **params.get(name, {}))
             sc, err, offset, _ = score_mode(q, tr.quat, mode)
+            sc = inclination_only(tr.set, mode, sc)
         except ValueError as exc:     # bad samples (on_invalid='raise'), non-finite output or nothing to score
             skipped.append((f"{tr.key} {mode} {name}", str(exc)))
             log(f"skip {tr.key} {mode} {name}: {exc}")
@@ -124,7 +138,7 @@ def compare_trials(names, trials, params=None, log=print, progress=True, keep_cu
             rows.append(dict(set=tr.set, trial=tr.name, mode=mode, estimator=name,
                              n=int(np.isfinite(err["total"]).sum()), **sc,
                              heading_offset=offset if offset is not None else float("nan")))
-            if tr.key in keep_curves:
+            if tr.key in keep_curves and (tr.set, mode) not in INCLINATION_ONLY:
                 curves.setdefault(tr.key, {}).setdefault(mode, {})[name] = (tr.t, err["total"])
         if bar is not None:
             bar.update()
@@ -200,7 +214,7 @@ def plot_errors(panels, path, title, t=None, fs=None):
     """One PNG: a panel per entry of ``panels`` (``{panel title: {label: err or (t, err)}}``),
     total error in degrees over time on a log axis. ``t`` or ``fs`` gives the time axis of
     plain error arrays."""
-    fig = new_figure(figsize=(10, 3.4 * len(panels)))
+    fig = new_figure(figsize=(13, 3.4 * len(panels)))
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)
     for ax, (ptitle, curves) in zip(axes[:, 0], panels.items()):
         for label, c in curves.items():
@@ -210,7 +224,7 @@ def plot_errors(panels, path, title, t=None, fs=None):
         ax.set_ylabel("total error (deg)")
         ax.set_ylim(bottom=1e-2)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)   # beside the curves
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle(title)
     return save_figure(fig, path)

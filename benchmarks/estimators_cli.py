@@ -46,7 +46,8 @@ def parse_args(argv=None):
     p.add_argument("--quick", action="store_true",
                    help="short scenarios and the first 2 'ok' trials per set (a smoke run)")
     p.add_argument("--plot-trial", default=None, metavar="SET/TRIAL",
-                   help="recorded trial for the error figure (default: the first scored one with a magnetometer)")
+                   help="recorded trial for the error figure (default: the first scored one with a magnetometer "
+                        "whose heading reference is north)")
     p.add_argument("--seed", type=_seed, default=0,
                    help="synthetic scenario seed, an integer >= 0 (default: %(default)s)")
     return p.parse_args(argv)
@@ -102,7 +103,8 @@ def _load_recorded(args):
         sys.exit(f"error: --plot-trial {args.plot_trial!r} is not a scored trial of {data_dir}"
                  f"{' (--quick keeps 2 per set)' if args.quick else ''}; scored: {', '.join(scored[:8])}"
                  f"{', ...' if len(scored) > 8 else ''}")
-    plot_key = args.plot_trial or next((tr.key for tr in trials if usable[tr.key] and tr.has_mag),
+    plot_key = args.plot_trial or next((tr.key for tr in trials if usable[tr.key] and tr.has_mag
+                                        and (tr.set, "9-axis") not in compare.INCLINATION_ONLY),
                                        next(iter(scored), None))
     return data_dir, trials, unreadable, plot_key
 
@@ -153,6 +155,11 @@ def _report(names, syn_scores, syn_euler, agg_rows, skipped, written, out):
              compare.markdown_table(syn_euler,
                                     ["scenario", "mode", "estimator", "angle", "mean", "std", "MAE", "RMSE"], 4),
              "## Recorded trials: mean RMSE over trials\n", agg_md]
+    cells = sorted(f"{s} {m}" for s, m in compare.INCLINATION_ONLY if any(r["set"] == s and r["mode"] == m
+                                                                           for r in agg_rows))
+    if cells:
+        parts.append(f"{', '.join(cells)}: inclination only (total and heading blank: not scored); its "
+                     "reference heading is not magnetic north (the data folder's README).\n")
     if agg_rows:
         parts += ["Reference (the data folder's README, \"Recorded IMU data with a reference orientation\"; VQF "
                   "online, default parameters; VQF takes one "

@@ -32,11 +32,9 @@ from controllers.evaluation import bootstrap_ci
 
 
 ERRORS = ("total", "heading", "inclination")
-# cells whose reference heading is not magnetic north (the data folder's README, "Recorded IMU
-# data with a reference orientation": diodem's magnetometer is strongly disturbed, its earth
-# frame is the optical one): there a candidate is
-# judged by inclination alone, which the magnetometer's disturbances must not spoil
-INCLINATION_ONLY = {("diodem", "9-axis")}
+# cells whose reference heading is not magnetic north: there a candidate is judged by
+# inclination alone, which the magnetometer's disturbances must not spoil
+INCLINATION_ONLY = compare.INCLINATION_ONLY
 
 
 class Cell:

@@ -846,7 +846,7 @@ _EPILOG = (
     "and paths.png; finished cells are cached in <out>/cells/. Metrics: "
     "docs/envs/sphere_bot_track.md and sphere_bot_waypoints.md.")
 _EXAMPLES = (
-    "  spherebot-compare --quick                       # the demo (make demo), a few minutes\n"
+    "  spherebot-compare --quick                       # the demo (make demo), under a minute\n"
     "  spherebot-compare --full --backend ray --address auto   # every cell, 30 episodes, on a cluster\n"
     "  spherebot-compare --full --resume               # continue an interrupted run")
 
@@ -882,10 +882,10 @@ def _parser():
                          "(default realistic, the environment's default)")
     ap.add_argument("--quick", action="store_true",
                     help=f"the demo: {QUICK['episodes']} episodes per cell, estimators {QUICK['estimators']}, "
-                         f"controllers {QUICK['controllers']} (about 30 s on 2 cores)")
+                         f"controllers {QUICK['controllers']} (35-50 s on 2 cores)")
     ap.add_argument("--full", action="store_true",
                     help=f"the full grid: every estimator, {FULL_EPISODES} episodes per cell "
-                         "(about 12 min on 2 cores for the README's 9 estimators; "
+                         "(about 25 min on 2 cores for the README's truth and 9 estimators; "
                          "use --backend ray on a cluster, and --resume after an interruption)")
     ap.add_argument("--backend", choices=("local", "ray"), default=None,
                     help="local: a process pool on this machine; ray: Ray tasks (one session per run; the "

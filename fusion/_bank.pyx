@@ -21,7 +21,7 @@ from fusion._ekf import EKF as _EKF
 import numpy as np
 cimport numpy as cnp
 
-from fusion._core cimport Estimator, quat_out
+from fusion._core cimport Estimator, quat_out, _claim, _release
 from fusion._core import DT_MAX, DT_MIN, FINITE_RULE, VALID_RULE, check_dt
 from fusion.checks import not_masked, SAMPLES_HINT
 from fusion._qmath cimport vec3_valid, vec3_finite
@@ -416,6 +416,24 @@ cdef class BankCore:
     def _exit(self):
         self.busy = False
 
+    cdef int _hold_filters(self) except -1:
+        """Mark every filter in use for a step, as its own run would: a filter object reached
+        from elsewhere (envs.vector's robots hold theirs) is refused meanwhile, its __init__
+        included, rather than changed under the step."""
+        cdef Py_ssize_t i
+        for i in range(self.count):
+            try:
+                _claim(<Estimator>self.p[i])
+            except BaseException:
+                self._release_filters(i)
+                raise
+        return 0
+
+    cdef void _release_filters(self, Py_ssize_t n) noexcept:
+        cdef Py_ssize_t i
+        for i in range(n):
+            _release(<Estimator>self.p[i])
+
     @property
     def _in_use(self):
         return bool(self.busy)
@@ -455,14 +473,18 @@ cdef class BankCore:
                     i = _first_invalid(g, a, m, n, &s)
                 if i >= 0:
                     check_samples(G, A, M, n, False)           # raises, naming it
-            if self.soa != NULL:
-                with nogil:
-                    self._soa_step(g, a, m, hd, h, o)
-            else:
-                with nogil:
-                    for i in range(n):
-                        (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
-                                                          NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
+            self._hold_filters()
+            try:
+                if self.soa != NULL:
+                    with nogil:
+                        self._soa_step(g, a, m, hd, h, o)
+                else:
+                    with nogil:
+                        for i in range(n):
+                            (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
+                                                              NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
+            finally:
+                self._release_filters(self.count)
         finally:
             self.busy = False
         return out
@@ -472,8 +494,7 @@ cdef class BankCore:
         D None (dt throughout) or (T, count) steps; out (T, count, 4). Block by block of time,
         each filter's samples are gathered into rows of 3 and its batch loop runs over them:
         the same steps as one est.run over the whole column."""
-        cdef Py_ssize_t T = G.shape[0], c = self.count
-        cdef Py_ssize_t t0, nb, i, k, src
+        cdef Py_ssize_t T = G.shape[0]
         cdef const double* g = _ptr(G)
         cdef const double* a = _ptr(A)
         cdef const double* m = _ptr(M)
@@ -481,12 +502,22 @@ cdef class BankCore:
         cdef double* o = <double*>cnp.PyArray_DATA(<cnp.ndarray>out)
         if T == 0:
             return
+        self._hold_filters()
+        try:
+            self._run_held(g, a, m, h, dt, o, T)
+        finally:
+            self._release_filters(self.count)
+
+    cdef int _run_held(self, const double* g, const double* a, const double* m, const double* h,
+                       double dt, double* o, Py_ssize_t T) except -1:
+        cdef Py_ssize_t c = self.count
+        cdef Py_ssize_t t0, nb, i, k, src
         if self.soa != NULL:
             with nogil:
                 for t0 in range(T):
                     self._soa_step(g + 3 * c * t0, a + 3 * c * t0, m + 3 * c * t0 if m != NULL else NULL,
                                    h + c * t0 if h != NULL else NULL, dt, o + 4 * c * t0)
-            return
+            return 0
         # gathered block by block (in cache): whole (count, T, 3) transposed copies cost 15 %
         # of a 64-ekf bank's run; gathered, the bank runs as fast as count separate est.run
         cdef double* buf = <double*>malloc(RUN_BLOCK * 14 * sizeof(double))
@@ -518,6 +549,7 @@ cdef class BankCore:
                         o[src + 2] = so[4 * k + 2]; o[src + 3] = so[4 * k + 3]
                 t0 += nb
         free(buf)
+        return 0
 
     def _quaternions(self):
         """(count, 4): every filter's attitude in its public frame."""

@@ -181,9 +181,7 @@ cdef class CFEKF(Estimator):
         if ki is None:
             ki = 0.0 if self.bias_feedback else MAHONY_KI
         w = p["window"]
-        self.pre_gyr = SlidingMean(w)
-        self.pre_acc = SlidingMean(w)
-        self.pre_mag = SlidingMean(w)
+        self._take_prefilters(SlidingMean(w), SlidingMean(w), SlidingMean(w))
         # the complementary filter takes the magnetometer: its heading-only correction and
         # disturbance detection are the cf-ekf's
         self.cf = _Mahony(self.fs, kp=p["kp"], ki=ki, mag_weight=p["mag_weight"], gyro_range=p["gyro_range"],

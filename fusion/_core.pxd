@@ -43,6 +43,8 @@ cdef class Estimator:
     cdef void _process(self, const double* gyr, const double* acc, const double* mag,
                        double dt) noexcept nogil
     cdef void _output_q(self, double* out) noexcept nogil
+    # a kernel's _configure sets its prefilters (None: raw samples) through this
+    cdef void _take_prefilters(self, Prefilter gyr, Prefilter acc, Prefilter mag) noexcept
     # the estimated gyro bias (rad/s, body frame) into out[3]; False: the estimator has none.
     # The bias property and the environment's compiled loop both read it here.
     cdef bint _bias(self, double* out) noexcept nogil

@@ -316,6 +316,13 @@ cdef int _claim(Estimator e) except -1:
     and the set run with the GIL held and call no Python code, so for Python threads they
     are one step."""
     _ready(e)
+    _hold(e)
+    return 0
+
+
+cdef int _hold(Estimator e) except -1:
+    """_claim without the configured test (__init__'s)."""
+    _not_in_use(e)
     e.busy = True
     _pre_mark(e.pre_gyr, True)
     _pre_mark(e.pre_acc, True)
@@ -355,12 +362,14 @@ cdef class Estimator:
         another thread is refused meanwhile, and this is refused while one is in progress.
         The kernel's _configure checks every argument before it takes any, so that a refused
         __init__ changes nothing."""
-        _not_in_use(self)       # test and set with the GIL held and no Python code between
-        self.busy = True
+        old = (self.pre_gyr, self.pre_acc, self.pre_mag)
+        _hold(self)         # test and set with the GIL held and no Python code between
         try:
             self._configure(fs, frame, on_invalid, params)
         finally:
-            self.busy = False
+            for p in old:   # those _configure replaced (_take_prefilters marked the new ones)
+                _pre_mark(p, False)
+            _release(self)
 
     def _configure(self, fs, frame, on_invalid, params):
         """A kernel's configuration (overridden by each; docs/contributing.md): check
@@ -380,6 +389,15 @@ cdef class Estimator:
         if "gyro_range" in p:
             self.gyro_range_ = 0.0 if p["gyro_range"] is None else p["gyro_range"]
 
+    cdef void _take_prefilters(self, Prefilter gyr, Prefilter acc, Prefilter mag) noexcept:
+        """The prefilters in front of the three streams (None: raw samples), in use as the
+        estimator is (in _configure, which __init__ holds: no other thread runs them before
+        __init__ returns)."""
+        _pre_mark(gyr, self.busy)
+        _pre_mark(acc, self.busy)
+        _pre_mark(mag, self.busy)
+        self.pre_gyr, self.pre_acc, self.pre_mag = gyr, acc, mag
+
     def _check_init(self, fs, frame, on_invalid):
         """__init__'s own arguments checked; fs as a float."""
         fs = check_fs(fs)
@@ -390,7 +408,7 @@ cdef class Estimator:
     def _take_params(self, params):
         """The parameters: each given one checked by its Param, the defaults for the rest.
         Unknown names, and bad values, are a ValueError naming them and what is accepted.
-        Nothing is taken here: the base's part by __init__, a component the kernel holds
+        Nothing is taken here: the base's part by _take_base, a component the kernel holds
         (rest detection: fusion._rest; magnetic disturbance detection: fusion._magdist) built
         by the kernel from the values returned."""
         unknown = sorted(set(params) - set(self.PARAMS))

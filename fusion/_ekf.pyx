@@ -477,7 +477,7 @@ cdef class IIREKF(EKF):
         cutoff = p["cutoff_hz"] if "cutoff_hz" in params else min(p["cutoff_hz"], 0.45 * fs)
         pre_acc = Butterworth(fs, cutoff)
         pre_mag = Butterworth(fs, cutoff) if p["filter_mag"] else None
-        self.pre_acc, self.pre_mag = pre_acc, pre_mag
+        self._take_prefilters(None, pre_acc, pre_mag)
         EKF._configure(self, fs, frame, on_invalid, params)
 
     @property

@@ -3,15 +3,14 @@
 low-passed in a frame that turns with the bias-corrected gyro alone by a second-order
 Butterworth, the inclination filter of VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
 estimation with bias estimation and magnetic disturbance rejection", 2023) (docs/estimators.md)."""
-from libc.math cimport tan, sqrt, atan2, sin, cos, M_SQRT2, M_PI
+from libc.math cimport tan, sqrt, atan2, sin, cos, fmax, M_SQRT2, M_PI
 from libc.string cimport memset
 
 from fusion._core cimport quat_out
 from fusion._core import struct_fields, TIMER
 from fusion._ekf cimport EKF
 from fusion._acclp cimport acc_lowpass_lost
-from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step
-from fusion._prefilter import CUTOFF_MIN
+from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step, C_CUTOFF_MIN
 from fusion.params import Param, table
 from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \
     norm3, saturated, out_of_range
@@ -39,7 +38,9 @@ cdef void butterworth_coefficients(EKFLP e, double dt) noexcept nogil:
     spacing (VQF designs it once, at its fixed sample time). Computed again only when dt
     changes."""
     if dt != e.coef_dt:
-        butterworth2_design(tan(dt / (M_SQRT2 * e.incl_lowpass)), &e.c)     # tan(π fc dt)
+        # tan(π fc dt), held at the Butterworth's floor (fusion/_prefilter.pxd) for a step much
+        # shorter than the nominal period, which incl_lowpass's range was checked against
+        butterworth2_design(fmax(tan(dt / (M_SQRT2 * e.incl_lowpass)), tan(M_PI * C_CUTOFF_MIN)), &e.c)
         e.coef_dt = dt
 
 
@@ -156,15 +157,15 @@ cdef class EKFLP(EKF):
         tau = self._take_params(params)["incl_lowpass"]
         # the cutoff √2 / (2π tau) between CUTOFF_MIN fs (fusion._prefilter) and a third of fs,
         # where the bilinear map holds
-        tau_max = M_SQRT2 / (2.0 * M_PI * CUTOFF_MIN * fs)
+        tau_max = M_SQRT2 / (2.0 * M_PI * C_CUTOFF_MIN * fs)
         if "incl_lowpass" not in params:    # the default at a rate too low (below 0.37 Hz) or too high for it
             tau = min(max(tau, 1.1 / fs), tau_max)
-        if tau < 1.1 / fs:
+        if tau < 1.1 / fs * (1.0 - 1e-12):     # (0.011 at 100 Hz, which 1.1 / 100 rounds above)
             raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
                              f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
-        if tau > tau_max:
-            raise ValueError(f"incl_lowpass must be at most {tau_max:.4g} s at fs={fs:g} Hz (its cutoff "
-                             f"at least {CUTOFF_MIN:g} fs: below it the Butterworth's rounding moves "
+        if tau > tau_max * (1.0 + 1e-6):     # (the bound as printed is accepted)
+            raise ValueError(f"incl_lowpass must be at most {tau_max:.6g} s at fs={fs:g} Hz (its cutoff "
+                             f"at least {C_CUTOFF_MIN:g} fs: below it the Butterworth's rounding moves "
                              f"its poles), got {tau!r}")
         EKF._configure(self, fs, frame, on_invalid, params)
         # after the base's checks, so that a refused re-__init__ leaves it as it was

@@ -8,6 +8,16 @@ from fusion._core cimport Prefilter
 cdef struct Biquad:
     double b0, b1, b2, a1, a2       # a0 = 1
 
+cdef extern from *:
+    """
+    #define FUSION_CUTOFF_MIN 1e-7
+    """
+    # the lowest Butterworth cutoff, as a part of the sample rate: 1 + a1 + a2 = 4 w^2 / (1 +
+    # sqrt(2) w + w^2), w = tan(pi fc / fs), is the DC gain's denominator, and the rounding of
+    # a1 and a2 (1e-16) sets its error: 5e-4 of the gain here, several % at 1e-8, negative (a
+    # pole above 1) from about 2.4e-9
+    double C_CUTOFF_MIN "FUSION_CUTOFF_MIN"
+
 cdef inline void butterworth2_design(double w, Biquad* c) noexcept nogil:
     """The coefficients for w = tan(pi fc dt) (the cutoff fc pre-warped, divided by 2 / dt):
     analogue prototype 1 / (s^2 + sqrt(2) s + 1) at w_a = (2 / dt) w."""

@@ -13,10 +13,7 @@ from fusion.checks import number, integer
 
 
 WINDOW_MAX = 100_000     # samples (1000 s at 100 Hz, 0.1 s at 1 MHz; 2.4 MB a stream)
-# lowest Butterworth cutoff, as a part of fs: 1 + a1 + a2 = 4 w^2 / (1 + sqrt(2) w + w^2), w =
-# tan(pi fc / fs), is the DC gain's denominator, and the rounding of a1 and a2 (1e-16) sets its
-# error: 2.5e-4 of the gain here; at 5e-9 fs it is negative (a pole above 1: unstable)
-CUTOFF_MIN = 1e-7
+CUTOFF_MIN = C_CUTOFF_MIN       # fusion/_prefilter.pxd's, for Python
 
 
 cdef int _claim(Prefilter f) except -1:
@@ -73,8 +70,8 @@ cdef class Butterworth(Prefilter):
         if c >= 0.5 * self.fs:
             raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
                              f"got {cutoff_hz!r}")
-        if c < CUTOFF_MIN * self.fs:
-            raise ValueError(f"cutoff_hz must be at least {CUTOFF_MIN:g} fs = {CUTOFF_MIN * self.fs:.3g} Hz "
+        if c < C_CUTOFF_MIN * self.fs * (1.0 - 1e-6):     # (the bound as printed is accepted)
+            raise ValueError(f"cutoff_hz must be at least {C_CUTOFF_MIN:g} fs = {C_CUTOFF_MIN * self.fs:.6g} Hz "
                              f"(below it the coefficients' rounding moves the poles), got {cutoff_hz!r}")
         self.cutoff_hz = c
         butterworth2_design(tan(M_PI * c / self.fs), &self.c)

@@ -23,7 +23,7 @@ cdef class Triad(Estimator):
         p = self._take_params(params)
         pre_acc = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
         pre_mag = None if p["cutoff_hz"] is None else Butterworth(fs, p["cutoff_hz"])
-        self.pre_acc, self.pre_mag = pre_acc, pre_mag
+        self._take_prefilters(None, pre_acc, pre_mag)
         self._take_base(fs, frame, on_invalid, p)
         self.configured = True
         self._reset(None)

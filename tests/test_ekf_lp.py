@@ -113,6 +113,7 @@ def test_bad_incl_lowpass_is_a_value_error(bad):
     with pytest.raises(ValueError, match="incl_lowpass"):
         fusion.make("ekf-lp", FS, incl_lowpass=bad)
     fusion.make("ekf-lp", FS, incl_lowpass=0.0111)     # just over 1.1 sample periods: accepted
+    fusion.make("ekf-lp", 100.0, incl_lowpass=0.011)    # 1.1 periods as written (1.1 / 100 rounds above it)
 
 
 def test_the_default_at_a_rate_too_low_for_it():
@@ -130,7 +131,8 @@ def test_incl_lowpass_has_a_ceiling_where_the_butterworth_holds():
     750 kHz); given, a longer one is refused."""
     assert fusion.make("ekf-lp", 1e6).incl_lowpass == pytest.approx(np.sqrt(2) / (2e-7 * np.pi * 1e6))
     fusion.make("ekf-lp", 1e3, incl_lowpass=2250.0)
-    with pytest.raises(ValueError, match="incl_lowpass must be at most 2251 s"):
+    fusion.make("ekf-lp", 1e3, incl_lowpass=2250.79)           # the bound as the message prints it
+    with pytest.raises(ValueError, match="incl_lowpass must be at most 2250.79 s"):
         fusion.make("ekf-lp", 1e3, incl_lowpass=2260.0)
 
 

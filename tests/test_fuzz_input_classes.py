@@ -182,9 +182,9 @@ def test_a_refused_reinit_changes_nothing(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_a_reinit_holds_the_estimator_throughout(name):
     """While __init__ re-configures an estimator, a call from another thread is refused, so
-    that no run steps through prefilters (or other parts) that __init__ is replacing; once it
-    returns the estimator runs with its new configuration. Before, __init__ tested the in-use
-    flag only at its start."""
+    that no run steps through prefilters (or other parts) that __init__ is replacing, and so
+    is a run of the new prefilters; once it returns the estimator runs with its new
+    configuration. Before, __init__ tested the in-use flag only at its start."""
     gyr, acc, mag = motion(300, 8)
     inside, go_on = threading.Event(), threading.Event()
     base = type(fusion.make(name, 100.0))
@@ -200,18 +200,26 @@ def test_a_reinit_holds_the_estimator_throughout(name):
     go_on.set()
     est = Paused(100.0)         # the first configuration passes straight through
     go_on.clear()
+    old = [p for p in est.prefilters.values() if p is not None]
     t = threading.Thread(target=lambda: est.__init__(50.0))
     t.start()
-    assert inside.wait(60)
+    assert inside.wait(10)
     calls = {"run": lambda: est.run(gyr, acc, mag), "update": lambda: est.update(gyr[0], acc[0]),
              "reset": est.reset, "state": est.state, "init": lambda: est.__init__(100.0)}
     for what, call in calls.items():
         with pytest.raises(RuntimeError, match=MSG):
             call()
             pytest.fail(f"{what} ran while __init__ held the estimator")
+    for k, p in est.prefilters.items():     # the new ones, which __init__ put in
+        if p is not None:
+            with pytest.raises(RuntimeError, match="prefilter in use"):
+                p.run(np.ones((2, 3)))
+                pytest.fail(f"the {k} prefilter ran while __init__ held its estimator")
     go_on.set()
     t.join(60)
     assert not t.is_alive() and est.fs == 50.0
+    for p in old + [p for p in est.prefilters.values() if p is not None]:     # all released
+        p.reset()           # (refused while in use; the new ones were just cleared: no change)
     # a subclass steps through the generic loop, not a kernel's inlined one: equal to round-off
     np.testing.assert_allclose(est.run(gyr, acc, mag), fusion.make(name, 50.0).run(gyr, acc, mag),
                                rtol=0, atol=1e-12)

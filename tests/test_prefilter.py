@@ -57,9 +57,9 @@ def test_butterworth_cutoff_must_be_below_nyquist(fc):
 
 
 def test_butterworth_cutoff_has_a_floor_where_its_rounding_holds():
-    """Below 1e-7 fs the coefficients' rounding (1e-16) is comparable with 1 + a1 + a2, the DC
-    gain's denominator (at 1e-8 fs it was off by 2 %, at 5e-9 fs negative: a pole above 1), so
-    such a cutoff is refused; at the floor the DC gain holds to 1e-3 (2.5e-4 expected)."""
+    """Below 1e-7 fs the coefficients' rounding (1e-16) reaches 1 + a1 + a2, the DC gain's
+    denominator (several % off at 1e-8 fs, negative, a pole above 1, from about 2.4e-9 fs), so
+    such a cutoff is refused; at the floor the DC gain holds to 1e-3 (5e-4 measured)."""
     from fusion._prefilter import CUTOFF_MIN
     for est in ("iir-ekf", "triad"):
         with pytest.raises(ValueError, match="cutoff_hz must be at least 1e-07 fs"):
