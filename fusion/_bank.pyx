@@ -21,7 +21,7 @@ from fusion._ekf import EKF as _EKF
 import numpy as np
 cimport numpy as cnp
 
-from fusion._core cimport Estimator, quat_out, _claim, _release
+from fusion._core cimport Estimator, quat_out, in_use, mark_in_use
 from fusion._core import DT_MAX, DT_MIN, FINITE_RULE, VALID_RULE, check_dt
 from fusion.checks import not_masked, SAMPLES_HINT
 from fusion._qmath cimport vec3_valid, vec3_finite
@@ -417,22 +417,22 @@ cdef class BankCore:
         self.busy = False
 
     cdef int _hold_filters(self) except -1:
-        """Mark every filter in use for a step, as its own run would: a filter object reached
-        from elsewhere (envs.vector's robots hold theirs) is refused meanwhile, its __init__
-        included, rather than changed under the step."""
+        """Mark every filter (and its prefilters) in use for a step, as its own run would: a
+        filter object reached from elsewhere (envs.vector's robots hold theirs) is refused
+        meanwhile, its __init__ included, rather than changed under the step. Tested, then
+        set, with the GIL held and no Python code between (one step for Python threads)."""
         cdef Py_ssize_t i
         for i in range(self.count):
-            try:
-                _claim(<Estimator>self.p[i])
-            except BaseException:
-                self._release_filters(i)
-                raise
+            if in_use(<Estimator>self.p[i]):
+                raise RuntimeError("estimator in use by another thread")
+        for i in range(self.count):
+            mark_in_use(<Estimator>self.p[i], True)
         return 0
 
-    cdef void _release_filters(self, Py_ssize_t n) noexcept:
+    cdef void _release_filters(self) noexcept:
         cdef Py_ssize_t i
-        for i in range(n):
-            _release(<Estimator>self.p[i])
+        for i in range(self.count):
+            mark_in_use(<Estimator>self.p[i], False)
 
     @property
     def _in_use(self):
@@ -484,7 +484,7 @@ cdef class BankCore:
                             (<Estimator>self.p[i])._run_batch(g + 3 * i, a + 3 * i, m + 3 * i if m != NULL else NULL,
                                                               NULL, hd[i] if hd != NULL else h, o + 4 * i, 1, False)
             finally:
-                self._release_filters(self.count)
+                self._release_filters()
         finally:
             self.busy = False
         return out
@@ -506,7 +506,7 @@ cdef class BankCore:
         try:
             self._run_held(g, a, m, h, dt, o, T)
         finally:
-            self._release_filters(self.count)
+            self._release_filters()
 
     cdef int _run_held(self, const double* g, const double* a, const double* m, const double* h,
                        double dt, double* o, Py_ssize_t T) except -1:

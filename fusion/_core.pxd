@@ -68,6 +68,24 @@ cdef class Estimator:
 cdef int _claim(Estimator e) except -1
 cdef void _release(Estimator e) noexcept
 
+# the flags themselves, with no test of configuration or raising (the bank sets them on its
+# filters for a step): the estimator's and its prefilters'
+cdef inline bint pre_busy(Prefilter p) noexcept:
+    return p is not None and p.busy
+
+cdef inline void pre_mark(Prefilter p, bint busy) noexcept:
+    if p is not None:
+        p.busy = busy
+
+cdef inline bint in_use(Estimator e) noexcept:
+    return e.busy or pre_busy(e.pre_gyr) or pre_busy(e.pre_acc) or pre_busy(e.pre_mag)
+
+cdef inline void mark_in_use(Estimator e, bint busy) noexcept:
+    e.busy = busy
+    pre_mark(e.pre_gyr, busy)
+    pre_mark(e.pre_acc, busy)
+    pre_mark(e.pre_mag, busy)
+
 
 # --- for a kernel's own _run_batch: its step inlined, no virtual calls per sample ----------
 

@@ -297,18 +297,9 @@ cdef int _ready(Estimator e) except -1:
 
 
 cdef int _not_in_use(Estimator e) except -1:
-    if e.busy or _pre_busy(e.pre_gyr) or _pre_busy(e.pre_acc) or _pre_busy(e.pre_mag):
+    if in_use(e):
         raise RuntimeError("estimator in use by another thread")
     return 0
-
-
-cdef inline bint _pre_busy(Prefilter p) noexcept:
-    return p is not None and p.busy
-
-
-cdef inline void _pre_mark(Prefilter p, bint busy) noexcept:
-    if p is not None:
-        p.busy = busy
 
 
 cdef int _claim(Estimator e) except -1:
@@ -323,18 +314,12 @@ cdef int _claim(Estimator e) except -1:
 cdef int _hold(Estimator e) except -1:
     """_claim without the configured test (__init__'s)."""
     _not_in_use(e)
-    e.busy = True
-    _pre_mark(e.pre_gyr, True)
-    _pre_mark(e.pre_acc, True)
-    _pre_mark(e.pre_mag, True)
+    mark_in_use(e, True)
     return 0
 
 
 cdef void _release(Estimator e) noexcept:
-    e.busy = False
-    _pre_mark(e.pre_gyr, False)
-    _pre_mark(e.pre_acc, False)
-    _pre_mark(e.pre_mag, False)
+    mark_in_use(e, False)
 
 
 cdef object _exclusively(Estimator e, f, tuple args):
@@ -368,7 +353,7 @@ cdef class Estimator:
             self._configure(fs, frame, on_invalid, params)
         finally:
             for p in old:   # those _configure replaced (_take_prefilters marked the new ones)
-                _pre_mark(p, False)
+                pre_mark(p, False)
             _release(self)
 
     def _configure(self, fs, frame, on_invalid, params):
@@ -393,9 +378,9 @@ cdef class Estimator:
         """The prefilters in front of the three streams (None: raw samples), in use as the
         estimator is (in _configure, which __init__ holds: no other thread runs them before
         __init__ returns)."""
-        _pre_mark(gyr, self.busy)
-        _pre_mark(acc, self.busy)
-        _pre_mark(mag, self.busy)
+        pre_mark(gyr, self.busy)
+        pre_mark(acc, self.busy)
+        pre_mark(mag, self.busy)
         self.pre_gyr, self.pre_acc, self.pre_mag = gyr, acc, mag
 
     def _check_init(self, fs, frame, on_invalid):
