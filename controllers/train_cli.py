@@ -73,7 +73,8 @@ def _task(env):
         return ids[env]
     if env in rl.TASK_IDS:
         return env
-    raise ValueError(f"--env must be one of {', '.join(list(ids) + list(rl.TASK_IDS))}, got {env!r}")
+    hint = " (the v0 robot: the v1 id with --env-kwargs realism:ideal)" if str(env).endswith("-v0") else ""
+    raise ValueError(f"--env must be one of {', '.join(list(ids) + list(rl.TASK_IDS))}, got {env!r}{hint}")
 
 
 def _int(lo, hi=None):

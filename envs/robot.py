@@ -34,6 +34,18 @@ DRIVE_JOINT = 0
 STEER_JOINT = 1
 
 
+# the units of RobotParams' numbers, for its range messages (SI: an angle in rad, a length in m)
+_UNITS = {
+    "shell_radius": "m", "shell_mass": "kg", "frame_mass": "kg", "pendulum_mass": "kg", "pendulum_length": "m",
+    "motor_voltage": "V", "motor_k": "N m/A", "motor_resistance": "ohm", "motor_friction": "N m s/rad",
+    "motor_torque_limit": "N m", "steer_max": "rad", "steer_torque": "N m", "steer_speed": "rad/s",
+    "spinning_friction": "m", "rolling_damping": "N m s/rad", "drive_coulomb": "N m", "drive_stiction": "N m",
+    "battery_resistance": "ohm", "steer_band": "rad", "steer_friction": "N m", "steer_stop": "rad",
+    "latency_s": "s", "contact_stiffness": "N/m", "contact_damping": "N s/m", "vib_motor": "m/s^2",
+    "vib_commutation": "m/s^2", "vib_gear": "m/s^2", "vib_seam": "m/s^2", "mag_steer": "uT", "mag_current": "uT/A",
+}
+
+
 @dataclass(frozen=True)
 class RobotParams:
     """Physical parameters of the robot (SI units). Defaults follow seed 000's robot.
@@ -138,6 +150,7 @@ class RobotParams:
     gear_teeth: float = 20.0
 
     def __post_init__(self):
+        # (SI: robot={...} takes these units; docs/envs/robot.md's table gives some in deg or cm)
         ranges = {
             "shell_radius": (0.03, 2.0), "shell_mass": (1e-3, 100.0), "frame_mass": (1e-3, 100.0),
             "pendulum_mass": (1e-3, 100.0), "pendulum_length": (0.0, None),
@@ -154,7 +167,8 @@ class RobotParams:
         }
         for name, (lo, hi) in ranges.items():     # shell_radius first: pendulum_length's bound
             hi = 0.9 * self.shell_radius if name == "pendulum_length" else hi
-            object.__setattr__(self, name, number(f"robot.{name}", getattr(self, name), lo, hi))
+            object.__setattr__(self, name, number(f"robot.{name}", getattr(self, name), lo, hi,
+                                                  unit=f" {_UNITS[name]}" if name in _UNITS else ""))
         self._check_relations()
         object.__setattr__(self, "encoder_cpr", integer("robot.encoder_cpr", self.encoder_cpr, 1, 10 ** 7))
         for name in ("frame_size", "pendulum_size"):

@@ -128,7 +128,7 @@ def finite_vector(name: str, value: Any, n: int, message: str | None = None) -> 
 def choice(name: str, value: Any, choices: tuple) -> Any:
     """value if it is one of choices (compared by type and value: "1" is not 1)."""
     if not any(type(value) is type(c) and value == c for c in choices):
-        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
     return value
 
 

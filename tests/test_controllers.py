@@ -137,6 +137,22 @@ def test_resume_continues_from_checkpoint(tiny_policy):
         assert np.all(np.diff(d["timesteps"]) > 0)
 
 
+def test_a_run_without_evaluations_ships_its_last_model_after_a_resume(tmp_path):
+    """With no evaluation in either part (a run shorter than eval_freq, resumed), the shipped
+    model is the last one. Before, the resume kept shipping the first part's model."""
+    stem = tmp_path / "ppo-track-truth"
+    kw = dict(seed=1, out=stem, n_envs=1, progress=False, eval_freq=10_000, checkpoint_freq=10_000,
+              eval_episodes=1, env_kwargs={"episode_s": 2.0}, log=lambda *a: None)
+    rl.train("ppo", "track", "truth", timesteps=300, **kw)
+    first = (stem.parent / (stem.name + ".zip")).read_bytes()
+    rl.train("ppo", "track", "truth", timesteps=1500, resume=True, **kw)
+    last = rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints")
+    assert int(last.stem.split("_")[1]) > 1024          # the second part trained
+    shipped = (stem.parent / (stem.name + ".zip")).read_bytes()
+    assert shipped != first and shipped == last.read_bytes()
+    assert json.loads((stem.parent / (stem.name + ".json")).read_text())["best_eval"] is None
+
+
 def test_init_from_fine_tunes(tmp_path, tiny_policy, monkeypatch):
     stem = tmp_path / "ppo-track-gyro"
     # training leaves nothing in the temp directory (SB3's default logger makes a folder there)
