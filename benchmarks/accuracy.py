@@ -416,8 +416,10 @@ def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows,
         sub = [r for r in agg if (r["set"], r["mode"]) == (set_, mode)]
         stem = out / f"accuracy_{set_.replace(' ', '_')}_{mode}"
         kind = 'trials' if set_ not in (SYNTHETIC, SEED) else 'scenarios'
+        only = ("; its reference heading is not north: inclination only, the ratios are of inclination"
+                if ranked_by(sub[0]) == "inclination" else "")
         written += compare.write_table(sub, stem, SET_COLS, title=f"{set_}, {mode}: mean RMSE (deg) over "
-                                       f"{sub[0]['n_trials']} {kind}")
+                                       f"{sub[0]['n_trials']} {kind}{only}")
     if cat_rows:
         written += compare.write_table(cat_rows, out / "accuracy_categories",
                                        ["set", "category", "mode", "method", "group", "n_trials"] + list(ERRORS)

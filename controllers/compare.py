@@ -783,7 +783,8 @@ def _plot_headline(summary, path):
         return "No headline figure: the grid has no estimator besides `truth` to compare with it."
     from controllers.plots import new_figure
     sizes = [len({r["estimator"] for r in summary if (r["task"], r["scenario"]) == p}) - 1 for p in panels]
-    fig = new_figure(figsize=(8.5, sum(1.0 + 0.42 * s for s in sizes) + 0.4))
+    height = sum(1.0 + 0.42 * s for s in sizes) + 0.4
+    fig = new_figure(figsize=(8.5, height))
     axes = fig.subplots(len(panels), 1,
                              gridspec_kw={"height_ratios": [1.0 + 0.42 * s for s in sizes]}, squeeze=False)
     for ax, (task, sc) in zip(axes[:, 0], panels):
@@ -793,7 +794,7 @@ def _plot_headline(summary, path):
            if min(n) < MIN_BOOT else "")
     fig.suptitle(f"Estimators ranked by their paired difference against the true attitude "
                  f"({'/'.join(map(str, n))} episodes per cell, 95 % intervals){few}", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.5 if few else 0.3) / height))     # the title's lines above the panels
     save_figure(fig, path)
     return None
 

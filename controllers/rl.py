@@ -466,11 +466,11 @@ class _RunFiles:
             {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps)}).encode()))
 
     def ensure_best(self):
-        """No evaluation has scored a model (a very short run, and a resume of one that ends
-        before the first evaluation): the last model is the one shipped. (best.json is
-        written last, once an evaluation's model is whole: without it the run's best_model.zip,
-        if any, is an earlier last model.)"""
-        if not (self.run_dir / "best.json").exists():
+        """No evaluated model to ship (no evaluation ran: a very short run, or a resume of
+        one that ends before the first evaluation; or its score without its model): the last
+        model is the one shipped. best.json, written after the model it scores, is what
+        marks an evaluated best_model.zip."""
+        if not ((self.run_dir / "best.json").exists() and (self.run_dir / "best_model.zip").exists()):
             save_model(self.model, self.run_dir / "best_model.zip")
             if self.normalize:
                 save_normalization(self.model.get_vec_normalize_env(), self.run_dir / "best_vecnormalize.npz")

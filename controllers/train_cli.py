@@ -73,7 +73,8 @@ def _task(env):
         return ids[env]
     if env in rl.TASK_IDS:
         return env
-    hint = " (the v0 robot: the v1 id with --env-kwargs realism:ideal)" if str(env).endswith("-v0") else ""
+    hint = (" (the v0 robot: the v1 id with --env-kwargs realism:ideal)"
+            if str(env).endswith("-v0") and str(env)[:-1] + "1" in ids else "")
     raise ValueError(f"--env must be one of {', '.join(list(ids) + list(rl.TASK_IDS))}, got {env!r}{hint}")
 
 

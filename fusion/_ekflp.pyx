@@ -157,14 +157,15 @@ cdef class EKFLP(EKF):
         tau = self._take_params(params)["incl_lowpass"]
         # the cutoff √2 / (2π tau) between CUTOFF_MIN fs (fusion._prefilter) and a third of fs,
         # where the bilinear map holds
-        tau_max = M_SQRT2 / (2.0 * M_PI * C_CUTOFF_MIN * fs)
+        tau_min, tau_max = 1.1 / fs, M_SQRT2 / (2.0 * M_PI * C_CUTOFF_MIN * fs)
         if "incl_lowpass" not in params:    # the default at a rate too low (below 0.37 Hz) or too high for it
-            tau = min(max(tau, 1.1 / fs), tau_max)
-        if tau < 1.1 / fs * (1.0 - 1e-12):     # (0.011 at 100 Hz, which 1.1 / 100 rounds above)
+            tau = min(max(tau, tau_min), tau_max)
+        low, high = f"{tau_min:.3g}", f"{tau_max:.6g}"     # as the messages print them: accepted too
+        if tau < min(tau_min, float(low)):
             raise ValueError(f"incl_lowpass must be at least 1.1 sample periods (1.1 / fs = "
-                             f"{1.1 / fs:.3g} s at fs={fs:g} Hz), got {tau!r}")
-        if tau > tau_max * (1.0 + 1e-6):     # (the bound as printed is accepted)
-            raise ValueError(f"incl_lowpass must be at most {tau_max:.6g} s at fs={fs:g} Hz (its cutoff "
+                             f"{low} s at fs={fs:g} Hz), got {tau!r}")
+        if tau > max(tau_max, float(high)):
+            raise ValueError(f"incl_lowpass must be at most {high} s at fs={fs:g} Hz (its cutoff "
                              f"at least {C_CUTOFF_MIN:g} fs: below it the Butterworth's rounding moves "
                              f"its poles), got {tau!r}")
         EKF._configure(self, fs, frame, on_invalid, params)

@@ -70,8 +70,9 @@ cdef class Butterworth(Prefilter):
         if c >= 0.5 * self.fs:
             raise ValueError(f"cutoff_hz must be below the Nyquist frequency fs/2 = {0.5 * self.fs} Hz, "
                              f"got {cutoff_hz!r}")
-        if c < C_CUTOFF_MIN * self.fs * (1.0 - 1e-6):     # (the bound as printed is accepted)
-            raise ValueError(f"cutoff_hz must be at least {C_CUTOFF_MIN:g} fs = {C_CUTOFF_MIN * self.fs:.6g} Hz "
+        low = f"{C_CUTOFF_MIN * self.fs:.6g}"       # as the message prints it: accepted too
+        if c < min(C_CUTOFF_MIN * self.fs, float(low)):
+            raise ValueError(f"cutoff_hz must be at least {C_CUTOFF_MIN:g} fs = {low} Hz "
                              f"(below it the coefficients' rounding moves the poles), got {cutoff_hz!r}")
         self.cutoff_hz = c
         butterworth2_design(tan(M_PI * c / self.fs), &self.c)

@@ -1,6 +1,8 @@
 """Controllers: the PID, evaluation, training/loading of SB3 policies (tiny runs)."""
+import io
 import json
 import math
+import zipfile
 
 import numpy as np
 import pytest
@@ -149,8 +151,19 @@ def test_a_run_without_evaluations_ships_its_last_model_after_a_resume(tmp_path)
     last = rl._latest_checkpoint(stem.parent / (stem.name + ".run") / "checkpoints")
     assert int(last.stem.split("_")[1]) > 1024          # the second part trained
     shipped = (stem.parent / (stem.name + ".zip")).read_bytes()
-    assert shipped != first and shipped == last.read_bytes()
+
+    def entries(b):         # (a zip's bytes hold its save time: compare what it holds)
+        with zipfile.ZipFile(io.BytesIO(b)) as z:
+            return {n: z.read(n) for n in z.namelist()}
+    assert entries(shipped) != entries(first) and entries(shipped) == entries(last.read_bytes())
     assert json.loads((stem.parent / (stem.name + ".json")).read_text())["best_eval"] is None
+    # an evaluation's score whose model is gone (a crash between them): the last model too
+    run = stem.parent / (stem.name + ".run")
+    (run / "best.json").write_text(json.dumps({"mean_reward": 0.0, "timesteps": 0}))
+    (run / "best_model.zip").unlink()
+    rl.train("ppo", "track", "truth", timesteps=2600, resume=True, **kw)
+    last = rl._latest_checkpoint(run / "checkpoints")
+    assert entries((stem.parent / (stem.name + ".zip")).read_bytes()) == entries(last.read_bytes())
 
 
 def test_init_from_fine_tunes(tmp_path, tiny_policy, monkeypatch):

@@ -132,6 +132,8 @@ def test_incl_lowpass_has_a_ceiling_where_the_butterworth_holds():
     assert fusion.make("ekf-lp", 1e6).incl_lowpass == pytest.approx(np.sqrt(2) / (2e-7 * np.pi * 1e6))
     fusion.make("ekf-lp", 1e3, incl_lowpass=2250.0)
     fusion.make("ekf-lp", 1e3, incl_lowpass=2250.79)           # the bound as the message prints it
+    fusion.make("ekf-lp", 7.0, incl_lowpass=0.157)              # (1.1 / 7 = 0.15714...)
+    fusion.make("ekf-lp", 2222.2222, incl_lowpass=1012.86)      # (1012.8596...)
     with pytest.raises(ValueError, match="incl_lowpass must be at most 2250.79 s"):
         fusion.make("ekf-lp", 1e3, incl_lowpass=2260.0)
 

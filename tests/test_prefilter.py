@@ -64,6 +64,7 @@ def test_butterworth_cutoff_has_a_floor_where_its_rounding_holds():
     for est in ("iir-ekf", "triad"):
         with pytest.raises(ValueError, match="cutoff_hz must be at least 1e-07 fs"):
             fusion.make(est, 200.0, cutoff_hz=0.5e-7 * 200.0)
+    fusion.Butterworth(1000.0049, 0.0001)       # the bound as its message prints it (1.0000049e-4)
     b, a = fusion.Butterworth(1.0, CUTOFF_MIN).coefficients
     assert abs(b.sum() / a.sum() - 1.0) < 1e-3
     assert np.all(np.abs(np.roots(a)) < 1.0)
