@@ -185,13 +185,8 @@ def run_all(jobs, progress=True):
 # ---------------------------------------------------------------------------------------------
 # tables
 
-def ranked_by(row):
-    """The error a row's cell is ranked by: total, or inclination in an INCLINATION_ONLY cell."""
-    return "inclination" if (row["set"], row["mode"]) in compare.INCLINATION_ONLY else "total"
-
-
 def add_ratio(rows, by):
-    """Each row's error (ranked_by) over the best (lowest) peer's of its group (``by`` keys,
+    """Each row's error (compare.ranked_by) over the best (lowest) peer's of its group (``by`` keys,
     which hold set and mode), in the column "÷ best peer", and over VQF's in "÷ VQF"; returns
     ``{group: (best ours row, best peer row)}``."""
     groups = {}
@@ -199,7 +194,7 @@ def add_ratio(rows, by):
         groups.setdefault(tuple(r[k] for k in by), []).append(r)
     best = {}
     for key, rs in groups.items():
-        k = ranked_by(rs[0])
+        k = compare.ranked_by(rs[0]["set"], rs[0]["mode"])
         ours = [r for r in rs if r["group"] == "ours"]
         prs = [r for r in rs if r["group"] == "peer"]
         bo = min(ours, key=lambda r: r[k]) if ours else None
@@ -268,7 +263,7 @@ def seed_verdicts(rows, names):
 # figure
 
 def bar_chart(agg, path, title):
-    """One panel per (set, mode): mean total RMSE (inclination in an INCLINATION_ONLY cell) of
+    """One panel per (set, mode): mean RMSE of the cell's error (compare.ranked_by) of
     every method, ours and peers in two colours, log axis (the gyro-only rows are orders of
     magnitude above the rest)."""
     groups = {}
@@ -280,7 +275,7 @@ def bar_chart(agg, path, title):
     fig = compare.new_figure(figsize=(15, height * nrow))
     axes = fig.subplots(nrow, ncol, squeeze=False)
     for ax, ((set_, mode), rs) in zip(axes.flat, groups.items()):
-        k = ranked_by(rs[0])
+        k = compare.ranked_by(rs[0]["set"], rs[0]["mode"])
         rs = sorted(rs, key=lambda r: r[k])
         y = np.arange(len(rs))
         vals = np.array([r[k] for r in rs])
@@ -417,7 +412,7 @@ def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows,
         stem = out / f"accuracy_{set_.replace(' ', '_')}_{mode}"
         kind = 'trials' if set_ not in (SYNTHETIC, SEED) else 'scenarios'
         only = ("; its reference heading is not north: inclination only, the ratios are of inclination"
-                if ranked_by(sub[0]) == "inclination" else "")
+                if compare.ranked_by(sub[0]["set"], sub[0]["mode"]) == "inclination" else "")
         written += compare.write_table(sub, stem, SET_COLS, title=f"{set_}, {mode}: mean RMSE (deg) over "
                                        f"{sub[0]['n_trials']} {kind}{only}")
     if cat_rows:
@@ -442,9 +437,8 @@ def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows,
     if verdicts:
         written += compare.write_table(verdicts, out / "accuracy_seed_verdicts", list(verdicts[0].keys()),
                                        title="Seed estimators vs gyro and mahony (total RMSE, deg)")
-    only = ", ".join(f"{s} {m}" for s, m in sorted(compare.INCLINATION_ONLY))
     png = bar_chart(agg, out / "accuracy.png", "Mean total RMSE per set and mode (6-axis: one heading "
-                    f"offset per run removed; {only}: inclination)") if agg else None
+                    f"offset per run removed; {compare.INCLINATION_ONLY_NAMES}: inclination)") if agg else None
     return written + ([png] if png else [])
 
 
@@ -491,8 +485,8 @@ def _report(out, settings, overall_md, target_txt, verdict_txt, feeding, ideal_r
     report = ["# Estimator accuracy: ours and peers, same run\n",
               f"Settings: {settings}; errors in degrees; 6-axis: one constant heading offset per run removed. "
               "Mean RMSE over the trials / scenarios of each set. 'ours / best peer' = best of ours / best peer "
-              "(total; inclination in " + ", ".join(f"{s} {m}" for s, m in sorted(compare.INCLINATION_ONLY))
-              + ", whose reference heading is not north: its total and heading are not scored).\n",
+              f"(total; inclination in {compare.INCLINATION_ONLY_NAMES}, whose reference heading is not "
+              "north: its total and heading are not scored).\n",
               "## Overall\n", overall_md,
               "## Targets\n", "```\n" + target_txt + "\n```\n",
               "## Seed estimators vs gyro and mahony (total RMSE)\n", "```\n" + verdict_txt + "\n```\n",

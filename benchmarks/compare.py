@@ -30,6 +30,12 @@ ERRORS = ("total", "heading", "inclination")
 # diodem's indoor field is strongly disturbed, its earth frame's y one IMU's mean field): only
 # their inclination is scored; their total and heading are NaN (inclination_only)
 INCLINATION_ONLY = {("diodem", "9-axis")}
+INCLINATION_ONLY_NAMES = ", ".join(f"{s} {m}" for s, m in sorted(INCLINATION_ONLY))     # for reports
+
+
+def ranked_by(set_, mode):
+    """The error a cell is judged and ranked by: total, or inclination in an INCLINATION_ONLY cell."""
+    return "inclination" if (set_, mode) in INCLINATION_ONLY else "total"
 
 
 def inclination_only(set_, mode, scores):

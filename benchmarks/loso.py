@@ -32,9 +32,6 @@ from controllers.evaluation import bootstrap_ci
 
 
 ERRORS = ("total", "heading", "inclination")
-# cells whose reference heading is not magnetic north: there a candidate is judged by
-# inclination alone, which the magnetometer's disturbances must not spoil
-INCLINATION_ONLY = compare.INCLINATION_ONLY
 
 
 class Cell:
@@ -187,10 +184,10 @@ def table(name, results, cells, with_cat=False):
 
 def objective(results, cells):
     """Mean over the cells of ours / VQF (total) plus the same for inclination, halved
-    (inclination alone in INCLINATION_ONLY cells): the figure a candidate is chosen by."""
+    (inclination alone in compare.INCLINATION_ONLY cells): the figure a candidate is chosen by."""
     def one(c):
         inc = ratio(results[c.key], c, "inclination")
-        return inc if (c.set, c.mode) in INCLINATION_ONLY else 0.5 * (ratio(results[c.key], c) + inc)
+        return inc if compare.ranked_by(c.set, c.mode) == "inclination" else 0.5 * (ratio(results[c.key], c) + inc)
     return float(np.mean([one(c) for c in cells]))
 
 
@@ -221,7 +218,7 @@ def loso(name, grid, cells, base=None, log=print):
 
 def ratio_chart(results, cells, path):
     """One bar per estimator: its mean ours / VQF figure (objective); one marker per cell on
-    it (total ratio; inclination ratio for INCLINATION_ONLY cells). 1 = VQF."""
+    it (total ratio; inclination ratio for compare.INCLINATION_ONLY cells). 1 = VQF."""
     names = list(results)
     fig = compare.new_figure(figsize=(1.3 * len(names) + 3, 4.5))
     ax = fig.subplots()
@@ -230,7 +227,7 @@ def ratio_chart(results, cells, path):
            label="mean figure (total + inclination ratio) / 2")
     markers = "osD^vP*X"
     for j, c in enumerate(cells):
-        k = "inclination" if (c.set, c.mode) in INCLINATION_ONLY else "total"
+        k = compare.ranked_by(c.set, c.mode)
         ys = [ratio(results[n][c.key], c, k) for n in names]
         ax.scatter(x + (j - len(cells) / 2) * 0.06, ys, marker=markers[j % len(markers)], zorder=3,
                    label=f"{c.key} ({k})")
@@ -246,11 +243,11 @@ def ratio_chart(results, cells, path):
 
 def worst_trials(results, cells):
     """The trial with the largest ratio to VQF, per error: total where the cell is judged by
-    it (not INCLINATION_ONLY), inclination in every cell. {error: (ratio, cell key, trial)}."""
+    it (not compare.INCLINATION_ONLY), inclination in every cell. {error: (ratio, cell key, trial)}."""
     worst = {}
     for c in cells:
         for n, o, v in zip(c.names, results[c.key], c.vqf):
-            for k in ("inclination",) if (c.set, c.mode) in INCLINATION_ONLY else ("total", "inclination"):
+            for k in ("inclination",) if (c.set, c.mode) in compare.INCLINATION_ONLY else ("total", "inclination"):
                 r = o[k] / v[k]
                 if r > worst.get(k, (-1.0,))[0]:
                     worst[k] = (r, c.key, n)

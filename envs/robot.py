@@ -34,18 +34,6 @@ DRIVE_JOINT = 0
 STEER_JOINT = 1
 
 
-# the units of RobotParams' numbers, for its range messages (SI: an angle in rad, a length in m)
-_UNITS = {
-    "shell_radius": "m", "shell_mass": "kg", "frame_mass": "kg", "pendulum_mass": "kg", "pendulum_length": "m",
-    "motor_voltage": "V", "motor_k": "N m/A", "motor_resistance": "ohm", "motor_friction": "N m s/rad",
-    "motor_torque_limit": "N m", "steer_max": "rad", "steer_torque": "N m", "steer_speed": "rad/s",
-    "spinning_friction": "m", "rolling_damping": "N m s/rad", "drive_coulomb": "N m", "drive_stiction": "N m",
-    "battery_resistance": "ohm", "steer_band": "rad", "steer_friction": "N m", "steer_stop": "rad",
-    "latency_s": "s", "contact_stiffness": "N/m", "contact_damping": "N s/m", "vib_motor": "m/s^2",
-    "vib_commutation": "m/s^2", "vib_gear": "m/s^2", "vib_seam": "m/s^2", "mag_steer": "uT", "mag_current": "uT/A",
-}
-
-
 @dataclass(frozen=True)
 class RobotParams:
     """Physical parameters of the robot (SI units). Defaults follow seed 000's robot.
@@ -150,25 +138,26 @@ class RobotParams:
     gear_teeth: float = 20.0
 
     def __post_init__(self):
-        # (SI: robot={...} takes these units; docs/envs/robot.md's table gives some in deg or cm)
+        # name: (low, high, SI unit for the message; robot={...} takes these units, where
+        # docs/envs/robot.md's table gives some in deg or cm)
         ranges = {
-            "shell_radius": (0.03, 2.0), "shell_mass": (1e-3, 100.0), "frame_mass": (1e-3, 100.0),
-            "pendulum_mass": (1e-3, 100.0), "pendulum_length": (0.0, None),
-            "motor_voltage": (1e-3, 1000.0), "motor_k": (1e-6, 100.0), "motor_resistance": (1e-6, 1e4),
-            "motor_friction": (0.0, 100.0), "motor_torque_limit": (1e-6, 1e4),
-            "steer_max": (0.0, math.radians(80.0)), "steer_torque": (1e-6, 1e4), "steer_speed": (1e-3, 1e3),
-            "lateral_friction": (0.0, 10.0), "rolling_resistance": (0.0, 1.0), "spinning_friction": (0.0, 1.0),
-            "rolling_damping": (0.0, 1.0), "drive_coulomb": (0.0, 10.0), "drive_stiction": (0.0, 10.0), "motor_deadband": (0.0, 0.5),
-            "battery_resistance": (0.0, 100.0), "steer_band": (0.0, math.radians(45.0)),
-            "steer_friction": (0.0, 10.0), "steer_stop": (0.0, math.radians(45.0)), "latency_s": (0.0, 0.1),
-            "contact_stiffness": (0.0, 1e9), "contact_damping": (0.0, 1e7),
-            "vib_motor": (0.0, 100.0), "vib_commutation": (0.0, 100.0), "vib_gear": (0.0, 100.0),
-            "vib_seam": (0.0, 100.0), "mag_steer": (0.0, 1000.0), "mag_current": (0.0, 1000.0), "gear_ratio": (1.0, 1000.0), "gear_teeth": (1.0, 1000.0),
+            "shell_radius": (0.03, 2.0, "m"), "shell_mass": (1e-3, 100.0, "kg"), "frame_mass": (1e-3, 100.0, "kg"),
+            "pendulum_mass": (1e-3, 100.0, "kg"), "pendulum_length": (0.0, None, "m"),
+            "motor_voltage": (1e-3, 1000.0, "V"), "motor_k": (1e-6, 100.0, "N m/A"), "motor_resistance": (1e-6, 1e4, "ohm"),
+            "motor_friction": (0.0, 100.0, "N m s/rad"), "motor_torque_limit": (1e-6, 1e4, "N m"),
+            "steer_max": (0.0, math.radians(80.0), "rad"), "steer_torque": (1e-6, 1e4, "N m"), "steer_speed": (1e-3, 1e3, "rad/s"),
+            "lateral_friction": (0.0, 10.0, ""), "rolling_resistance": (0.0, 1.0, ""), "spinning_friction": (0.0, 1.0, "m"),
+            "rolling_damping": (0.0, 1.0, "N m s/rad"), "drive_coulomb": (0.0, 10.0, "N m"), "drive_stiction": (0.0, 10.0, "N m"), "motor_deadband": (0.0, 0.5, ""),
+            "battery_resistance": (0.0, 100.0, "ohm"), "steer_band": (0.0, math.radians(45.0), "rad"),
+            "steer_friction": (0.0, 10.0, "N m"), "steer_stop": (0.0, math.radians(45.0), "rad"), "latency_s": (0.0, 0.1, "s"),
+            "contact_stiffness": (0.0, 1e9, "N/m"), "contact_damping": (0.0, 1e7, "N s/m"),
+            "vib_motor": (0.0, 100.0, "m/s^2"), "vib_commutation": (0.0, 100.0, "m/s^2"), "vib_gear": (0.0, 100.0, "m/s^2"),
+            "vib_seam": (0.0, 100.0, "m/s^2"), "mag_steer": (0.0, 1000.0, "uT"), "mag_current": (0.0, 1000.0, "uT/A"), "gear_ratio": (1.0, 1000.0, ""), "gear_teeth": (1.0, 1000.0, ""),
         }
-        for name, (lo, hi) in ranges.items():     # shell_radius first: pendulum_length's bound
+        for name, (lo, hi, unit) in ranges.items():     # shell_radius first: pendulum_length's bound
             hi = 0.9 * self.shell_radius if name == "pendulum_length" else hi
             object.__setattr__(self, name, number(f"robot.{name}", getattr(self, name), lo, hi,
-                                                  unit=f" {_UNITS[name]}" if name in _UNITS else ""))
+                                                  unit=f" {unit}" if unit else ""))
         self._check_relations()
         object.__setattr__(self, "encoder_cpr", integer("robot.encoder_cpr", self.encoder_cpr, 1, 10 ** 7))
         for name in ("frame_size", "pendulum_size"):

@@ -307,7 +307,7 @@ cdef int _claim(Estimator e) except -1:
     and the set run with the GIL held and call no Python code, so for Python threads they
     are one step."""
     _ready(e)
-    _hold(e)
+    mark_in_use(e, True)
     return 0
 
 

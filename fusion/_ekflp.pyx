@@ -38,9 +38,10 @@ cdef void butterworth_coefficients(EKFLP e, double dt) noexcept nogil:
     spacing (VQF designs it once, at its fixed sample time). Computed again only when dt
     changes."""
     if dt != e.coef_dt:
-        # tan(π fc dt), held at the Butterworth's floor (fusion/_prefilter.pxd) for a step much
-        # shorter than the nominal period, which incl_lowpass's range was checked against
-        butterworth2_design(fmax(tan(dt / (M_SQRT2 * e.incl_lowpass)), tan(M_PI * C_CUTOFF_MIN)), &e.c)
+        # tan(π fc dt), held at the Butterworth's floor (fusion/_prefilter.pxd; π fc dt there, whose
+        # tangent differs by 3e-14 of it) for a step much shorter than the nominal period, which
+        # incl_lowpass's range was checked against
+        butterworth2_design(fmax(tan(dt / (M_SQRT2 * e.incl_lowpass)), M_PI * C_CUTOFF_MIN), &e.c)
         e.coef_dt = dt
 
 
