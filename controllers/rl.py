@@ -667,14 +667,21 @@ def _checked_env_kwargs(task, estimator, env_kwargs):
 
 def _prepare_run_dir(run_dir, ckpt_dir, resume, overwrite, log):
     """Refuse to mix runs: an earlier run's checkpoints need ``resume`` or ``overwrite`` (which
-    moves the earlier run directory aside); ``resume`` needs a checkpoint; both together are refused."""
+    moves the earlier run directory aside); ``resume`` needs a checkpoint; both together are refused.
+    A new run moves aside any earlier run directory, also one without checkpoints (killed
+    before its first): its best.json and best_model.zip would otherwise be shipped as this run's."""
     if resume and overwrite:
         raise ValueError("resume continues the run in the work directory and overwrite starts it over: give one")
-    if not resume and _latest_checkpoint(ckpt_dir) is not None:
-        if not overwrite:
-            raise FileExistsError(f"{ckpt_dir} holds checkpoints of an earlier run: --resume to continue it, or "
-                                  f"--overwrite to start over (the earlier run directory is then kept aside)")
-        aside = Path(f"{run_dir}.old-{time.strftime('%Y%m%d-%H%M%S')}")
+    run_dir = Path(run_dir)
+    if not resume and _latest_checkpoint(ckpt_dir) is not None and not overwrite:
+        raise FileExistsError(f"{ckpt_dir} holds checkpoints of an earlier run: --resume to continue it, or "
+                              f"--overwrite to start over (the earlier run directory is then kept aside)")
+    if not resume and run_dir.is_dir() and any(run_dir.iterdir()):
+        aside = stamp = f"{run_dir}.old-{time.strftime('%Y%m%d-%H%M%S')}"
+        n = 1
+        while Path(aside).exists():         # (a second start in the same second)
+            n += 1
+            aside = f"{stamp}-{n}"
         os.replace(run_dir, aside)
         log(f"the earlier run directory is now {aside}")
     if resume and not _checkpoints(ckpt_dir):

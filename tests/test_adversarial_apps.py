@@ -5,6 +5,7 @@ answer); where a hang or a crash is possible it runs in a subprocess with a time
 """
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -357,3 +358,23 @@ def test_commands_check_out_before_the_work(tmp_path):
         with pytest.raises(SystemExit) as e:
             importlib.import_module(module).main(["--quick", "--out", str(blocker)])
         assert "cannot be written" in str(e.value.code), module
+
+
+def test_new_run_moves_aside_a_run_without_checkpoints(tmp_path):
+    """A run killed after its start's evaluation but before its first checkpoint left
+    best.json and best_model.zip; a new run (no evaluation of its own) shipped that stale
+    model as its own. Now any earlier run directory is moved aside, twice in a second too."""
+    from controllers import rl
+    stem = tmp_path / "ppo-track-gyro"
+    run_dir = tmp_path / "ppo-track-gyro.run"
+    for k in range(2):
+        run_dir.mkdir()
+        (run_dir / "best_model.zip").write_bytes(b"stale")
+        (run_dir / "best.json").write_text('{"mean_reward": 1e9, "timesteps": 1}')
+        rl.train("ppo", "track", "gyro", timesteps=64, out=stem, log=lambda *a: None,
+                 **{**TINY, "eval_freq": 10_000, "checkpoint_freq": 10_000})
+        assert zipfile.is_zipfile(str(stem) + ".zip")
+        assert json.loads((tmp_path / "ppo-track-gyro.json").read_text())["best_eval"] is None
+        asides = sorted(tmp_path.glob("ppo-track-gyro.run.old-*"))
+        assert len(asides) == k + 1 and all((a / "best_model.zip").read_bytes() == b"stale" for a in asides)
+        shutil.rmtree(run_dir)
