@@ -420,12 +420,14 @@ cdef class BankCore:
         """Mark every filter (and its prefilters) in use for a step, as its own run would: a
         filter object reached from elsewhere (envs.vector's robots hold theirs) is refused
         meanwhile, its __init__ included, rather than changed under the step. Tested, then
-        set, with the GIL held and no Python code between (one step for Python threads)."""
-        cdef Py_ssize_t i
+        set in one pass, with the GIL held and no Python code between (one step for Python
+        threads); the bank's filters are distinct objects, so a flag found set is another's."""
+        cdef Py_ssize_t i, j
         for i in range(self.count):
             if in_use(<Estimator>self.p[i]):
+                for j in range(i):
+                    mark_in_use(<Estimator>self.p[j], False)
                 raise RuntimeError("estimator in use by another thread")
-        for i in range(self.count):
             mark_in_use(<Estimator>self.p[i], True)
         return 0
 

@@ -369,6 +369,30 @@ def test_a_step_holds_the_filter_objects(data, name):
     assert np.isfinite(bank.run(G, A, M)).all()
 
 
+def test_a_refused_step_releases_what_it_held(data):
+    """A step that finds its last filter in use (its own run in another thread) is refused,
+    and leaves the filters it had marked before it free."""
+    G, A, M = data
+    GG, AA, MM = (np.concatenate([x] * 400) for x in (G, A, M))
+    bank = fusion.make_bank("ekf", 100.0, COUNT)
+    last = bank._filters[-1]
+    worker = threading.Thread(target=lambda: last.run(GG[:, -1], AA[:, -1], MM[:, -1]))
+    worker.start()
+    refused = False
+    deadline = time.monotonic() + 30.0
+    while worker.is_alive() and time.monotonic() < deadline and not refused:
+        try:
+            bank.update(G[0], A[0], M[0])
+        except RuntimeError as e:
+            assert str(e) == "estimator in use by another thread"
+            refused = worker.is_alive()
+            for f in bank._filters[:-1]:
+                f.state()           # free: raises if the refused step left it marked
+    worker.join()
+    assert refused, "the filter's run finished before the bank's step met it"
+    assert np.isfinite(bank.update(G[0], A[0], M[0])).all()
+
+
 def test_in_use_guard_and_threads(data):
     """While one thread steps a bank (the GIL released), another thread's call on the same
     bank is refused; separate banks in separate threads give the sequential numbers."""
