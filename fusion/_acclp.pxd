@@ -5,6 +5,7 @@
 # fusion._core.struct_fields(<AccLowpass[:1]>&..., ACC_LP_CHECKS, "acc_")).
 from libc.math cimport M_PI
 from fusion._qmath cimport half_angle_terms, rot_to_body
+from fusion._rest cimport lasted
 
 
 cdef struct AccLowpass:
@@ -52,7 +53,7 @@ cdef inline void acc_gyro_lowpass(double tau, AccLowpass* s, const double* gyr,
             lp[1] = t[1]
             lp[2] = t[2]
         s.lp_time += dt
-        if s.lp_time > tau:
+        if lasted(s.lp_time, tau):      # (the steps' sum may fall short of tau by round-off)
             s.lp_time = tau
         k = dt / (s.lp_time + dt)
         lp[0] += k * (acc[0] - lp[0])

@@ -11,6 +11,7 @@ from libc.string cimport memset
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
 from fusion._aided cimport mag_accepted
+from fusion._rest cimport outlasted
 from fusion._core import struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table
@@ -196,7 +197,7 @@ cdef class AEKF(EKF):
                 # drifts with a wrong bias, which only accepted samples correct): a linear
                 # acceleration, unless this lasts so long that the estimate must be wrong
                 self.ad.t_dir += dt
-                acc_rej = self.ad.t_dir <= self.acc_pred_timeout
+                acc_rej = not outlasted(self.ad.t_dir, self.acc_pred_timeout)
             else:
                 self.ad.t_dir = 0.0
             self.ad.n_acc_tested += 1

@@ -463,12 +463,12 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         u[i] = EKB_S(EB_MDIRC + i) - EKB_S(EB_MDIRS + i);
         r2 += u[i] * u[i];
     }
-    turned = EKB_S(EB_MSET) >= FUSION_MAGD_FIRST_TIME && r2 > FUSION_MAGD_DIR_TOL * FUSION_MAGD_DIR_TOL;
+    turned = FUSION_LASTED(EKB_S(EB_MSET), FUSION_MAGD_FIRST_TIME) && r2 > FUSION_MAGD_DIR_TOL * FUSION_MAGD_DIR_TOL;
     EKB_S(EB_MTF) = turned ? 0.0 : EKB_S(EB_MTF) + dt;
     k = dt / (FUSION_MAGD_CUR_TAU + dt);
     for (i = 0; i < 2; i++)
         cur[i] += k * (x[i] - cur[i]);
-    if (EKB_S(EB_MSET) < FUSION_MAGD_FIRST_TIME) {     /* settling: the reference's dip is the current one */
+    if (!FUSION_LASTED(EKB_S(EB_MSET), FUSION_MAGD_FIRST_TIME)) {     /* settling: the reference's dip is the current one */
         ref[1] = cur[1];
         cand[1] = cur[1];
         EKB_S(EB_MSET) += dt;
@@ -476,7 +476,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
     k = dt / (FUSION_MAGD_REF_TAU + dt);
     if (ekb_magd_close(cur, ref, ntol, dtol)) {
         EKB_S(EB_MTU) += dt;
-        if (EKB_S(EB_MTU) >= FUSION_MAGD_MIN_UNDIST) {
+        if (FUSION_LASTED(EKB_S(EB_MTU), FUSION_MAGD_MIN_UNDIST)) {
             disturbed = 0;
             for (i = 0; i < 2; i++)
                 ref[i] += k * (cur[i] - ref[i]);
@@ -491,8 +491,8 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
             EKB_S(EB_MTC) += dt;
         for (i = 0; i < 2; i++)
             cand[i] += k * (cur[i] - cand[i]);
-        if (disturbed && EKB_S(EB_MTC) >= EKB_S(EB_MNEW)
-            && EKB_S(EB_MTF) >= FUSION_MAGD_FIXED_HOLD) {     /* magd_relearn(cand) */
+        if (disturbed && FUSION_LASTED(EKB_S(EB_MTC), EKB_S(EB_MNEW))
+            && FUSION_LASTED(EKB_S(EB_MTF), FUSION_MAGD_FIXED_HOLD)) {     /* magd_relearn(cand) */
             ref[0] = cand[0];
             ref[1] = cand[1];
             disturbed = 0;
@@ -517,7 +517,7 @@ static inline int ekb_magd(double* d, size_t cap, size_t l, const double* q, con
         return 1;
     }
     EKB_S(EB_MTR) += dt;
-    if (EKB_S(EB_MTR) > EKB_S(EB_MTIME) && EKB_S(EB_MTF) >= FUSION_MAGD_FIXED_HOLD) {      /* magd_relearn(cur) */
+    if (FUSION_OUTLASTED(EKB_S(EB_MTR), EKB_S(EB_MTIME)) && FUSION_LASTED(EKB_S(EB_MTF), FUSION_MAGD_FIXED_HOLD)) {      /* magd_relearn(cur) */
         EKB_S(EB_MREF) = cur[0];
         EKB_S(EB_MREF + 1) = cur[1];
         EKB_S(EB_MDIST) = 0.0;
@@ -586,7 +586,7 @@ static inline size_t ekfb_fast(double* d, size_t cap, size_t n, const double* g,
                 * the scalar kernel) */
                && (EKB_S(EB_TAU) <= 0.0 || (EKB_S(EB_LPS) != 0.0
                                             && !(EKB_S(EB_LPT) < EKB_S(EB_TAU)
-                                                 && EKB_S(EB_LPT) + hl >= EKB_S(EB_TAU))))
+                                                 && FUSION_LASTED(EKB_S(EB_LPT) + hl, EKB_S(EB_TAU)))))
                && (ml == NULL || EKB_S(EB_MTIME) <= 0.0 || EKB_S(EB_MSET) > 0.0);
         EKB_S(EB_FAST) = fast ? 1.0 : 0.0;
         slow += !fast;
@@ -684,12 +684,12 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         t = ekb_sel(still, EKB_LD(EB_RT) + dt, ekb_bc(0.0));
         t = ekb_sel(on, t, EKB_LD(EB_RT));
         EKB_ST(EB_RT, t);
-        rest = on & (t >= EKB_LD(EB_RTIME));
+        rest = on & FUSION_LASTED(t, EKB_LD(EB_RTIME));
         pending = summing & rest;
         if (ekb_any(rest)) {
             ekb_v gk = EKB_LD(EB_RGATE), lim;
             /* rest_gate_open: a short still run whose low-pass is far from the bias waits */
-            ekb_m gated = (gk > 0.0) & (t < EKB_LD(EB_RGATET)), far = {0, 0, 0, 0};
+            ekb_m gated = (gk > 0.0) & ~FUSION_LASTED(t, EKB_LD(EB_RGATET)), far = {0, 0, 0, 0};
             EKB_ST(EB_RN, EKB_LD(EB_RN) + ekb_sel(rest, ekb_bc(1.0), ekb_bc(0.0)));
             for (i = 0; i < 3; i++) {
                 dd = rg[i] - b[i];
@@ -733,7 +733,7 @@ static inline void ekfb_block(double* d, size_t cap, size_t l, int nine, double 
         t[1] = 2.0 * (x*y - w*z) * lp[0] + (w*w - x*x + y*y - z*z) * lp[1] + 2.0 * (y*z + w*x) * lp[2];
         t[2] = 2.0 * (x*z + w*y) * lp[0] + 2.0 * (y*z - w*x) * lp[1] + (w*w - x*x - y*y + z*z) * lp[2];
         lpt = EKB_LD(EB_LPT) + dt;
-        lpt = ekb_sel(lpt > tau, tau, lpt);
+        lpt = ekb_sel(FUSION_LASTED(lpt, tau), tau, lpt);
         k = dt / (lpt + dt);
         for (i = 0; i < 3; i++) {
             lp[i] = t[i] + k * (a[i] - t[i]);

@@ -10,6 +10,7 @@ from fusion._core cimport quat_out
 from fusion._core import struct_fields, TIMER
 from fusion._ekf cimport EKF
 from fusion._acclp cimport acc_lowpass_lost
+from fusion._rest cimport lasted
 from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step, C_CUTOFF_MIN
 from fusion.params import Param, table
 from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \
@@ -95,7 +96,7 @@ cdef void incl_step(EKFLP e, const double* gyr, const double* acc, double dt) no
         return
     # the start ends (the steps summed may fall short of a whole multiple by round-off): the
     # Butterworth's steady state on the mean
-    if s.t >= e.incl_lowpass * (1.0 - 1e-9):
+    if lasted(s.t, e.incl_lowpass):
         s.t = e.incl_lowpass
         butterworth_coefficients(e, dt)
         for i in range(3):

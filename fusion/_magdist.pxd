@@ -12,6 +12,7 @@
 # filters using the magnetometer hold, as they hold a RestDetector.
 from libc.math cimport sqrt, asin, M_PI
 from libc.string cimport memset
+from fusion._rest cimport lasted, outlasted
 
 cdef struct MagDistState:
     double cur[2]       # the low-passed (norm, dip) of the current sample
@@ -140,7 +141,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     uy = d.dir_cur[1] - d.dir_slow[1]
     uz = d.dir_cur[2] - d.dir_slow[2]
     r2 = ux * ux + uy * uy + uz * uz
-    turned = d.t_settle >= MAGD_FIRST_TIME and r2 > MAGD_DIR_TOL * MAGD_DIR_TOL
+    turned = lasted(d.t_settle, MAGD_FIRST_TIME) and r2 > MAGD_DIR_TOL * MAGD_DIR_TOL
     if turned:
         d.t_fixed = 0.0
     else:
@@ -148,7 +149,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     k = dt / (MAGD_CUR_TAU + dt)
     for i in range(2):
         d.cur[i] += k * (x[i] - d.cur[i])
-    if d.t_settle < MAGD_FIRST_TIME:
+    if not lasted(d.t_settle, MAGD_FIRST_TIME):
         # settling: the dip is measured with the filter's attitude, which may start several
         # degrees off (a first accelerometer sample with linear acceleration in it); a dip
         # reference taken then would hold the true field out as disturbed for `time` s. For
@@ -160,7 +161,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
     k = dt / (MAGD_REF_TAU + dt)
     if magd_close(d.cur, d.ref, m):
         d.t_undist += dt
-        if d.t_undist >= MAGD_MIN_UNDIST:
+        if lasted(d.t_undist, MAGD_MIN_UNDIST):
             d.disturbed = False
             for i in range(2):
                 d.ref[i] += k * (d.cur[i] - d.ref[i])
@@ -174,7 +175,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
             d.t_cand += dt
         for i in range(2):
             d.cand[i] += k * (d.cur[i] - d.cand[i])
-        if d.disturbed and d.t_cand >= m.new_time and d.t_fixed >= MAGD_FIXED_HOLD:
+        if d.disturbed and lasted(d.t_cand, m.new_time) and lasted(d.t_fixed, MAGD_FIXED_HOLD):
             magd_relearn(d, d.cand)
     else:
         d.t_cand = 0.0
@@ -186,7 +187,7 @@ cdef inline bint magd_check(MagDetector m, const double* q, const double* mag,
             d.t_reject = 0.0
         return True
     d.t_reject += dt
-    if d.t_reject > m.time and d.t_fixed >= MAGD_FIXED_HOLD:     # rejected for too long: this field is the reference now
+    if outlasted(d.t_reject, m.time) and lasted(d.t_fixed, MAGD_FIXED_HOLD):     # rejected for too long: this field is the reference now
         magd_relearn(d, d.cur)
         d.t_reject = 0.0
         return True

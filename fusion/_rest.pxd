@@ -37,6 +37,10 @@ cdef extern from "_rest.h":
     # s: the low-passes (VQF's restFilterTau); the still tests' low-pass (fusion/_rest.h)
     double REST_TAU "FUSION_REST_TAU"
     double STILL_TAU "FUSION_REST_STILL_TAU"
+    # t (s summed from sample steps) has reached duration / gone beyond it, within the
+    # steps' rounding (fusion/_rest.h)
+    bint lasted "FUSION_LASTED"(double t, double duration) noexcept nogil
+    bint outlasted "FUSION_OUTLASTED"(double t, double duration) noexcept nogil
 
 
 cdef inline void rest_clear(RestDetector r) noexcept nogil:
@@ -152,7 +156,7 @@ cdef inline bint rest_detect(RestDetector r, const double* gyr, const double* ac
     elif still:
         still = rest_in_place(r)
     rest_count(r, still, gyr, dt)
-    if r.t < r.time:
+    if not lasted(r.t, r.time):
         return False
     r.n += 1
     return True
@@ -188,7 +192,7 @@ cdef inline bint rest_gate_open(RestDetector r, const double* b, double v0, doub
     cdef double v[3]
     cdef double d
     cdef int i
-    if r.gate <= 0.0 or r.t >= r.gate_time:
+    if r.gate <= 0.0 or lasted(r.t, r.gate_time):
         return True
     v[0] = v0
     v[1] = v1

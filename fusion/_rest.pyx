@@ -39,7 +39,7 @@ cdef class RestDetector:
     def at_rest(self):
         """True while the detector holds (the last sample was at rest: a zero-rate update, unless
         a Kalman filter's rest_bias_gate held it)."""
-        return self.time > 0.0 and self.t >= self.time
+        return self.time > 0.0 and lasted(self.t, self.time)
 
     @property
     def samples(self):

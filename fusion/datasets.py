@@ -8,10 +8,12 @@ rows where the reference was lost), ``fs``,
 ``quality`` (``'ok'`` or a reason not to score the trial) and ``notes``. Any other arrays in
 the file (e.g. ``q_align``, ``q_earth_fix``) are kept in ``Trial.extra``.
 
+    import fusion
     from fusion import datasets
     root = datasets.default_data_dir()          # None where the folder is absent
     for trial in datasets.load_folder(root):
         if trial.ok:
+            est = fusion.make("ekf-lp", trial.fs)
             q = est.run(trial.gyr, trial.acc, trial.mag, dt=trial.dt)
 """
 import os

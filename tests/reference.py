@@ -38,6 +38,17 @@ C_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 CS_STEP = 1e-30
 PARALLEL_TOL = 1e-9
+STEP_SUM_TOL = 1e-9     # a duration summed from sample steps: its rounding
+
+
+def lasted(t, duration):
+    """t (s summed from steps) has reached duration."""
+    return t >= duration * (1.0 - STEP_SUM_TOL)
+
+
+def outlasted(t, duration):
+    """t (s summed from steps) has gone beyond duration."""
+    return t > duration * (1.0 + STEP_SUM_TOL)
 
 
 # --- quaternion algebra -----------------------------------------------------------------
@@ -374,17 +385,17 @@ class RefMagDist:
         # held its direction FIXED_HOLD s
         self.dir_cur = self.dir_cur + dt / (self.CUR_TAU + dt) * (u - self.dir_cur)
         self.dir_slow = self.dir_slow + dt / (self.DIR_TAU + dt) * (self.dir_cur - self.dir_slow)
-        turned = self.t_settle >= self.FIRST_TIME and np.linalg.norm(self.dir_cur - self.dir_slow) > self.DIR_TOL
+        turned = lasted(self.t_settle, self.FIRST_TIME) and np.linalg.norm(self.dir_cur - self.dir_slow) > self.DIR_TOL
         self.t_fixed = 0.0 if turned else self.t_fixed + dt
-        may_relearn = self.t_fixed >= self.FIXED_HOLD
+        may_relearn = lasted(self.t_fixed, self.FIXED_HOLD)
         self.cur = self.cur + dt / (self.CUR_TAU + dt) * (x - self.cur)
-        if self.t_settle < self.FIRST_TIME:     # settling: the reference's dip is the current one
+        if not lasted(self.t_settle, self.FIRST_TIME):     # settling: the reference's dip is the current one
             self.ref[1] = self.cand[1] = self.cur[1]
             self.t_settle += dt
         k = dt / (self.REF_TAU + dt)
         if self._close(self.cur, self.ref):
             self.t_undist += dt
-            if self.t_undist >= self.MIN_UNDIST:
+            if lasted(self.t_undist, self.MIN_UNDIST):
                 self.disturbed = False
                 self.ref = self.ref + k * (self.cur - self.ref)
         else:
@@ -394,7 +405,7 @@ class RefMagDist:
             if gyr is not None and np.linalg.norm(gyr) >= self.NEW_MIN_GYR:
                 self.t_cand += dt
             self.cand = self.cand + k * (self.cur - self.cand)
-            if self.disturbed and self.t_cand >= self.new_time and may_relearn:
+            if self.disturbed and lasted(self.t_cand, self.new_time) and may_relearn:
                 self._relearn(self.cand)
         else:
             self.t_cand = 0.0
@@ -403,7 +414,7 @@ class RefMagDist:
             self.t_reject = max(self.t_reject - self.DECAY * dt, 0.0)
             return True
         self.t_reject += dt
-        if self.t_reject > self.time and may_relearn:
+        if outlasted(self.t_reject, self.time) and may_relearn:
             self._relearn(self.cur)
             self.t_reject = 0.0
             return True
@@ -431,7 +442,9 @@ def acc_lowpass_step(est, gyr, b, acc, dt, start_ended=None):
         est.acc_lp, est.acc_lp_time = an, 0.0
     else:
         settling = est.acc_lp_time < est.acc_lowpass
-        est.acc_lp_time = min(est.acc_lp_time + dt, est.acc_lowpass)
+        est.acc_lp_time += dt
+        if lasted(est.acc_lp_time, est.acc_lowpass):
+            est.acc_lp_time = est.acc_lowpass
         est.acc_lp = est.acc_lp + dt / (est.acc_lp_time + dt) * (an - est.acc_lp)
         if settling and est.acc_lp_time >= est.acc_lowpass and start_ended is not None:
             start_ended(dt)
@@ -600,7 +613,7 @@ class RefRest:
         if still and not self.taken:
             self.run.append((gyr, dt))
         self.t = self.t + dt if still else 0.0
-        if self.t >= self.time:
+        if lasted(self.t, self.time):
             self.n += 1
             return True
         return False
@@ -620,7 +633,7 @@ class RefRest:
         """A Kalman filter's zero-rate update at rest goes ahead unless the still run is shorter
         than gate_time and the gyro's low-pass is more than gate standard deviations (var: the
         bias estimate b's variances) plus the gyro drift tolerance from b on some axis."""
-        if gate <= 0 or self.t >= gate_time:
+        if gate <= 0 or lasted(self.t, gate_time):
             return True
         return bool(np.all(np.abs(self.lp[0] - b) <= gate * np.sqrt(var) + self.drift_tol[0]))
 
@@ -822,7 +835,7 @@ class RefEKFLP(RefEKF):
                 self.il_z = (b[1] * x - a[1] * y + z1, b[2] * x - a[2] * y)
                 self.il_y = y
                 return
-        if self.il_t >= self.incl_lowpass * (1 - 1e-9):     # the start ends: steady state on the mean
+        if lasted(self.il_t, self.incl_lowpass):     # the start ends: steady state on the mean
             b, a = butterworth2(self.incl_lowpass, 1.0 / dt)
             self.il_t = self.incl_lowpass
             self.il_z = (self.il_y * (1 - b[0]), self.il_y * (b[2] - a[2]))

@@ -170,7 +170,7 @@ class RefAEKF(ref.RefEKF):
             self.t_dir = 0.0
         elif off_g or np.linalg.norm(acc - g * u) > self.acc_pred_tol:     # low-passed: timed out too
             self.t_dir += dt
-            rej = self.t_dir <= self.acc_pred_timeout
+            rej = not ref.outlasted(self.t_dir, self.acc_pred_timeout)
         else:
             rej = False
             self.t_dir = 0.0

@@ -76,6 +76,30 @@ def test_rest_properties_exactly_where_rest_is_declared(name):
         assert [p for p in REST_PROPERTIES + ("rest",) if hasattr(est, p)] == []
 
 
+@pytest.mark.parametrize("name", [n for n in NAMES if "rest_time" in type(fusion.make(n, FS)).PARAMS])
+def test_rest_time_reached_whatever_the_steps_rounding(name):
+    """A still start of exactly rest_time (the 50 steps of 1/125 s after the detector's first
+    sample = 0.4 s): steps from time stamps
+    that equal 1/fs to 1e-13 sum just short of 0.4 and made the first zero-rate update one
+    sample late, after the motion had begun (a recorded trial's error 0.82 -> 1.83 deg); now a
+    summed duration counts within its rounding, and the stamps give the nominal steps' result."""
+    fs, n = 125.0, 400
+    rng = np.random.default_rng(3)
+    gyr = 0.01 + 1e-4 * rng.standard_normal((n, 3))
+    gyr[51:] += 1.0                         # motion from the 52nd sample on
+    acc = np.tile([0.0, 0.0, G], (n, 1)) + 1e-3 * rng.standard_normal((n, 3))
+    a, b, c = (fusion.make(name, fs) for _ in range(3))
+    qa = a.run(gyr, acc)
+    qb = b.run(gyr, acc, dt=np.full(n, (1.0 / fs) * (1.0 - 1e-13)))
+    c.run(gyr[:51], acc[:51])
+    assert c.at_rest and a.rest_samples == b.rest_samples >= 1
+    np.testing.assert_allclose(qb, qa, atol=1e-9)
+    for t in (a, b, c):
+        t.reset()
+    c.run(gyr[:50], acc[:50])
+    assert not c.at_rest                    # one step short of rest_time is not rest
+
+
 EVERY_PARAM = sorted({p for n in NAMES for p in type(fusion.make(n, FS)).PARAMS})
 
 
