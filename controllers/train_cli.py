@@ -191,11 +191,14 @@ def _grid(a, ap, tasks, env_kwargs, override, timesteps, argv):
     from controllers import train_grid
     if a.out is not None:
         ap.error("--out names one run; a grid writes LOG_FOLDER/<algo>-<task>-<estimator>[-seed<S>] (-f)")
-    jobs = train_grid.grid_jobs(
-        a.algo, tasks, a.estimator, a.seed, a.log_folder, timesteps, init_from=a.init_from,
-        final_episodes=a.eval_episodes, env_kwargs=env_kwargs, n_envs=a.n_envs, eval_freq=a.eval_freq,
-        checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes, bc_steps=a.bc_steps,
-        hyperparams_override=override, trusted=a.trusted, vec_env=a.vec_env)
+    try:
+        jobs = train_grid.grid_jobs(
+            a.algo, tasks, a.estimator, a.seed, a.log_folder, timesteps, init_from=a.init_from,
+            final_episodes=a.eval_episodes, env_kwargs=env_kwargs, n_envs=a.n_envs, eval_freq=a.eval_freq,
+            checkpoint_freq=a.save_freq, eval_episodes=a.n_eval_episodes, bc_steps=a.bc_steps,
+            hyperparams_override=override, trusted=a.trusted, vec_env=a.vec_env)
+    except ValueError as e:             # (a start policy template with another field)
+        ap.error(f"--init-from: {e}")
     command = " ".join(shlex.quote(x) for x in (sys.argv[1:] if argv is None else argv))
     for j in jobs:
         j["command"] = f"spherebot-train {command}  # grid job {j['task']} {j['estimator']} seed {j['seed']}"

@@ -32,11 +32,24 @@ def grid_jobs(algo, tasks, estimators, seeds, out, timesteps=None, init_from=Non
         for est in estimators:
             for seed in seeds:
                 n = timesteps.get(task) if isinstance(timesteps, dict) else timesteps
-                start = None if init_from is None else init_from.format(task=task, estimator=est, seed=seed)
+                start = None if init_from is None else _start_for(init_from, task, est, seed)
                 jobs.append(dict(train_kwargs, algo=algo, task=task, estimator=est, seed=seed, timesteps=n,
                                  init_from=start, final_episodes=final_episodes,
                                  stem=str(rl.policy_stem(algo, task, est, out, seed))))
     return jobs
+
+
+def _start_for(template, task, estimator, seed):
+    """``init_from`` with ``{task}``, ``{estimator}`` and ``{seed}`` replaced; a ValueError
+    naming the template where it holds another field or a stray brace."""
+    if template == rl.TEACHER:
+        return template
+    try:
+        return template.format(task=task, estimator=estimator, seed=seed)
+    except (KeyError, IndexError, ValueError) as e:
+        raise ValueError(f"init_from {template!r}: {type(e).__name__} {e}; a grid's start policy may name "
+                         f"{{task}}, {{estimator}} and {{seed}}, no other field (a literal brace is written "
+                         f"twice)") from None
 
 
 def _published(job):
@@ -54,28 +67,41 @@ def job_done(job, meta=None) -> bool:
     (settings_differ; run_train_grid refuses a job whose settings differ before any work)."""
     meta = _published(job) if meta is None else meta
     return (meta is not None and (job["final_episodes"] == 0 or "final_evaluation" in meta)
-            and (job.get("timesteps") is None or meta.get("timesteps") == job["timesteps"])
+            and meta.get("timesteps") == _resolved(job)[2]
             and not settings_differ(job, meta))
+
+
+def _resolved(job):
+    """(hyperparameters, n_envs, timesteps) the job trains with: its overrides on the YAML
+    file's, and the file's n_envs and n_timesteps where the job gives none (rl._plan's rule)."""
+    hp = rl._run_hyperparams(job["algo"], job["task"], job.get("hyperparams_override"))[1]
+    n_envs = job.get("n_envs") if job.get("n_envs") is not None else hp.get("n_envs", 2)
+    timesteps = job.get("timesteps") if job.get("timesteps") is not None else hp["n_timesteps"]
+    return hp, n_envs, timesteps
 
 
 def settings_differ(job, meta) -> list[str]:
     """The settings of ``job`` that its published JSON ``meta`` does not record, of those a
-    resume may not change (a run's identity, as rl's): seed, environment arguments,
-    hyperparameter overrides, the start policy (before, a --resume of a grid with
-    --init-from pid and another learning rate took the earlier run for done). A job with
-    more timesteps is not done, and its run continues to them, as a single run's resume."""
+    resume may not change (a run's identity, as rl's): seed, environment arguments, every
+    hyperparameter as resolved (the YAML file's with the overrides: before, only the entries
+    overridden now were compared, and a run trained with an override was taken for done
+    without it), n_envs, the start policy. A job with more timesteps is not done, and its run
+    continues to them, as a single run's resume."""
     out = []
     if job.get("seed") is not None and meta.get("seed") != job["seed"]:
         out.append(f"seed {meta.get('seed')!r} recorded, {job['seed']!r} now")
     if json.loads(json.dumps(job.get("env_kwargs") or {})) != (meta.get("env_kwargs") or {}):
         out.append(f"env_kwargs {meta.get('env_kwargs')!r} recorded, {job.get('env_kwargs')!r} now")
-    hp = meta.get("hyperparams") or {}
+    hp, n_envs, _ = _resolved(job)
+    rec = meta.get("hyperparams") or {}
     cloned = str(meta.get("init_from") or "").startswith(rl.TEACHER)
-    for k, v in (job.get("hyperparams_override") or {}).items():
+    for k in sorted(set(hp) | set(rec)):
         if cloned and k == "learning_starts":       # (a SAC clone records the 0 it sets)
             continue
-        if json.loads(json.dumps(v)) != hp.get(k):
-            out.append(f"hyperparameter {k} {hp.get(k)!r} recorded, {v!r} now")
+        if json.loads(json.dumps(hp.get(k))) != rec.get(k):
+            out.append(f"hyperparameter {k} {rec.get(k)!r} recorded, {hp.get(k)!r} now")
+    if meta.get("n_envs") != n_envs:
+        out.append(f"n_envs {meta.get('n_envs')!r} recorded, {n_envs!r} now")
     init, rec = job.get("init_from"), meta.get("init_from")
     if init is None or rec is None:
         same = init is None and rec is None
@@ -193,11 +219,16 @@ def _run_local(jobs, workers, done):
 def _run_ray(jobs, address, workers, done):
     from controllers.compare import ray_session
     portable = [_portable(j) for j in jobs]
+    # a job's environments are processes of their own: it takes their CPUs
+    cpus = [max(1, _resolved(j)[1]) for j in jobs]
     with ray_session(address, workers) as ray:
+        have = ray.cluster_resources().get("CPU", 0)
+        if address is None and max(cpus) > have:       # (a task no node can take waits for ever)
+            raise ValueError(f"a job of the grid runs {max(cpus)} environments, one CPU each, and the local Ray "
+                             f"cluster has {have:g} CPUs: --workers {max(cpus)} or more, or --n-envs {int(have)}")
         refs = {}
-        for j, pj in zip(jobs, portable):
-            # a job's environments are processes of their own: it takes their CPUs
-            remote = ray.remote(num_cpus=max(1, pj.get("n_envs") or 2))(run_train_job)
+        for j, pj, n in zip(jobs, portable, cpus):
+            remote = ray.remote(num_cpus=n)(run_train_job)
             refs[remote.remote(pj)] = j
         pending = list(refs)
         while pending:

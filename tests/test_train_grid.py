@@ -57,13 +57,24 @@ def test_grid_resume_with_other_settings_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "other settings" in err and "learning_rate" in err
     assert _mtimes(tmp_path) == before
-    job = dict(timesteps=64, seed=0, env_kwargs={"episode_s": 1.0}, init_from=None, final_episodes=1,
+    job = dict(algo="ppo", task="track", timesteps=64, seed=0, env_kwargs={"episode_s": 1.0}, init_from=None,
+               final_episodes=1, n_envs=1, hyperparams_override={"n_steps": 64, "batch_size": 32, "n_epochs": 1},
                stem=str(tmp_path / "ppo-track-truth"))
     meta = json.loads((tmp_path / "ppo-track-truth.json").read_text())
     assert train_grid.settings_differ(job, meta) == [] and train_grid.job_done(job)
     assert train_grid.settings_differ(dict(job, init_from="pid"), meta) == ["init_from None recorded, 'pid' now"]
     longer = dict(job, timesteps=128)
     assert not train_grid.job_done(longer) and train_grid.settings_differ(longer, meta) == []
+    # what the review found taken for done: an override dropped (the run's n_steps 64 against
+    # the YAML file's), another n_envs, no -n (the YAML file's timesteps, not the run's 64)
+    hp = rl.hyperparams("ppo", "track")
+    assert train_grid.settings_differ(dict(job, hyperparams_override={"batch_size": 32, "n_epochs": 1}), meta) == [
+        f"hyperparameter n_steps 64 recorded, {hp['n_steps']!r} now"]
+    assert train_grid.settings_differ(dict(job, n_envs=2), meta) == ["n_envs 1 recorded, 2 now"]
+    assert not train_grid.job_done(dict(job, timesteps=None))
+    assert train_cli.main(args + ["--n-envs", "2", "--resume"]) == 2
+    assert "n_envs 1 recorded, 2 now" in capsys.readouterr().err
+    assert _mtimes(tmp_path) == before
 
 
 def test_grid_jobs_and_bad_input(tmp_path):
@@ -78,6 +89,11 @@ def test_grid_jobs_and_bad_input(tmp_path):
         train_grid.run_train_grid(jobs, backend="slurm")
     with pytest.raises(ValueError, match="workers"):
         train_grid.run_train_grid(jobs, workers=0)
+    for typo in ("logs/ppo-{task}-{est}", "logs/ppo-{0}", "logs/ppo-{task"):
+        with pytest.raises(ValueError, match=r"\{task\}, \{estimator\} and \{seed\}"):
+            train_grid.grid_jobs("ppo", ["track"], ["ekf"], [0], tmp_path, init_from=typo)
+        with pytest.raises(SystemExit):
+            train_cli.main(TINY + ["-f", str(tmp_path), "--init-from", typo])
     with pytest.raises(SystemExit):
         train_cli.main(TINY + ["--out", str(tmp_path / "x")])       # --out names one run
     with pytest.raises(SystemExit):
@@ -102,6 +118,15 @@ def test_ray_grid_equals_local(tmp_path):
     a = rl.load_policy(local / "ppo-track-truth", trusted=True).act(obs)
     b = rl.load_policy(remote / "ppo-track-truth", trusted=True).act(obs)
     np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_ray_grid_refuses_jobs_larger_than_its_local_cluster(tmp_path, capsys):
+    """A job of 2 environments on a local cluster of 1 CPU was never scheduled: the grid
+    waited for ever, printing nothing. Now refused, naming the options."""
+    pytest.importorskip("ray")
+    one = TINY[:8] + TINY[9:]
+    assert train_cli.main(one + ["-f", str(tmp_path), "--backend", "ray", "--workers", "1", "--n-envs", "2"]) == 2
+    assert "--workers 2 or more, or --n-envs 1" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("n, words", [("-5", "-n/--n-timesteps must be an integer >= 1, got '-5'"),
