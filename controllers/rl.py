@@ -292,9 +292,48 @@ def _check_hyperparams(override, hp, algo, task):
             ok, what = isinstance(value, type(default)), f"a {type(default).__name__}"
         if not ok:
             raise ValueError(f"hyperparameter {name} must be {what}, got {value!r}")
+        if name == "policy_kwargs":
+            _check_policy_kwargs(value, algo)
         if isinstance(default, int) and not isinstance(default, bool) and isinstance(value, float) \
                 and name != "learning_rate":
             override[name] = int(value)
+
+
+#: policy_kwargs a run may set (SB3's MlpPolicy arguments given as plain values; the ones
+#: that take classes, activation_fn or optimizer_class, are not read from text), by kind
+POLICY_FLAGS = ("ortho_init", "use_sde", "full_std", "use_expln", "squash_output", "share_features_extractor",
+                "normalize_images")
+
+
+def _check_policy_kwargs(kw, algo):
+    """policy_kwargs before any work (SB3 refused a bad one with a TypeError once the
+    environments were running): known names of the algorithm's MlpPolicy, each its kind."""
+    import inspect
+    import math
+    from stable_baselines3 import PPO, SAC
+
+    def layers(x):
+        return isinstance(x, list) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in x)
+    cls = (PPO if algo == "ppo" else SAC).policy_aliases["MlpPolicy"]
+    names = set(inspect.signature(cls.__init__).parameters)
+    settable = names & ({"net_arch", "log_std_init", "clip_mean", "n_critics"} | set(POLICY_FLAGS))
+    for key, v in kw.items():
+        if key not in settable:
+            raise ValueError(f"hyperparameter policy_kwargs: {key!r} is not accepted for {algo}; accepted: "
+                             f"{', '.join(sorted(settable))}")
+        if key == "net_arch":
+            ok = layers(v) or (isinstance(v, dict) and bool(v) and all(layers(x) for x in v.values()))
+            what = "a list of layer sizes (integers >= 1), or a dict of such lists (pi, vf / qf)"
+        elif key in POLICY_FLAGS:
+            ok, what = isinstance(v, bool), "true or false"
+        elif key == "n_critics":
+            ok, what = isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an integer >= 1"
+        else:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and \
+                (key != "clip_mean" or v > 0)
+            what = "a finite number" + (" > 0" if key == "clip_mean" else "")
+        if not ok:
+            raise ValueError(f"hyperparameter policy_kwargs: {key} must be {what}, got {v!r}")
 
 
 #: ``init_from`` value that starts training from a clone of the PID controller

@@ -230,7 +230,15 @@ def test_atomic_write_keeps_the_old_file(tmp_path):
                                       ({"env_kwargs": {"bogus": 1}}, "bogus"),
                                       ({"hyperparams_override": {"learning_rate": "abc"}}, "learning_rate"),
                                       ({"hyperparams_override": {"n_steps": 0}}, "n_steps"),
-                                      ({"hyperparams_override": {"gamma": 2.0}}, "gamma")])
+                                      ({"hyperparams_override": {"gamma": 2.0}}, "gamma"),
+                                      # SB3 refused these with a TypeError once the environments ran
+                                      ({"hyperparams_override": {"policy_kwargs": {"foo": 1}}}, "'foo'"),
+                                      ({"hyperparams_override": {"policy_kwargs": {"log_std_init": "abc"}}},
+                                       "log_std_init must be a finite number"),
+                                      ({"hyperparams_override": {"policy_kwargs": {"net_arch": [64, 0]}}},
+                                       "net_arch"),
+                                      ({"hyperparams_override": {"policy_kwargs": {"activation_fn": "nn.ReLU"}}},
+                                       "activation_fn")])
 def test_train_bad_options_before_work(tmp_path, kw, name):
     from controllers import rl
     with pytest.raises(ValueError, match=name):
