@@ -495,21 +495,46 @@ class _RunFiles:
     def __init__(self, model, run_dir, ckpt_dir, normalize):
         self.model, self.run_dir, self.ckpt_dir, self.normalize = model, run_dir, ckpt_dir, normalize
 
+    BEST_FILES = ("best_model.zip", "best_vecnormalize.npz")
+
+    def _digests(self):
+        """sha256 of each best file present ({name: hex})."""
+        import hashlib
+        return {n: hashlib.sha256((self.run_dir / n).read_bytes()).hexdigest() for n in self.BEST_FILES
+                if (self.run_dir / n).is_file()}
+
     def save_best(self, mean_reward):
-        # model, statistics, then the score that names them the best: each file atomic
+        # model, statistics, then the score that names them the best, with their digests: each
+        # file atomic, and the set whole only when the score's digests are the files'
         model = self.model
         save_model(model, self.run_dir / "best_model.zip")
         if self.normalize:
             save_normalization(model.get_vec_normalize_env(), self.run_dir / "best_vecnormalize.npz")
         atomic_write(self.run_dir / "best.json", lambda f: f.write(json.dumps(
-            {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps)}).encode()))
+            {"mean_reward": mean_reward, "timesteps": int(model.num_timesteps), "sha256": self._digests()}).encode()))
+
+    def recorded_best(self):
+        """best.json's score (mean_reward, timesteps) if it names the best files there now, else
+        None: a kill between the files of a new best left a model with another moment's
+        statistics, or a score with neither (a run of an older version, without digests, is
+        taken as it was)."""
+        try:
+            best = json.loads((self.run_dir / "best.json").read_text())
+        except (OSError, ValueError):
+            return None
+        if not isinstance(best, dict) or not (self.run_dir / "best_model.zip").is_file():
+            return None
+        digests = best.pop("sha256", None)
+        if digests is not None and digests != self._digests():
+            return None
+        return best
 
     def ensure_best(self):
-        """No evaluated model to ship (no evaluation ran: a very short run, or a resume of
-        one that ends before the first evaluation; or its score without its model): the last
-        model is the one shipped. best.json, written after the model it scores, is what
-        marks an evaluated best_model.zip."""
-        if not ((self.run_dir / "best.json").exists() and (self.run_dir / "best_model.zip").exists()):
+        """No evaluated model to ship (no evaluation ran: a very short run, or a resume of one
+        that ends before the first evaluation; or a best set a kill left incomplete): the last
+        model is the one shipped, and a score that names other files is removed."""
+        if self.recorded_best() is None:
+            (self.run_dir / "best.json").unlink(missing_ok=True)
             save_model(self.model, self.run_dir / "best_model.zip")
             if self.normalize:
                 save_normalization(self.model.get_vec_normalize_env(), self.run_dir / "best_vecnormalize.npz")
@@ -672,12 +697,10 @@ def _resume_evaluations(ev, run_dir, timesteps):
     ev.evaluations_length = [list(n) for n in rows[2]]
 
 
-def _write_run_json(stem, best_json, meta):
-    """<stem>.json: ``meta`` plus the observation size, the best evaluation and the time."""
+def _write_run_json(stem, best_eval, meta):
+    """<stem>.json: ``meta`` plus the observation size, the best evaluation (or None) and the time."""
     from envs.sphere import OBS_NAMES
-    meta = dict(meta, obs_size=len(OBS_NAMES),
-                best_eval=json.loads(best_json.read_text()) if best_json.is_file() else None,
-                saved=time.strftime("%Y-%m-%d %H:%M:%S"))
+    meta = dict(meta, obs_size=len(OBS_NAMES), best_eval=best_eval, saved=time.strftime("%Y-%m-%d %H:%M:%S"))
     atomic_write(str(stem) + ".json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
 
 
@@ -907,9 +930,9 @@ def _train_model(p, model, venv, eval_env, init, start_ckpt, progress, log):
     saver = _RunFiles(model, p.run_dir, p.ckpt_dir, p.normalize)
     eval_seed = p.seed + EVAL_SEED_OFFSET      # the evaluation environment's (_run_envs)
     ckpt, ev = _callbacks(saver, eval_env, p.eval_freq, p.checkpoint_freq, p.eval_episodes, eval_seed)
-    best_json = p.run_dir / "best.json"
-    if start_ckpt is not None and best_json.is_file() and (p.run_dir / "best_model.zip").is_file():
-        ev.best_mean_reward = float(json.loads(best_json.read_text())["mean_reward"])
+    best = saver.recorded_best() if start_ckpt is not None else None
+    if best is not None:
+        ev.best_mean_reward = float(best["mean_reward"])
     if start_ckpt is not None:
         _resume_evaluations(ev, p.run_dir, model.num_timesteps)
     if p.clone or init is not None:
@@ -942,7 +965,7 @@ def _publish(p, command, init, start_ckpt, bc_collected, times):
     if p.normalize:
         _copy(p.run_dir / "best_vecnormalize.npz", str(p.stem) + NORM_SUFFIX)
     history = _history(p.stem) if start_ckpt is not None else []
-    _write_run_json(p.stem, p.run_dir / "best.json", {
+    _write_run_json(p.stem, _RunFiles(None, p.run_dir, p.ckpt_dir, p.normalize).recorded_best(), {
         "command": command, "history": history + [command], "algo": p.algo, "task": p.task,
         "estimator": p.estimator, "estimator_params": estimator_config(p.estimator, p.env_kwargs),
         "env_id": TASK_IDS[p.task], "env_kwargs": p.env_kwargs, "timesteps": p.timesteps,

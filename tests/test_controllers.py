@@ -164,6 +164,21 @@ def test_a_run_without_evaluations_ships_its_last_model_after_a_resume(tmp_path)
     rl.train("ppo", "track", "truth", timesteps=2600, resume=True, **kw)
     last = rl._latest_checkpoint(run / "checkpoints")
     assert entries((stem.parent / (stem.name + ".zip")).read_bytes()) == entries(last.read_bytes())
+    # a whole best set (its score names its files' digests) is kept by a resume...
+    saver = rl._RunFiles(None, run, run / "checkpoints", True)
+    (run / "best_model.zip").write_bytes(first)
+    (run / "best.json").write_text(json.dumps({"mean_reward": 1e9, "timesteps": 300, "sha256": saver._digests()}))
+    rl.train("ppo", "track", "truth", timesteps=3700, resume=True, **kw)
+    assert entries((stem.parent / (stem.name + ".zip")).read_bytes()) == entries(first)
+    assert json.loads((stem.parent / (stem.name + ".json")).read_text())["best_eval"] == {
+        "mean_reward": 1e9, "timesteps": 300}
+    # ...but a kill between a new best's model and its statistics and score left a model the
+    # score does not name (before: shipped with the other moment's statistics): the last model
+    (run / "best_model.zip").write_bytes(last.read_bytes())
+    rl.train("ppo", "track", "truth", timesteps=4800, resume=True, **kw)
+    last = rl._latest_checkpoint(run / "checkpoints")
+    assert entries((stem.parent / (stem.name + ".zip")).read_bytes()) == entries(last.read_bytes())
+    assert json.loads((stem.parent / (stem.name + ".json")).read_text())["best_eval"] is None
 
 
 def test_init_from_fine_tunes(tmp_path, tiny_policy, monkeypatch):
