@@ -202,18 +202,44 @@ def _run_local(jobs, workers, done):
             done(j, run_train_job(j))
         return
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("forkserver"))
+    futs = {}
     try:
         futs = {pool.submit(run_train_job, j): j for j in jobs}
         for f in as_completed(futs):
             done(futs[f], f.result())
     except BaseException:
-        # Ctrl-C or a failed job: stop the others now (finished jobs are written; an
-        # interrupted one continues from its checkpoints with resume)
-        for proc in list((pool._processes or {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        _stop_jobs(pool, futs)
         raise
     pool.shutdown()
+
+
+#: s a stopping grid waits for its running jobs to save their checkpoints: after a Ctrl-C,
+#: which reaches every process of the terminal's group; then, after asking the jobs still
+#: running (an interrupt of the driver alone, another job's failure)
+STOP_GRACE_S, STOP_WAIT_S = 10.0, 120.0
+
+
+def _stop_jobs(pool, futs):
+    """Ctrl-C or a failed job: start no other job, and let the running ones end as a single
+    run's Ctrl-C ends it, with a checkpoint that --resume continues from (before, the driver
+    terminated them at once and lost the work since their last periodic checkpoint); a job
+    that does not end in time is terminated."""
+    import signal
+    from concurrent.futures import wait
+    procs = list((pool._processes or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    try:
+        running = [f for f in futs if not f.done()]
+        running = wait(running, timeout=STOP_GRACE_S).not_done if running else set()
+        if running:
+            for proc in procs:
+                if proc.is_alive():
+                    os.kill(proc.pid, signal.SIGINT)
+            wait(running, timeout=STOP_WAIT_S)
+    finally:                # (a second Ctrl-C stops the wait)
+        for proc in procs:
+            if proc.is_alive():
+                proc.terminate()
 
 
 def _run_ray(jobs, address, workers, done):

@@ -120,6 +120,38 @@ def test_ray_grid_equals_local(tmp_path):
     np.testing.assert_allclose(a, b, atol=1e-6)
 
 
+def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
+    """Ctrl-C (SIGINT to the terminal's process group) of a grid of 2 jobs on 2 workers: each
+    job saves a checkpoint as a single run does. Before, the driver terminated the jobs at once,
+    and --resume started both over (their periodic checkpoints were far away)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    args = [sys.executable, "-m", "controllers.train_cli", "--algo", "ppo", "--env", "track", "--estimator",
+            "truth", "gyro", "-n", "1000000", "--n-envs", "1", "--vec-env", "single", "--save-freq", "1000000",
+            "--eval-freq", "1000000", "--n-eval-episodes", "1", "--eval-episodes", "1", "--hyperparams",
+            "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress", "--workers", "2", "-f", str(tmp_path)]
+    p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        monitors = [tmp_path / f"ppo-track-{e}.run" / "monitor" / "0.monitor.csv" for e in ("truth", "gyro")]
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not all(m.is_file() and len(m.read_text().splitlines()) > 4
+                                                      for m in monitors):
+            time.sleep(0.5)
+        assert p.poll() is None, p.stderr.read().decode()[-2000:]
+        os.killpg(p.pid, signal.SIGINT)
+        rc = p.wait(timeout=150)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert rc == 130
+    for e in ("truth", "gyro"):
+        assert rl._latest_checkpoint(tmp_path / f"ppo-track-{e}.run" / "checkpoints") is not None, e
+
+
 def test_ray_grid_refuses_jobs_larger_than_its_local_cluster(tmp_path, capsys):
     """A job of 2 environments on a local cluster of 1 CPU was never scheduled: the grid
     waited for ever, printing nothing. Now refused, naming the options."""
