@@ -299,6 +299,37 @@ def bar_chart(agg, path, title):
     return compare.save_figure(fig, path, dpi=100, rect=(0, 0, 0.93, 0.97))
 
 
+def ratio_chart(rows, path):
+    """Every method scored on every recorded cell against VQF (loso.ratio_figure): one marker
+    per cell (its ranked error, compare.ranked_by) with its 95 % paired-bootstrap interval
+    over the cell's trials, the bar their mean over the cells. VQF itself and the rows not
+    scored in every cell (ese650's second VQF feeding) are not drawn."""
+    cells, order = {}, {}
+    for r in rows:
+        if r["set"] not in (SYNTHETIC, SEED):
+            cells.setdefault((r["set"], r["mode"]), {}).setdefault(r["method"], {})[r["item"]] = r
+            order.setdefault(r["method"], len(order))
+    per_cell, ratios = [], {}
+    for (set_, mode), by in sorted(cells.items()):
+        if VQF not in by:
+            continue
+        k = compare.ranked_by(set_, mode)
+        items = sorted(by[VQF])
+        v = [by[VQF][i][k] for i in items]
+        xs = {m: [by[m][i][k] for i in items] for m in by if m != VQF and set(by[m]) == set(items)}
+        per_cell.append((f"{set_} {mode} ({k})", xs, v))
+        for m, x in xs.items():
+            ratios.setdefault(m, []).append(np.mean(x) / np.mean(v))
+    bars = {m: float(np.mean(ratios[m])) for m in sorted(ratios, key=order.get)
+            if len(ratios[m]) == len(per_cell)}
+    if not bars:
+        return None
+    per_cell = [(label, {m: x for m, x in xs.items() if m in bars}, v) for label, xs, v in per_cell]
+    return loso.ratio_figure(per_cell, bars, path, f"mean over the {len(per_cell)} recorded cells",
+                             "Every method on every recorded set and mode: mean RMSE over VQF's on the same "
+                             "trials (left of the dashed line: better than VQF)")
+
+
 # ---------------------------------------------------------------------------------------------
 
 def parse_args(argv=None):
@@ -439,7 +470,8 @@ def _write_tables(out, rows, agg, best, cat_rows, per_item, overall, ideal_rows,
                                        title="Seed estimators vs gyro and mahony (total RMSE, deg)")
     png = bar_chart(agg, out / "accuracy.png", "Mean total RMSE per set and mode (6-axis: one heading "
                     f"offset per run removed; {compare.INCLINATION_ONLY_NAMES}: inclination)") if agg else None
-    return written + ([png] if png else [])
+    ratio_png = ratio_chart(rows, out / "accuracy_ratio.png")
+    return written + [p for p in (png, ratio_png) if p]
 
 
 def _target_text(best, agg, vqf_nominal):

@@ -28,7 +28,7 @@ import fusion
 from fusion import datasets, metrics
 from fusion.checks import arg_type, number
 from benchmarks import compare, peers
-from controllers.evaluation import bootstrap_ci
+from controllers.evaluation import MIN_BOOT, bootstrap_ci
 
 
 ERRORS = ("total", "heading", "inclination")
@@ -121,11 +121,15 @@ def ratio(rows, cell, k="total"):
 
 
 def ratio_ci(rows, cell, k="total"):
-    """95 % interval of ratio(rows, cell, k) by a paired bootstrap of the cell's trials: each
-    resample draws the same trials for ours and VQF, so the interval is of the ratio alone, not
-    of how hard the trials drawn were. Whether a cell is above VQF beyond the trials' spread."""
-    x = np.array([r[k] for r in rows])
-    y = np.array([r[k] for r in cell.vqf])
+    """95 % interval of ratio(rows, cell, k) (paired_ratio_ci)."""
+    return paired_ratio_ci([r[k] for r in rows], [r[k] for r in cell.vqf])
+
+
+def paired_ratio_ci(x, y):
+    """95 % interval of mean(x) / mean(y) by a paired bootstrap of the trials: each resample
+    draws the same trials for x and y (ours and VQF), so the interval is of the ratio alone,
+    not of how hard the trials drawn were. Whether a cell is above VQF beyond the trials' spread."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
 
     def stat(idx, axis):
         idx = idx.astype(int)
@@ -217,27 +221,43 @@ def loso(name, grid, cells, base=None, log=print):
 
 
 def ratio_chart(results, cells, path):
-    """One bar per estimator: its mean ours / VQF figure (objective); one marker per cell on
-    it (total ratio; inclination ratio for compare.INCLINATION_ONLY cells). 1 = VQF."""
-    names = list(results)
-    fig = compare.new_figure(figsize=(1.3 * len(names) + 3, 4.5))
+    """The defaults' chart (ratio_figure): bar = the figure a candidate is chosen by (objective)."""
+    per_cell = [(f"{c.key} ({compare.ranked_by(c.set, c.mode)})",
+                 {n: [r[compare.ranked_by(c.set, c.mode)] for r in results[n][c.key]] for n in results},
+                 [r[compare.ranked_by(c.set, c.mode)] for r in c.vqf]) for c in cells]
+    return ratio_figure(per_cell, {n: objective(results[n], cells) for n in results}, path,
+                        "mean figure (total + inclination ratio) / 2",
+                        "Defaults on every recorded set: ratio to VQF (left of the dashed line: better than VQF)")
+
+
+def ratio_figure(per_cell, bars, path, bar_label, title):
+    """One row per method: a bar (``bars``: method -> value) and one marker per cell with its
+    95 % paired-bootstrap interval (paired_ratio_ci). ``per_cell``: [(label, {method: per-trial
+    errors}, VQF's per-trial errors on the same trials)]; a method a cell lacks has no marker
+    there. Log axis, 1 = VQF."""
+    names = list(bars)
+    fig = compare.new_figure(figsize=(11, 0.42 * len(names) + 1.8))
     ax = fig.subplots()
-    x = np.arange(len(names))
-    ax.bar(x, [objective(results[n], cells) for n in names], color="lightsteelblue",
-           label="mean figure (total + inclination ratio) / 2")
+    y = np.arange(len(names))
+    ax.barh(y, [bars[n] for n in names], color="lightsteelblue", label=bar_label)
     markers = "osD^vP*X"
-    for j, c in enumerate(cells):
-        k = compare.ranked_by(c.set, c.mode)
-        ys = [ratio(results[n][c.key], c, k) for n in names]
-        ax.scatter(x + (j - len(cells) / 2) * 0.06, ys, marker=markers[j % len(markers)], zorder=3,
-                   label=f"{c.key} ({k})")
-    ax.axhline(1.0, color="k", lw=1, ls="--")
-    ax.set_xticks(x, names)
-    ax.set_ylabel("ours / VQF (same run)")
-    ax.set_yscale("log")
-    ax.set_title("Defaults on every recorded set: ratio to VQF (below the dashed line: better than VQF)")
+    step = 0.7 / max(1, len(per_cell))
+    for j, (label, xs, v) in enumerate(per_cell):
+        have = [i for i, n in enumerate(names) if n in xs]
+        r = np.array([np.mean(xs[names[i]]) / np.mean(v) for i in have])
+        ci = np.array([paired_ratio_ci(xs[names[i]], v) for i in have])
+        off = y[have] + (j - (len(per_cell) - 1) / 2) * step
+        ax.errorbar(r, off, xerr=np.abs(ci.T - r), fmt=markers[j % len(markers)], ms=4, elinewidth=0.8,
+                    capsize=1.5, zorder=3, label=label)
+    ax.axvline(1.0, color="k", lw=1, ls="--")
+    ax.set_yticks(y, names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("mean RMSE ÷ VQF's on the same trials (markers: each cell's ratio with its 95 % "
+                  f"paired-bootstrap interval, none under {MIN_BOOT} trials)")
+    ax.set_xscale("log")
+    ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    ax.grid(True, axis="y", which="both", alpha=0.3)
+    ax.grid(True, axis="x", which="both", alpha=0.3)
     return compare.save_figure(fig, path, dpi=100)
 
 

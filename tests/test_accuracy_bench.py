@@ -27,6 +27,9 @@ def test_quick_subset_writes_tables_and_figure(tmp_path):
     for f in ("accuracy.md", "accuracy.png", "accuracy_overall.csv", "accuracy_runs.csv",
               "accuracy_ideal_check.csv", "accuracy_synthetic_9-axis.md"):
         assert (tmp_path / f).stat().st_size > 0, f
+    # the ratio chart: every method over VQF on every recorded cell
+    recorded = {r["set"] for r in res["rows"]} - {accuracy.SYNTHETIC, accuracy.SEED}
+    assert (tmp_path / "accuracy_ratio.png").is_file() == bool(recorded)
     # every error scored, but total and heading where the reference heading is not north
     only = compare.INCLINATION_ONLY
     assert res["rows"] and all(math.isfinite(r[k]) for r in res["rows"] for k in accuracy.ERRORS
