@@ -174,6 +174,52 @@ def load_normalization(path: str | os.PathLike) -> dict[str, Any]:
     return res
 
 
+#: a replay buffer's arrays saved (SB3's ReplayBuffer without optimize_memory_usage)
+_REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+def save_replay(buffer: Any, path: str | os.PathLike) -> None:
+    """The filled part of ``buffer`` (an SB3 ``ReplayBuffer``) as plain arrays in ``path``
+    (``.npz``, atomic): SB3's own ``save_replay_buffer`` pickles, which no file of ours may need
+    to be read back."""
+    n = buffer.buffer_size if buffer.full else buffer.pos
+    arrays = {k: getattr(buffer, k)[:n] for k in _REPLAY_ARRAYS}
+    arrays.update(pos=np.int64(buffer.pos), full=np.bool_(buffer.full))
+    atomic_write(path, lambda f: np.savez(f, **arrays))
+
+
+def load_replay(buffer: Any, path: str | os.PathLike) -> int:
+    """Fill ``buffer`` (a new SB3 ``ReplayBuffer`` of the run's sizes) from ``save_replay``'s
+    file; returns the transitions loaded. ``PolicyError`` (the buffer untouched) for a file
+    that is not such an ``.npz`` or does not fit the buffer."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            out = {k: np.array(d[k]) for k in d.files}
+    except Exception as e:          # missing, truncated, not a zip, pickled object arrays
+        raise PolicyError(f"replay buffer {path} is missing, corrupt or not plain arrays: {e}") from None
+    missing = [k for k in _REPLAY_ARRAYS + ("pos", "full") if k not in out]
+    if missing:
+        raise PolicyError(f"replay buffer {path} lacks {', '.join(missing)}")
+    pos, full = out["pos"], out["full"]
+    if pos.shape != () or pos.dtype.kind not in "iu" or full.shape != () or full.dtype.kind != "b" \
+            or not 0 <= int(pos) < buffer.buffer_size:
+        raise PolicyError(f"replay buffer {path}: pos {pos!r} / full {full!r} do not fit a buffer of "
+                          f"{buffer.buffer_size}")
+    pos, full = int(pos), bool(full)
+    n = buffer.buffer_size if full else pos
+    for k in _REPLAY_ARRAYS:
+        mine = getattr(buffer, k)
+        if out[k].shape != (n,) + mine.shape[1:] or out[k].dtype != mine.dtype or not np.isfinite(out[k]).all():
+            raise PolicyError(f"replay buffer {path}: {k} has shape {out[k].shape} and dtype {out[k].dtype} (or "
+                              f"non-finite values); this run's is ({n}, {', '.join(map(str, mine.shape[1:]))}) "
+                              f"{mine.dtype}")
+    for k in _REPLAY_ARRAYS:
+        getattr(buffer, k)[:n] = out[k]
+    buffer.pos, buffer.full = pos, full
+    return n * buffer.n_envs
+
+
 def vec_normalize(stats: dict[str, Any], venv: Any, training: bool) -> Any:
     """A ``VecNormalize`` around ``venv`` with the statistics ``stats`` (``load_normalization``)."""
     from stable_baselines3.common.vec_env import VecNormalize

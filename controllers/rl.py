@@ -34,7 +34,8 @@ from numpy.typing import ArrayLike
 from controllers.base import Controller, obs_batch
 from fusion.checks import choice, flag, integer, require_import
 from controllers.policy_io import (PolicyError, atomic_write, drop_optimizer_state, load_model, load_normalization,
-                                   save_model, save_normalization, vec_normalize, write_text)
+                                   load_replay, save_model, save_normalization, save_replay, vec_normalize,
+                                   write_text)
 
 __all__ = ["ALGOS", "TASK_IDS", "POLICY_DIR", "hyperparams", "train", "load_policy", "PolicyController",
            "policy_stem", "PolicyError", "available_policies", "install_policy", "UntrustedPolicyWarning"]
@@ -256,6 +257,11 @@ def _latest_checkpoint(ckpt_dir):
 def _checkpoint_stats(ckpt):
     """The normalisation statistics file written beside checkpoint ``ckpt``."""
     return ckpt.with_name(ckpt.name.replace("ckpt_", "ckpt_vecnormalize_").replace(".zip", ".npz"))
+
+
+def _checkpoint_replay(ckpt):
+    """The replay buffer (SAC) written beside checkpoint ``ckpt``."""
+    return ckpt.with_name(ckpt.name.replace("ckpt_", "ckpt_replay_").replace(".zip", ".npz"))
 
 
 def _check_hyperparams(override, hp, algo, task):
@@ -546,7 +552,14 @@ class _RunFiles:
         path = self.ckpt_dir / f"ckpt_{model.num_timesteps}_steps.zip"
         if self.normalize:
             save_normalization(model.get_vec_normalize_env(), _checkpoint_stats(path))
+        buffer = getattr(model, "replay_buffer", None)
+        if buffer is not None:      # (SAC) beside the newest checkpoint only: tens of MB each
+            save_replay(buffer, _checkpoint_replay(path))
         save_model(model, path)
+        if buffer is not None:
+            for old in self.ckpt_dir.glob("ckpt_replay_*_steps.npz"):
+                if old != _checkpoint_replay(path):
+                    old.unlink(missing_ok=True)
         return path
 
 
@@ -823,6 +836,19 @@ def _init_source(init_from, algo, task, trusted, log):
     return init_zip, init_vn
 
 
+def _resume_replay(model, ckpt, log):
+    """SAC's replay buffer as the checkpoint left it; without it (a checkpoint of an older
+    version, or one the newest replaced) a warning: the run goes on learning from an empty
+    buffer, past learning_starts."""
+    try:
+        n = load_replay(model.replay_buffer, _checkpoint_replay(ckpt))
+    except PolicyError as e:
+        warnings.warn(f"{e}: the resumed run's replay buffer starts empty", RuntimeWarning, stacklevel=3)
+        log(f"the replay buffer of {ckpt.name} cannot be read; it starts empty")
+        return
+    log(f"replay buffer: {n} transitions")
+
+
 def _readable_start(init, resume, ckpt_dir, normalize, algo, extra, log):
     """Read the start policy ``init`` or, with ``resume``, find the newest checkpoint that
     loads (returned; None without resume), before anything is written or any environment is
@@ -909,6 +935,8 @@ def _start_model(p, venv, eval_env, init, start_ckpt, progress, log):
             venv = vec_normalize(load_normalization(_checkpoint_stats(start_ckpt)), venv, True)
         model = load_model(start_ckpt, env=venv, algo=p.algo, extra=p.extra)
         log(f"resuming from {start_ckpt} at {model.num_timesteps} steps")
+        if getattr(model, "replay_buffer", None) is not None:
+            _resume_replay(model, start_ckpt, log)
     else:
         venv, model = _new_model(venv, init, p.algo, p.policy, p.hp, p.normalize, p.extra, p.seed, log)
     if p.normalize:

@@ -264,6 +264,39 @@ def test_init_from_pid_clones_the_teacher(tmp_path, algo):
     assert np.mean(diff) < 0.1, np.mean(diff)     # an untrained policy: 0.54
 
 
+def test_sac_resumes_with_its_replay_buffer(tmp_path):
+    """A resumed SAC run continues with the transitions it had (before: an empty buffer, past
+    learning_starts, so gradient steps began on a handful of samples; a PID clone's 60,000
+    transitions were lost). The buffer is plain arrays beside the newest checkpoint only; a
+    tampered one is refused and leaves the buffer as it was."""
+    from controllers import policy_io
+    stem = tmp_path / "sac-track-truth"
+    kw = dict(seed=0, out=stem, n_envs=1, progress=False, eval_freq=10**6, eval_episodes=1,
+              checkpoint_freq=200, env_kwargs={"episode_s": 1.0},
+              hyperparams_override={"learning_starts": 100, "batch_size": 32, "gradient_steps": 1,
+                                    "buffer_size": 5000})
+    rl.train("sac", "track", "truth", timesteps=400, log=lambda *a: None, **kw)
+    ckpts = rl._checkpoints(stem.parent / (stem.name + ".run") / "checkpoints")
+    replays = sorted(ckpts[0].parent.glob("ckpt_replay_*"))
+    assert replays == [rl._checkpoint_replay(ckpts[0])]            # the newest checkpoint's only
+    said = []
+    rl.train("sac", "track", "truth", timesteps=800, resume=True, log=said.append, **kw)
+    assert "replay buffer: 400 transitions" in said, said
+    replays = sorted(ckpts[0].parent.glob("ckpt_replay_*"))
+    assert [r.name for r in replays] == ["ckpt_replay_800_steps.npz"]
+    # a buffer that does not fit this run's is refused, the buffer untouched
+    from stable_baselines3.common.buffers import ReplayBuffer
+    from gymnasium import spaces
+    buf = ReplayBuffer(5000, spaces.Box(-1, 1, (3,)), spaces.Box(-1, 1, (2,)))
+    with pytest.raises(policy_io.PolicyError, match="observations has shape"):
+        policy_io.load_replay(buf, replays[0])
+    assert buf.pos == 0 and not buf.full and not buf.observations.any()
+    with pytest.raises(policy_io.PolicyError, match="lacks observations"):
+        policy_io.load_replay(buf, ckpts[0])                        # (a model's zip, not the arrays)
+    with pytest.raises(policy_io.PolicyError, match="missing, corrupt"):
+        policy_io.load_replay(buf, tmp_path / "none.npz")
+
+
 def test_init_from_pid_bad_input(tmp_path):
     with pytest.raises(ValueError, match="bc_steps"):
         rl.train("ppo", "track", "truth", timesteps=10, out=tmp_path / "p", init_from="pid", bc_steps=0,
