@@ -5,7 +5,7 @@
 # fusion._core.struct_fields(<AccLowpass[:1]>&..., ACC_LP_CHECKS, "acc_")).
 from libc.math cimport M_PI
 from fusion._qmath cimport half_angle_terms, rot_to_body
-from fusion._rest cimport lasted
+from fusion._constants cimport lasted
 
 
 cdef struct AccLowpass:

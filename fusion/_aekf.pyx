@@ -11,7 +11,7 @@ from libc.string cimport memset
 from fusion._core cimport Estimator, _claim, _release
 from fusion._ekf cimport EKF
 from fusion._aided cimport mag_accepted
-from fusion._rest cimport outlasted
+from fusion._constants cimport outlasted
 from fusion._core import struct_fields, TIMER, VALUE_MAX
 from fusion.checks import number
 from fusion.params import Param, table

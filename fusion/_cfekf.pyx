@@ -26,7 +26,7 @@ MAHONY_KI = 0.005     # ki's default without bias_feedback (mahony's before issu
 # bias_feedback: the EKF learns the bias from the filter's quaternion only after LEARN_HOLD s
 # with the (averaged) accelerometer within LEARN_ACC_TOL of g and the filter within
 # 2 acos(LEARN_COS) = 2 deg of the EKF's prediction
-from fusion._constants cimport GRAVITY as G0
+from fusion._constants cimport GRAVITY as G0, lasted
 cdef double LEARN_ACC_TOL = 0.5             # m/s^2, the aekf's acc_norm_tol
 cdef double LEARN_COS = 0.99984769515639127 # cos(1 deg): 2 deg between the quaternions
 cdef double LEARN_HOLD = 0.5                # s
@@ -107,7 +107,7 @@ cdef inline void cf_ekf_step(CFEKF e, EKF k, const double* gyr, const double* ac
                 learn = False
             else:
                 e.s.t_quiet += dt
-                learn = e.s.t_quiet >= LEARN_HOLD
+                learn = lasted(e.s.t_quiet, LEARN_HOLD)
         quat_measurement_update(k.q, k.s.b, k.s.P, z, e.cf_noise * e.cf_noise / dt, NULL, 0.0, learn)
     quat_normalise(k.q)
     memcpy(e.q, k.q, 4 * sizeof(double))

@@ -14,3 +14,10 @@ cdef extern from *:
     # rad/s: a gyro bias beyond the range of any MEMS gyro (the widest, 70); a learned bias is
     # held within it (a loop its gains made unstable), and a loaded state's
     double BIAS_MAX "FUSION_BIAS_MAX"
+
+
+cdef extern from "_steps.h":
+    # t (s summed from sample steps) has reached duration / gone beyond it, within the steps'
+    # rounding (fusion/_steps.h)
+    bint lasted "FUSION_LASTED"(double t, double duration) noexcept nogil
+    bint outlasted "FUSION_OUTLASTED"(double t, double duration) noexcept nogil

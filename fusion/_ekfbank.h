@@ -30,6 +30,7 @@
 #include <string.h>
 #include <float.h>
 #include "_rest.h"
+#include "_steps.h"
 
 /* the fields, each an array of cap doubles (flags 0 / 1, counters exact below 2^53) */
 enum {

@@ -10,7 +10,7 @@ from fusion._core cimport quat_out
 from fusion._core import struct_fields, TIMER
 from fusion._ekf cimport EKF
 from fusion._acclp cimport acc_lowpass_lost
-from fusion._rest cimport lasted
+from fusion._constants cimport lasted
 from fusion._prefilter cimport Biquad, butterworth2_design, biquad_prime, biquad_step, C_CUTOFF_MIN
 from fusion.params import Param, table
 from fusion._qmath cimport half_angle_terms, rot_to_body, rot_to_nav, quat_mul, quat_normalise, \

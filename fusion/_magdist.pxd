@@ -12,7 +12,7 @@
 # filters using the magnetometer hold, as they hold a RestDetector.
 from libc.math cimport sqrt, asin, M_PI
 from libc.string cimport memset
-from fusion._rest cimport lasted, outlasted
+from fusion._constants cimport lasted, outlasted
 
 cdef struct MagDistState:
     double cur[2]       # the low-passed (norm, dip) of the current sample

@@ -2,6 +2,7 @@
 # Conventions: docs/estimators.md. q = [w, x, y, z], R(q) rotates body -> navigation (ENU).
 from libc.math cimport sqrt, sin, cos, atan2, asin, isfinite, M_PI
 from libc.float cimport DBL_MIN
+from fusion._constants cimport lasted
 
 cdef inline bint vec3_valid(const double* v) noexcept nogil:
     """A usable accelerometer / magnetometer sample: finite, with |v|^2 finite and a normal
@@ -264,11 +265,13 @@ cdef inline double recovery_gain(double* t_left, bint saturated_now, double dt) 
     """Factor on a complementary filter's correction gain this step, after a saturated gyro
     (docs/robustness.md, "Recovery"): 20 at a saturated sample, falling linearly back to 1
     over the 3 s after the last one (x-io Fusion's restart ramp: gain 10 for 0.5, over 3 s).
-    t_left (s) counts down; > 0 while recovering (the filter then holds its bias learning)."""
+    t_left (s) counts down; > 0 while recovering (the filter then holds its bias learning),
+    the 3 s over once they have lasted (fusion/_steps.h: the steps may sum short of them)."""
     cdef double f
     if saturated_now:
         t_left[0] = 3.0
-    if t_left[0] <= 0.0:
+    if lasted(3.0 - t_left[0], 3.0):
+        t_left[0] = 0.0
         return 1.0
     f = 1.0 + 19.0 * t_left[0] * (1.0 / 3.0)
     t_left[0] -= dt

@@ -3,7 +3,7 @@
 # zero-rate update when rest_detect says so. docs/contributing.md says how a filter takes it.
 
 from libc.math cimport sqrt, fmin, fmax
-from fusion._constants cimport BIAS_MAX
+from fusion._constants cimport BIAS_MAX, lasted
 
 
 cdef class RestDetector:
@@ -37,10 +37,6 @@ cdef extern from "_rest.h":
     # s: the low-passes (VQF's restFilterTau); the still tests' low-pass (fusion/_rest.h)
     double REST_TAU "FUSION_REST_TAU"
     double STILL_TAU "FUSION_REST_STILL_TAU"
-    # t (s summed from sample steps) has reached duration / gone beyond it, within the
-    # steps' rounding (fusion/_rest.h)
-    bint lasted "FUSION_LASTED"(double t, double duration) noexcept nogil
-    bint outlasted "FUSION_OUTLASTED"(double t, double duration) noexcept nogil
 
 
 cdef inline void rest_clear(RestDetector r) noexcept nogil:

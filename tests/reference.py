@@ -338,8 +338,8 @@ def recovery_factor(t_left, sat, dt):
     them."""
     if sat:
         t_left = 3.0
-    if t_left <= 0:
-        return 1.0, t_left
+    if lasted(3.0 - t_left, 3.0):
+        return 1.0, 0.0
     return 1.0 + 19.0 * t_left / 3.0, t_left - dt
 
 

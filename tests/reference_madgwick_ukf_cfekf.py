@@ -23,7 +23,7 @@ import numpy as np
 from reference import (BIAS_MAX, G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
                        start_variance,
                        measured_gyr, RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian,
-                       gyro_valid, unmeasured_variance, recovery_factor, is_saturated, left_matrix, normalise, phi,
+                       gyro_valid, unmeasured_variance, recovery_factor, is_saturated, lasted, left_matrix, normalise, phi,
                        qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -399,7 +399,7 @@ class RefCFEKF(RefEKF):
                     K[4:] = 0.0
                 else:
                     self.t_quiet += dt
-                    if self.t_quiet < self.LEARN_HOLD:
+                    if not lasted(self.t_quiet, self.LEARN_HOLD):
                         K[4:] = 0.0
             x = np.concatenate([self.q, self.b]) + K @ (z - H @ np.concatenate([self.q, self.b]))
             self.q = normalise(x[:4])
