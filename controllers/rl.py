@@ -306,9 +306,12 @@ def _check_hyperparams(override, hp, algo, task):
 
 
 #: policy_kwargs a run may set (SB3's MlpPolicy arguments given as plain values; the ones
-#: that take classes, activation_fn or optimizer_class, are not read from text), by kind
-POLICY_FLAGS = ("ortho_init", "use_sde", "full_std", "use_expln", "squash_output", "share_features_extractor",
-                "normalize_images")
+#: that take classes, activation_fn or optimizer_class, are not read from text; use_sde and
+#: the gSDE-only squash_output, full_std, use_expln belong to the algorithm's use_sde), by kind
+POLICY_FLAGS = ("ortho_init", "share_features_extractor", "normalize_images")
+#: the keys of a net_arch dict, the actor's and the critic's layers: PPO's either or both
+#: (a missing one has none), SAC's both
+NET_ARCH_KEYS = {"ppo": {"pi", "vf"}, "sac": {"pi", "qf"}}
 
 
 def _check_policy_kwargs(kw, algo):
@@ -328,8 +331,11 @@ def _check_policy_kwargs(kw, algo):
             raise ValueError(f"hyperparameter policy_kwargs: {key!r} is not accepted for {algo}; accepted: "
                              f"{', '.join(sorted(settable))}")
         if key == "net_arch":
-            ok = layers(v) or (isinstance(v, dict) and bool(v) and all(layers(x) for x in v.values()))
-            what = "a list of layer sizes (integers >= 1), or a dict of such lists (pi, vf / qf)"
+            keys = NET_ARCH_KEYS[algo]
+            ok = layers(v) or (isinstance(v, dict) and bool(v) and set(v) <= keys and (algo == "ppo" or set(v) == keys)
+                               and all(layers(x) for x in v.values()))
+            what = (f"a list of layer sizes (integers >= 1), or a dict of such lists with keys "
+                    f"{' and '.join(sorted(keys))}{' (either or both)' if algo == 'ppo' else ''}")
         elif key in POLICY_FLAGS:
             ok, what = isinstance(v, bool), "true or false"
         elif key == "n_critics":

@@ -42,14 +42,19 @@ def grid_jobs(algo, tasks, estimators, seeds, out, timesteps=None, init_from=Non
 def _start_for(template, task, estimator, seed):
     """``init_from`` with ``{task}``, ``{estimator}`` and ``{seed}`` replaced; a ValueError
     naming the template where it holds another field or a stray brace."""
+    import string
     if template == rl.TEACHER:
         return template
     try:
-        return template.format(task=task, estimator=estimator, seed=seed)
-    except (KeyError, IndexError, ValueError) as e:
-        raise ValueError(f"init_from {template!r}: {type(e).__name__} {e}; a grid's start policy may name "
-                         f"{{task}}, {{estimator}} and {{seed}}, no other field (a literal brace is written "
-                         f"twice)") from None
+        fields = {f for _, f, _, _ in string.Formatter().parse(template) if f is not None}
+    except ValueError as e:
+        fields = {f"({e})"}
+    other = sorted(fields - {"task", "estimator", "seed"})
+    if other:
+        raise ValueError(f"init_from {template!r} names {', '.join(map(repr, other))}; a grid's start policy may "
+                         f"name {{task}}, {{estimator}} and {{seed}}, no other field (a literal brace is written "
+                         f"twice)")
+    return template.format(task=task, estimator=estimator, seed=seed)
 
 
 def _published(job):
@@ -194,23 +199,49 @@ def _write_files(result):
         rl.atomic_write(path, lambda f, data=data: f.write(data))
 
 
-def _run_local(jobs, workers, done):
+def _run_local(jobs, workers, done, job_fn=None):
+    """The jobs on a pool of ``workers`` processes (``job_fn``: run_train_job; tests pass another)."""
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    job_fn = job_fn or run_train_job
     if workers == 1 or len(jobs) <= 1:
         for j in jobs:
-            done(j, run_train_job(j))
+            done(j, job_fn(j))
         return
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("forkserver"))
-    futs = {}
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("forkserver"),
+                               initializer=_worker_ignores_sigint)
+    todo, running = list(jobs), {}
     try:
-        futs = {pool.submit(run_train_job, j): j for j in jobs}
-        for f in as_completed(futs):
-            done(futs[f], f.result())
+        while todo or running:
+            # no more jobs submitted than workers: a job queued behind the running ones would
+            # start after a Ctrl-C (the pool cannot cancel what it has queued)
+            while todo and len(running) < workers:
+                j = todo.pop(0)
+                running[pool.submit(_pool_job, job_fn, j)] = j
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in finished:
+                done(running.pop(f), f.result())
     except BaseException:
-        _stop_jobs(pool, futs)
+        _stop_jobs(pool, running)
         raise
     pool.shutdown()
+
+
+def _worker_ignores_sigint():
+    """A pool worker between jobs ignores Ctrl-C (which reaches every process of the terminal's
+    group): one that died of it broke the pool, which then terminated the running jobs."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _pool_job(job_fn, job):
+    """A job in a pool worker, Ctrl-C heard while it runs (rl.train saves a checkpoint)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return job_fn(job)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 #: s a stopping grid waits for its running jobs to save their checkpoints: after a Ctrl-C,
@@ -219,23 +250,23 @@ def _run_local(jobs, workers, done):
 STOP_GRACE_S, STOP_WAIT_S = 10.0, 120.0
 
 
-def _stop_jobs(pool, futs):
+def _stop_jobs(pool, running):
     """Ctrl-C or a failed job: start no other job, and let the running ones end as a single
     run's Ctrl-C ends it, with a checkpoint that --resume continues from (before, the driver
     terminated them at once and lost the work since their last periodic checkpoint); a job
-    that does not end in time is terminated."""
+    that does not end in time is terminated. Idle workers ignore the SIGINT sent to all."""
     import signal
     from concurrent.futures import wait
     procs = list((pool._processes or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     try:
-        running = [f for f in futs if not f.done()]
-        running = wait(running, timeout=STOP_GRACE_S).not_done if running else set()
-        if running:
+        left = [f for f in running if not f.done()]
+        left = wait(left, timeout=STOP_GRACE_S).not_done if left else set()
+        if left:
             for proc in procs:
                 if proc.is_alive():
                     os.kill(proc.pid, signal.SIGINT)
-            wait(running, timeout=STOP_WAIT_S)
+            wait(left, timeout=STOP_WAIT_S)
     finally:                # (a second Ctrl-C stops the wait)
         for proc in procs:
             if proc.is_alive():

@@ -23,8 +23,8 @@ import numpy as np
 from reference import (BIAS_MAX, G, I3, I4, IDENTITY, MAGDIST_PARAMS, make_magdist, acc_lowpass_step, acc_lowpass_lost,
                        start_variance,
                        measured_gyr, RefEKF, RefEstimator, RefRest, RestAndMagCounts, RefMahony, complex_step_jacobian,
-                       gyro_valid, unmeasured_variance, recovery_factor, is_saturated, lasted, left_matrix, normalise, phi,
-                       qconj, qmul, rotmat, vector_valid)
+                       gyro_valid, unmeasured_variance, recovery_factor, is_saturated, lasted, left_matrix,
+                       normalise, phi, qconj, qmul, rotmat, vector_valid)
 
 UP = np.array([0.0, 0.0, 1.0])
 

@@ -238,7 +238,13 @@ def test_atomic_write_keeps_the_old_file(tmp_path):
                                       ({"hyperparams_override": {"policy_kwargs": {"net_arch": [64, 0]}}},
                                        "net_arch"),
                                       ({"hyperparams_override": {"policy_kwargs": {"activation_fn": "nn.ReLU"}}},
-                                       "activation_fn")])
+                                       "activation_fn"),
+                                      # (found by a review: refused by SB3 after the start too)
+                                      ({"hyperparams_override": {"policy_kwargs": {"use_sde": True}}}, "use_sde"),
+                                      ({"hyperparams_override": {"policy_kwargs": {"squash_output": True}}},
+                                       "squash_output"),
+                                      ({"hyperparams_override": {"policy_kwargs": {
+                                          "net_arch": {"pi": [8], "qf": [8]}}}}, "net_arch")])
 def test_train_bad_options_before_work(tmp_path, kw, name):
     from controllers import rl
     with pytest.raises(ValueError, match=name):
