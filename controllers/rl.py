@@ -18,6 +18,7 @@ keyed by environment id. Heavy imports (torch, SB3) happen inside the functions,
 """
 from __future__ import annotations
 
+import copy
 import json
 import os
 import sys
@@ -668,7 +669,9 @@ def _run_hyperparams(algo, task, override):
     override = dict(override or {})
     _check_hyperparams(override, hp, algo, task)
     hp.update(override)
-    return hp, dict(hp)
+    # a deep copy: SB3's SAC writes use_sde into the policy_kwargs it is given, which the
+    # record then held (and a grid's --resume took for another setting)
+    return hp, copy.deepcopy(hp)
 
 
 def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):

@@ -45,16 +45,22 @@ def _start_for(template, task, estimator, seed):
     import string
     if template == rl.TEACHER:
         return template
+    rule = ("a grid's start policy may name {task}, {estimator} and {seed}, no other field (a literal brace is "
+            "written twice)")
+
+    def fields(text):           # every field, those nested in a format spec too
+        for _, f, spec, _ in string.Formatter().parse(text):
+            if f is not None:
+                yield f
+            if spec:
+                yield from fields(spec)
     try:
-        fields = {f for _, f, _, _ in string.Formatter().parse(template) if f is not None}
-    except ValueError as e:
-        fields = {f"({e})"}
-    other = sorted(fields - {"task", "estimator", "seed"})
-    if other:
-        raise ValueError(f"init_from {template!r} names {', '.join(map(repr, other))}; a grid's start policy may "
-                         f"name {{task}}, {{estimator}} and {{seed}}, no other field (a literal brace is written "
-                         f"twice)")
-    return template.format(task=task, estimator=estimator, seed=seed)
+        other = sorted(set(fields(template)) - {"task", "estimator", "seed"})
+        if not other:
+            return template.format(task=task, estimator=estimator, seed=seed)
+    except (KeyError, IndexError, AttributeError, TypeError, ValueError) as e:
+        raise ValueError(f"init_from {template!r}: {type(e).__name__} {e}; {rule}") from None
+    raise ValueError(f"init_from {template!r} names {', '.join(map(repr, other))}; {rule}")
 
 
 def _published(job):
@@ -199,7 +205,7 @@ def _write_files(result):
         rl.atomic_write(path, lambda f, data=data: f.write(data))
 
 
-def _run_local(jobs, workers, done, job_fn=None):
+def _run_local(jobs, workers, done, job_fn=None, log=print):
     """The jobs on a pool of ``workers`` processes (``job_fn``: run_train_job; tests pass another)."""
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -221,8 +227,8 @@ def _run_local(jobs, workers, done, job_fn=None):
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for f in finished:
                 done(running.pop(f), f.result())
-    except BaseException:
-        _stop_jobs(pool, running)
+    except BaseException as e:
+        _stop_jobs(pool, running, e, log)
         raise
     pool.shutdown()
 
@@ -235,39 +241,55 @@ def _worker_ignores_sigint():
 
 
 def _pool_job(job_fn, job):
-    """A job in a pool worker, Ctrl-C heard while it runs (rl.train saves a checkpoint)."""
+    """A job in a pool worker, Ctrl-C heard once while it runs (rl.train then saves a
+    checkpoint, which a second SIGINT, the terminal's or the driver's, must not interrupt)."""
     import signal
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGINT, _interrupt_once)
     try:
         return job_fn(job)
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-#: s a stopping grid waits for its running jobs to save their checkpoints: after a Ctrl-C,
-#: which reaches every process of the terminal's group; then, after asking the jobs still
-#: running (an interrupt of the driver alone, another job's failure)
-STOP_GRACE_S, STOP_WAIT_S = 10.0, 120.0
+def _interrupt_once(signum, frame):
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
 
 
-def _stop_jobs(pool, running):
-    """Ctrl-C or a failed job: start no other job, and let the running ones end as a single
-    run's Ctrl-C ends it, with a checkpoint that --resume continues from (before, the driver
-    terminated them at once and lost the work since their last periodic checkpoint); a job
-    that does not end in time is terminated. Idle workers ignore the SIGINT sent to all."""
+#: s a stopping grid waits for its running jobs to save their checkpoints
+STOP_WAIT_S = 120.0
+
+
+def _stop_jobs(pool, running, cause, log):
+    """Ctrl-C or a failed job (``cause``): start no other job, and let the running ones end as
+    a single run's Ctrl-C ends it, with a checkpoint that --resume continues from (before, the
+    driver terminated them at once and lost the work since their last periodic checkpoint).
+    Every worker is sent SIGINT: a running job hears it once (the terminal's Ctrl-C may have
+    come first), an idle worker ignores it. A Ctrl-C while the jobs save ends the wait and
+    terminates them; after a failure, the first Ctrl-C only repeats what is under way."""
     import signal
     from concurrent.futures import wait
     procs = list((pool._processes or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
+    left = [f for f in running if not f.done()]
+    if not isinstance(cause, KeyboardInterrupt):
+        log(f"a job failed ({type(cause).__name__}: {cause}); the running ones save a checkpoint and stop")
+    spare = 0 if isinstance(cause, KeyboardInterrupt) else 1
     try:
-        left = [f for f in running if not f.done()]
-        left = wait(left, timeout=STOP_GRACE_S).not_done if left else set()
-        if left:
-            for proc in procs:
-                if proc.is_alive():
-                    os.kill(proc.pid, signal.SIGINT)
-            wait(left, timeout=STOP_WAIT_S)
-    finally:                # (a second Ctrl-C stops the wait)
+        for proc in procs:
+            if proc.is_alive():
+                os.kill(proc.pid, signal.SIGINT)
+        while left:
+            try:
+                left = list(wait(left, timeout=STOP_WAIT_S).not_done)
+                break
+            except KeyboardInterrupt:
+                if not spare:
+                    raise
+                spare -= 1
+                log("stopping: the running jobs are saving their checkpoints (Ctrl-C again to kill them)")
+    finally:
         for proc in procs:
             if proc.is_alive():
                 proc.terminate()
@@ -330,7 +352,7 @@ def run_train_grid(jobs, backend="local", workers=None, address=None, resume=Fal
             if j not in todo:
                 done(j, None)
     if todo and backend == "local":
-        _run_local(todo, workers or max(1, (os.cpu_count() or 2) // 2), done)
+        _run_local(todo, workers or max(1, (os.cpu_count() or 2) // 2), done, log=log)
     elif todo:
         _run_ray(todo, address, workers, done)
     return [j["stem"] for j in jobs]

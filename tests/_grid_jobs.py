@@ -23,10 +23,10 @@ def sleeping_job(job):
         raise
 
 
-if __name__ == "__main__":      # driver: <folder> <grace s> <seconds per job>...
+if __name__ == "__main__":      # driver: <folder> <seconds per job>...
     sys.path.insert(0, str(Path(__file__).parent))
     from controllers import train_grid
     import _grid_jobs
-    train_grid.STOP_GRACE_S = float(sys.argv[2])
-    jobs = [dict(stem=f"{sys.argv[1]}/job{i}", seconds=float(s)) for i, s in enumerate(sys.argv[3:])]
-    train_grid._run_local(jobs, 2, lambda j, r: None, job_fn=_grid_jobs.sleeping_job)
+    jobs = [dict(stem=f"{sys.argv[1]}/job{i}", seconds=float(s)) for i, s in enumerate(sys.argv[2:])]
+    train_grid._run_local(jobs, 2, lambda j, r: None, job_fn=_grid_jobs.sleeping_job,
+                          log=lambda m: print(m, file=sys.stderr, flush=True))

@@ -276,6 +276,10 @@ def test_sac_resumes_with_its_replay_buffer(tmp_path):
               hyperparams_override={"learning_starts": 100, "batch_size": 32, "gradient_steps": 1,
                                     "buffer_size": 5000})
     rl.train("sac", "track", "truth", timesteps=400, log=lambda *a: None, **kw)
+    # the record holds the YAML file's policy_kwargs, not what SB3 wrote into the dict it got
+    # (use_sde: a grid's --resume took it for another setting)
+    meta = json.loads((tmp_path / "sac-track-truth.json").read_text())
+    assert meta["hyperparams"]["policy_kwargs"] == rl.hyperparams("sac", "track")["policy_kwargs"]
     ckpts = rl._checkpoints(stem.parent / (stem.name + ".run") / "checkpoints")
     replays = sorted(ckpts[0].parent.glob("ckpt_replay_*"))
     assert replays == [rl._checkpoint_replay(ckpts[0])]            # the newest checkpoint's only

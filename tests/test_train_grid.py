@@ -90,7 +90,7 @@ def test_grid_jobs_and_bad_input(tmp_path):
     with pytest.raises(ValueError, match="workers"):
         train_grid.run_train_grid(jobs, workers=0)
     for typo in ("logs/ppo-{task}-{est}", "logs/ppo-{0}", "logs/ppo-{task", "logs/ppo-{task.name}", "p-{seed[0]}",
-                 "p-{seed:x}{}"):
+                 "p-{seed:x}{}", "p-{task:{x}}", "p-{task:{seed[0]}}", "p-{task:d}", "p-{task!x}"):
         with pytest.raises(ValueError, match=r"\{task\}, \{estimator\} and \{seed\}"):
             train_grid.grid_jobs("ppo", ["track"], ["ekf"], [0], tmp_path, init_from=typo)
         with pytest.raises(SystemExit):
@@ -156,11 +156,13 @@ def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
 @pytest.mark.parametrize("seconds, stop_at, saved, never", [
     ((1, 60), 4.0, [1], []),            # one worker idle at the Ctrl-C: its death broke the pool
     ((60, 60, 60), 3.0, [0, 1], [2]),   # the third job, queued, started after the Ctrl-C
-    ((-1, 60), None, [1], [])])         # a failed job: the other saves its checkpoint
+    ((-1, 60), None, [1], []),          # a failed job: the other saves its checkpoint
+    ((-1, 60), 1.4, [1], [])])          # ... and the user's Ctrl-C while it saves
 def test_a_stopping_grid_lets_running_jobs_save(tmp_path, seconds, stop_at, saved, never):
-    """(found by a review of the previous fix, each failing then): a Ctrl-C with an idle
-    worker or a queued job, and a failed job, stop the grid with each running job's
-    checkpoint saved (stand-in jobs, tests/_grid_jobs.py, that take 1 s to save)."""
+    """(found by reviews of the previous fixes, each failing then): a Ctrl-C with an idle
+    worker or a queued job, a failed job, and a Ctrl-C while a failed grid's jobs save, stop
+    the grid with each running job's checkpoint saved (stand-in jobs, tests/_grid_jobs.py,
+    that take 1 s to save); a failure is said, not lost."""
     import os
     import signal
     import subprocess
@@ -169,7 +171,7 @@ def test_a_stopping_grid_lets_running_jobs_save(tmp_path, seconds, stop_at, save
     driver = Path(__file__).parent / "_grid_jobs.py"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1]),
                                                        os.environ.get("PYTHONPATH", "")]))
-    p = subprocess.Popen([sys.executable, str(driver), str(tmp_path), "3.0"] + [str(s) for s in seconds],
+    p = subprocess.Popen([sys.executable, str(driver), str(tmp_path)] + [str(s) for s in seconds],
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True, env=env,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
@@ -187,6 +189,8 @@ def test_a_stopping_grid_lets_running_jobs_save(tmp_path, seconds, stop_at, save
     assert p.returncode != 0, err[-2000:]
     assert all((tmp_path / f"job{i}.ckpt").exists() for i in saved), err[-2000:]
     assert not any((tmp_path / f"job{i}.started").exists() for i in never)
+    if seconds[0] < 0:
+        assert "a job failed (ValueError: job failed)" in err and "ValueError: job failed" in err.splitlines()[-1]
 
 
 def test_ray_grid_refuses_jobs_larger_than_its_local_cluster(tmp_path, capsys):
