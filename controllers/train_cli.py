@@ -214,6 +214,28 @@ def _grid(a, ap, tasks, env_kwargs, override, timesteps, argv):
 
 
 def main(argv=None):
+    """The command line (``spherebot-train``); returns the exit status. A kill (SIGTERM, as a
+    cluster's scheduler sends before it stops a job) unwinds like Ctrl-C: a run saves its
+    checkpoint, a grid's jobs save theirs and its workers are stopped, not orphaned; the
+    status is then 143. The caller's handler is put back at the end."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return _main(argv)
+    killed = []
+
+    def on_term(*_):
+        killed.append(True)
+        raise KeyboardInterrupt
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        rc = _main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    return 143 if killed and rc == 130 else rc
+
+
+def _main(argv):
     import fusion
     ap = parser()
     a = ap.parse_args(argv)

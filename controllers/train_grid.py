@@ -214,8 +214,9 @@ def _run_local(jobs, workers, done, job_fn=None, log=print):
         for j in jobs:
             done(j, job_fn(j))
         return
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("forkserver"),
-                               initializer=_worker_ignores_sigint)
+    ctx = mp.get_context("forkserver")
+    stopping = ctx.Event()
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(stopping,))
     todo, running = list(jobs), {}
     try:
         while todo or running:
@@ -228,24 +229,33 @@ def _run_local(jobs, workers, done, job_fn=None, log=print):
             for f in finished:
                 done(running.pop(f), f.result())
     except BaseException as e:
-        _stop_jobs(pool, running, e, log)
+        _stop_jobs(pool, running, e, log, stopping)
         raise
     pool.shutdown()
 
 
-def _worker_ignores_sigint():
+_STOPPING = None        # in a pool worker: the grid's "stopping" event (_worker_init)
+
+
+def _worker_init(stopping):
     """A pool worker between jobs ignores Ctrl-C (which reaches every process of the terminal's
     group): one that died of it broke the pool, which then terminated the running jobs."""
     import signal
+    global _STOPPING
+    _STOPPING = stopping
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _pool_job(job_fn, job):
     """A job in a pool worker, Ctrl-C heard once while it runs (rl.train then saves a
-    checkpoint, which a second SIGINT, the terminal's or the driver's, must not interrupt)."""
+    checkpoint, which a second SIGINT, the terminal's or the driver's, must not interrupt).
+    A job that starts as the grid stops does not run: its worker, between jobs, ignored the
+    SIGINT, and the driver sets the event before it signals."""
     import signal
     signal.signal(signal.SIGINT, _interrupt_once)
     try:
+        if _STOPPING is not None and _STOPPING.is_set():
+            raise KeyboardInterrupt
         return job_fn(job)
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -261,34 +271,45 @@ def _interrupt_once(signum, frame):
 STOP_WAIT_S = 120.0
 
 
-def _stop_jobs(pool, running, cause, log):
-    """Ctrl-C or a failed job (``cause``): start no other job, and let the running ones end as
-    a single run's Ctrl-C ends it, with a checkpoint that --resume continues from (before, the
-    driver terminated them at once and lost the work since their last periodic checkpoint).
-    Every worker is sent SIGINT: a running job hears it once (the terminal's Ctrl-C may have
-    come first), an idle worker ignores it. A Ctrl-C while the jobs save ends the wait and
-    terminates them; after a failure, the first Ctrl-C only repeats what is under way."""
+def _stop_jobs(pool, running, cause, log, stopping):
+    """Ctrl-C, SIGTERM (SystemExit) or a failed job (``cause``): start no other job, and let the
+    running ones end as a single run's Ctrl-C ends it, with a checkpoint that --resume
+    continues from (before, the driver terminated them at once and lost the work since their
+    last periodic checkpoint). Every worker is sent SIGINT: a running job hears it once (the
+    terminal's Ctrl-C may have come first), an idle worker ignores it. A Ctrl-C while the jobs
+    save ends the wait and terminates them; after a failure, the first Ctrl-C only repeats
+    what is under way. An error a job raises while it stops is said, not dropped."""
     import signal
     from concurrent.futures import wait
     procs = list((pool._processes or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    left = [f for f in running if not f.done()]
-    if not isinstance(cause, KeyboardInterrupt):
-        log(f"a job failed ({type(cause).__name__}: {cause}); the running ones save a checkpoint and stop")
-    spare = 0 if isinstance(cause, KeyboardInterrupt) else 1
+    interrupted = isinstance(cause, (KeyboardInterrupt, SystemExit))
+    spare = 0 if interrupted else 1
     try:
+        stopping.set()
         for proc in procs:
-            if proc.is_alive():
-                os.kill(proc.pid, signal.SIGINT)
-        while left:
             try:
-                left = list(wait(left, timeout=STOP_WAIT_S).not_done)
+                os.kill(proc.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+        pool.shutdown(wait=False, cancel_futures=True)
+        left, said = [f for f in running if not f.done()], interrupted
+        while True:
+            try:
+                if not said:
+                    said = True
+                    log(f"a job failed ({type(cause).__name__}: {cause}); the running ones save a checkpoint "
+                        f"and stop")
+                left = list(wait(left, timeout=STOP_WAIT_S).not_done) if left else []
                 break
             except KeyboardInterrupt:
                 if not spare:
                     raise
                 spare -= 1
                 log("stopping: the running jobs are saving their checkpoints (Ctrl-C again to kill them)")
+        for f, job in running.items():
+            e = f.exception() if f.done() and not f.cancelled() else None
+            if e is not None and not isinstance(e, KeyboardInterrupt):
+                log(f"job {job['stem']} raised {type(e).__name__}: {e} while the grid stopped")
     finally:
         for proc in procs:
             if proc.is_alive():

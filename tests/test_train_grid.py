@@ -157,7 +157,8 @@ def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
     ((1, 60), 4.0, [1], []),            # one worker idle at the Ctrl-C: its death broke the pool
     ((60, 60, 60), 3.0, [0, 1], [2]),   # the third job, queued, started after the Ctrl-C
     ((-1, 60), None, [1], []),          # a failed job: the other saves its checkpoint
-    ((-1, 60), 1.4, [1], [])])          # ... and the user's Ctrl-C while it saves
+    ((-1, 60), 1.4, [1], []),           # ... and the user's Ctrl-C while it saves
+    ((60, "60:save_fails"), 2.0, [0], [])])   # a job whose save fails: said, not dropped
 def test_a_stopping_grid_lets_running_jobs_save(tmp_path, seconds, stop_at, saved, never):
     """(found by reviews of the previous fixes, each failing then): a Ctrl-C with an idle
     worker or a queued job, a failed job, and a Ctrl-C while a failed grid's jobs save, stop
@@ -191,6 +192,68 @@ def test_a_stopping_grid_lets_running_jobs_save(tmp_path, seconds, stop_at, save
     assert not any((tmp_path / f"job{i}.started").exists() for i in never)
     if seconds[0] < 0:
         assert "a job failed (ValueError: job failed)" in err and "ValueError: job failed" in err.splitlines()[-1]
+    if "save_fails" in str(seconds[1]):
+        assert "job1 raised OSError: disk full while saving while the grid stopped" in err, err[-2000:]
+
+
+def test_a_job_starting_as_the_grid_stops_does_not_run(tmp_path):
+    """A job submitted just before a Ctrl-C reached a worker that still ignored SIGINT (between
+    jobs), so it trained on unheard and was terminated unsaved 120 s later (a review, 1 try in
+    7 at 0.5 ms); the driver sets the grid's stopping event before it signals."""
+    import multiprocessing as mp
+    ran = []
+    stopping = mp.get_context("forkserver").Event()
+    train_grid._worker_init(stopping)
+    try:
+        stopping.set()
+        with pytest.raises(KeyboardInterrupt):
+            train_grid._pool_job(ran.append, {"stem": str(tmp_path / "j")})
+        assert ran == []
+    finally:
+        train_grid._STOPPING = None
+        import signal
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def test_sigterm_stops_a_grid_like_ctrl_c(tmp_path):
+    """SIGTERM to the spherebot-train driver (a scheduler's stop) left its pool workers training
+    on as orphans; now it unwinds as Ctrl-C: each running job saves, nothing is left, status 143."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    args = [sys.executable, "-m", "controllers.train_cli", "--algo", "ppo", "--env", "track", "--estimator",
+            "truth", "gyro", "-n", "1000000", "--n-envs", "1", "--vec-env", "single", "--save-freq", "1000000",
+            "--eval-freq", "1000000", "--n-eval-episodes", "1", "--eval-episodes", "1", "--hyperparams",
+            "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress", "--workers", "2", "-f", str(tmp_path)]
+    p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        monitors = [tmp_path / f"ppo-track-{e}.run" / "monitor" / "0.monitor.csv" for e in ("truth", "gyro")]
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not all(m.is_file() and len(m.read_text().splitlines()) > 4
+                                                      for m in monitors):
+            time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)           # the driver alone
+        rc = p.wait(timeout=150)
+        for _ in range(50):     # (what is left of the session but zombies the init reaps)
+            left = [ln.split()[0] for ln in subprocess.run(["ps", "-s", str(p.pid), "-o", "pid=,stat="],
+                                                           capture_output=True, text=True).stdout.splitlines()
+                    if "Z" not in ln.split()[1]]
+            if not left:
+                break
+            time.sleep(0.2)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    try:
+        assert rc == 143, p.stderr.read().decode()[-2000:]
+        for e in ("truth", "gyro"):
+            assert rl._latest_checkpoint(tmp_path / f"ppo-track-{e}.run" / "checkpoints") is not None, e
+        assert left == [], left
+    finally:
+        if left:
+            os.killpg(p.pid, signal.SIGKILL)
 
 
 def test_ray_grid_refuses_jobs_larger_than_its_local_cluster(tmp_path, capsys):
