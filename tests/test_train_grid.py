@@ -121,11 +121,9 @@ def test_ray_grid_equals_local(tmp_path):
     np.testing.assert_allclose(a, b, atol=1e-6)
 
 
-def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
-    """Ctrl-C (SIGINT to the terminal's process group) of a grid of 2 jobs on 2 workers: each
-    job saves a checkpoint as a single run does. Before, the driver terminated the jobs at once,
-    and --resume started both over (their periodic checkpoints were far away)."""
-    import os
+def _long_grid_training(folder):
+    """spherebot-train, a grid of 2 long jobs (truth, gyro) on 2 workers, in a session of its
+    own (its signals as a terminal's), once both jobs are training."""
     import signal
     import subprocess
     import sys
@@ -133,16 +131,26 @@ def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
     args = [sys.executable, "-m", "controllers.train_cli", "--algo", "ppo", "--env", "track", "--estimator",
             "truth", "gyro", "-n", "1000000", "--n-envs", "1", "--vec-env", "single", "--save-freq", "1000000",
             "--eval-freq", "1000000", "--n-eval-episodes", "1", "--eval-episodes", "1", "--hyperparams",
-            "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress", "--workers", "2", "-f", str(tmp_path)]
+            "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress", "--workers", "2", "-f", str(folder)]
     p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    monitors = [folder / f"ppo-track-{e}.run" / "monitor" / "0.monitor.csv" for e in ("truth", "gyro")]
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and p.poll() is None and not all(
+            m.is_file() and len(m.read_text().splitlines()) > 4 for m in monitors):
+        time.sleep(0.5)
+    assert p.poll() is None, p.stderr.read().decode()[-2000:]
+    return p
+
+
+def test_ctrl_c_of_a_local_grid_leaves_each_running_job_a_checkpoint(tmp_path):
+    """Ctrl-C (SIGINT to the terminal's process group) of a grid of 2 jobs on 2 workers: each
+    job saves a checkpoint as a single run does. Before, the driver terminated the jobs at once,
+    and --resume started both over (their periodic checkpoints were far away)."""
+    import os
+    import signal
+    p = _long_grid_training(tmp_path)
     try:
-        monitors = [tmp_path / f"ppo-track-{e}.run" / "monitor" / "0.monitor.csv" for e in ("truth", "gyro")]
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not all(m.is_file() and len(m.read_text().splitlines()) > 4
-                                                      for m in monitors):
-            time.sleep(0.5)
-        assert p.poll() is None, p.stderr.read().decode()[-2000:]
         os.killpg(p.pid, signal.SIGINT)
         rc = p.wait(timeout=150)
     finally:
@@ -221,19 +229,9 @@ def test_sigterm_stops_a_grid_like_ctrl_c(tmp_path):
     import os
     import signal
     import subprocess
-    import sys
     import time
-    args = [sys.executable, "-m", "controllers.train_cli", "--algo", "ppo", "--env", "track", "--estimator",
-            "truth", "gyro", "-n", "1000000", "--n-envs", "1", "--vec-env", "single", "--save-freq", "1000000",
-            "--eval-freq", "1000000", "--n-eval-episodes", "1", "--eval-episodes", "1", "--hyperparams",
-            "n_steps:64", "batch_size:32", "n_epochs:1", "--no-progress", "--workers", "2", "-f", str(tmp_path)]
-    p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    p = _long_grid_training(tmp_path)
     try:
-        monitors = [tmp_path / f"ppo-track-{e}.run" / "monitor" / "0.monitor.csv" for e in ("truth", "gyro")]
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not all(m.is_file() and len(m.read_text().splitlines()) > 4
-                                                      for m in monitors):
-            time.sleep(0.5)
         p.send_signal(signal.SIGTERM)           # the driver alone
         rc = p.wait(timeout=150)
         for _ in range(50):     # (what is left of the session but zombies the init reaps)
