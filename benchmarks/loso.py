@@ -222,9 +222,11 @@ def loso(name, grid, cells, base=None, log=print):
 
 def ratio_chart(results, cells, path):
     """The defaults' chart (ratio_figure): bar = the figure a candidate is chosen by (objective)."""
-    per_cell = [(f"{c.key} ({compare.ranked_by(c.set, c.mode)})",
-                 {n: [r[compare.ranked_by(c.set, c.mode)] for r in results[n][c.key]] for n in results},
-                 [r[compare.ranked_by(c.set, c.mode)] for r in c.vqf]) for c in cells]
+    per_cell = []
+    for c in cells:
+        k = compare.ranked_by(c.set, c.mode)
+        per_cell.append((f"{c.key} ({k})", {n: [r[k] for r in results[n][c.key]] for n in results},
+                         [r[k] for r in c.vqf]))
     return ratio_figure(per_cell, {n: objective(results[n], cells) for n in results}, path,
                         "mean figure (total + inclination ratio) / 2",
                         "Defaults on every recorded set: ratio to VQF (left of the dashed line: better than VQF)")

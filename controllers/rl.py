@@ -674,6 +674,13 @@ def _run_hyperparams(algo, task, override):
     return hp, copy.deepcopy(hp)
 
 
+def run_size(hp, timesteps, n_envs):
+    """(timesteps, n_envs) of a run: those given, else the hyperparameters' (``hp``: the YAML
+    entry's), whose n_envs is 2 where the entry gives none. Not checked (_check_run_size)."""
+    return (hp["n_timesteps"] if timesteps is None else timesteps,
+            hp.get("n_envs", 2) if n_envs is None else n_envs)
+
+
 def _evaluate_start(saver, venv, eval_env, ev, eval_episodes, log):
     """The starting policy (a clone or ``init_from``) is the first candidate for the best
     model: training must beat it."""
@@ -905,10 +912,9 @@ def _plan(algo, task, estimator, timesteps, seed, out, env_kwargs, resume, eval_
     choice("task", task, tuple(TASK_IDS))
     choice("estimator", estimator, tuple(fusion.available()) + ("truth",))
     hp, used_hp = _run_hyperparams(algo, task, hyperparams_override)
-    default_steps, default_envs = hp.pop("n_timesteps"), hp.pop("n_envs", 2)
-    timesteps, n_envs = _check_run_size(default_steps if timesteps is None else timesteps,
-                                        default_envs if n_envs is None else n_envs,
-                                        eval_freq, checkpoint_freq, eval_episodes)
+    timesteps, n_envs = _check_run_size(*run_size(hp, timesteps, n_envs), eval_freq, checkpoint_freq, eval_episodes)
+    hp.pop("n_timesteps")
+    hp.pop("n_envs", None)
     choice("vec_env", vec_env, VEC_ENVS)
     seed = integer("seed", seed, 0, SEED_MAX)
     clone = init_from == TEACHER and not resume

@@ -84,10 +84,9 @@ def job_done(job, meta=None) -> bool:
 
 def _resolved(job):
     """(hyperparameters, n_envs, timesteps) the job trains with: its overrides on the YAML
-    file's, and the file's n_envs and n_timesteps where the job gives none (rl._plan's rule)."""
+    file's, and the file's n_envs and n_timesteps where the job gives none (rl.run_size)."""
     hp = rl._run_hyperparams(job["algo"], job["task"], job.get("hyperparams_override"))[1]
-    n_envs = job.get("n_envs") if job.get("n_envs") is not None else hp.get("n_envs", 2)
-    timesteps = job.get("timesteps") if job.get("timesteps") is not None else hp["n_timesteps"]
+    timesteps, n_envs = rl.run_size(hp, job.get("timesteps"), job.get("n_envs"))
     return hp, n_envs, timesteps
 
 
